@@ -1,0 +1,181 @@
+"""The ``scantex`` command line: parses arguments, calls the library, shows progress.
+
+Every subcommand is a thin wrapper over the public API; errors a user can cause are printed as one
+line (``scantex: error: FILE: problem``) with a non-zero exit, and a traceback only with ``--debug``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+from pathlib import Path
+
+from scantex import __version__
+from scantex.errors import ScanError
+
+log = logging.getLogger("scantex")
+
+
+@contextlib.contextmanager
+def progress_bar(description: str, quiet: bool = False):
+    """A rich progress bar; yields a ``(done, total)`` callback for the library's progress hooks."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
+        TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                  transient=False, redirect_stdout=False) as bar:
+        task = bar.add_task(description, total=None)
+
+        def update(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        yield update
+
+
+def _echo(args, message: str) -> None:
+    if not args.quiet:
+        print(message)
+
+
+def cmd_demo_scan(args) -> int:
+    from scantex.io.atomic import atomic_dir
+    from scantex.synth import make_room, make_wall, write_demo
+
+    with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
+        update(0, 2)
+        demo = make_wall(seed=args.seed) if args.variant == "wall" else make_room(seed=args.seed)
+        update(1, 2)
+        with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
+            write_demo(demo, tmp)
+        update(2, 2)
+    _echo(args, f"demo scan ({demo.scan.summary()}) written to {args.output}/scan.obj, "
+                f"ground truth to {args.output}/ground_truth.obj")
+    return 0
+
+
+def cmd_render(args) -> int:
+    from scantex.io import load_scan
+    from scantex.io.atomic import atomic_dir
+    from scantex.views.planning import face_coverage, plan_views
+    from scantex.views.raycast import RayCaster
+    from scantex.views.viewset import render_views, write_views
+
+    scan = load_scan(args.mesh)
+    _echo(args, f"{args.mesh}: {scan.summary()}")
+    caster = RayCaster(scan.positions, scan.faces)
+    cameras = plan_views(scan, args.views, mode=args.mode, width=args.width, height=args.height,
+                         fov_deg=args.fov, seed=args.seed)
+    coverage = face_coverage(scan, cameras, caster=caster)
+    _echo(args, f"{len(cameras)} views planned ({args.mode}); {coverage.summary()}")
+    with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
+        with progress_bar("rendering", args.quiet) as update:
+            views = render_views(scan, cameras, lit=not args.unlit, supersample=args.supersample,
+                                 seed=args.seed, caster=caster, progress=update)
+        write_views(views, tmp)
+    _echo(args, f"{len(cameras)} renders and cameras.json written to {args.output}")
+    return 0
+
+
+def cmd_view(args) -> int:
+    from scantex.inspect.plotly_view import view_html
+    from scantex.io import load_scan
+
+    scan = load_scan(args.mesh)
+    out = view_html(scan, args.output, max_faces=args.max_faces)
+    _echo(args, f"interactive view of {args.mesh} written to {out}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from scantex.io import load_scan
+
+    scan = load_scan(args.mesh)
+    lo, hi = scan.bounds
+    print(f"{args.mesh}: {scan.summary()}")
+    print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
+    print(f"surface area: {scan.face_areas.sum():.4g}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="scantex",
+        description="Better textures for LiDAR-scanned meshes; the geometry stays exactly as it was.",
+        epilog="Run 'scantex COMMAND --help' for a command's options.")
+    parser.add_argument("--version", action="version", version=f"scantex {__version__}")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+    common.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("demo-scan", parents=[common], help="write the built-in synthetic demo scan",
+                       description="Write a procedural LiDAR-like scan with known ground truth: "
+                                   "DIR/scan.obj (degraded atlas: what a capture app gives you) and "
+                                   "DIR/ground_truth.obj (same geometry, ground-truth texture).")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--variant", choices=["wall", "room"], default="wall",
+                   help="a paper-scale brick wall (40k vertices, 79k faces) or a small room (default: wall)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=cmd_demo_scan)
+
+    p = sub.add_parser("render", parents=[common], help="render views of a mesh (PNG + cameras.json)",
+                       description="Plan cameras around the mesh (or in front of the side its normals "
+                                   "face, for walls and rooms), ray-cast them with Embree and write "
+                                   "view_NNN.png and cameras.json (OpenCV convention).")
+    p.add_argument("mesh", type=Path, help="mesh file (OBJ, GLB/GLTF, PLY, ...)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--views", type=int, default=8, help="number of views (default: 8)")
+    p.add_argument("--mode", choices=["auto", "orbit", "hemisphere", "surface"], default="auto",
+                   help="camera placement: around a closed object, above it, or in front of an open "
+                        "surface; auto picks (default: auto)")
+    p.add_argument("--width", type=int, default=640, help="image width in pixels (default: 640)")
+    p.add_argument("--height", type=int, default=480, help="image height in pixels (default: 480)")
+    p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees (default: 60)")
+    p.add_argument("--unlit", action="store_true",
+                   help="plain texture colour instead of the lit preview (directional light + ambient)")
+    p.add_argument("--supersample", type=int, default=2, help="rays per pixel per axis (default: 2)")
+    p.add_argument("--seed", type=int, default=0, help="random seed for planning and the split")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("view", parents=[common], help="write an interactive 3D view (self-contained HTML)",
+                       description="An offline Plotly 3D view of the mesh, coloured from its texture.")
+    p.add_argument("mesh", type=Path, help="mesh file")
+    p.add_argument("-o", "--output", type=Path, default=Path("view.html"), help="HTML file (default: view.html)")
+    p.add_argument("--max-faces", type=int, default=200_000,
+                   help="show a random subset of faces above this count (display only; default 200000)")
+    p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("info", parents=[common], help="print what a mesh file holds")
+    p.add_argument("mesh", type=Path, help="mesh file")
+    p.set_defaults(func=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s: %(message)s")
+    try:
+        return args.func(args)
+    except ScanError as e:
+        if args.debug:
+            raise
+        print(f"scantex: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("scantex: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # anything else is a bug: one line, the traceback with --debug
+        if args.debug:
+            raise
+        print(f"scantex: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1

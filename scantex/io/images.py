@@ -1,0 +1,40 @@
+"""Texture images in and out, with errors that name the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB of an image file (alpha dropped: scan textures are opaque)."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, "texture file not found")
+    # scan atlases reach 16k x 16k; Pillow's decompression-bomb guard stops at ~89 Mpx
+    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, 16384 * 16384 + 1)
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except UnidentifiedImageError:
+        raise ScanError(path, "texture is not an image Pillow can read") from None
+    except (OSError, SyntaxError, ValueError) as e:
+        raise ScanError(path, f"texture image is damaged or truncated ({e})") from None
+
+
+def image_from_pil(image, where) -> np.ndarray:
+    try:
+        return np.asarray(image.convert("RGB"))
+    except (OSError, SyntaxError, ValueError) as e:
+        raise ScanError(where, f"embedded texture image is damaged ({e})") from None
+
+
+def write_png(path: str | Path, image: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(np.ascontiguousarray(image)).save(path, format="PNG", compress_level=1)

@@ -1,0 +1,146 @@
+"""Geometry is sacred: every format's triangles come back bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from scantex.io import load_scan, save_scan
+from scantex.scan import Scan, triangle_multiset_key
+from tests.conftest import grid_wall, shared_scan, textured_cube
+
+
+def same_triangles(a: Scan, b: Scan) -> bool:
+    return np.array_equal(triangle_multiset_key(a.positions, a.faces), triangle_multiset_key(b.positions, b.faces))
+
+
+def distinct_positions(s: Scan) -> np.ndarray:
+    return np.unique(s.positions[np.unique(s.faces)], axis=0)
+
+
+def float32_scan(scan: Scan) -> Scan:
+    """The same scan with float32-representable positions (what GLB and most PLY files hold)."""
+    return Scan(scan.positions.astype(np.float32).astype(np.float64), scan.faces, scan.uvs, scan.face_uvs,
+                scan.face_materials, scan.materials)
+
+
+def test_obj_multi_material_roundtrip_is_exact(tmp_path, cube):
+    written = save_scan(cube, tmp_path / "cube.obj")
+    assert {p.name for p in written} == {"cube.obj", "cube.mtl", "tex0.png", "tex1.png"}
+    back = load_scan(tmp_path / "cube.obj")
+    # OBJ keeps positions and their indexing exactly: same arrays, not only the same triangles
+    assert np.array_equal(back.positions, cube.positions)
+    assert np.array_equal(back.faces, cube.faces)
+    assert np.array_equal(back.uvs, cube.uvs) and np.array_equal(back.face_uvs, cube.face_uvs)
+    assert np.array_equal(back.face_materials, cube.face_materials)
+    assert [m.name for m in back.materials] == ["mat0", "mat1"]
+    for m_in, m_out in zip(cube.materials, back.materials):
+        assert np.array_equal(m_in.image, m_out.image)
+
+
+def test_obj_reader_handles_split_indices_quads_negative_and_duplicates(tmp_path):
+    # duplicate positions (scanners write them), a quad, relative indices, faces without vt
+    (tmp_path / "m.obj").write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3 4/4\n"
+        "f -4/-3 -1/-2 -2/-1\n")
+    scan = load_scan(tmp_path / "m.obj")
+    assert scan.n_vertices == 5 and scan.n_faces == 3
+    assert scan.faces.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 3]]
+    assert scan.face_uvs.tolist() == [[0, 1, 2], [0, 2, 3], [1, 2, 3]]
+    save_scan(scan, tmp_path / "out.obj")
+    back = load_scan(tmp_path / "out.obj")
+    assert np.array_equal(back.positions, scan.positions) and np.array_equal(back.faces, scan.faces)
+
+
+@pytest.mark.parametrize("make", [textured_cube, grid_wall])
+def test_glb_roundtrip_keeps_float32_geometry_exactly(tmp_path, make):
+    scan = float32_scan(make())
+    save_scan(scan, tmp_path / "m.glb")
+    back = load_scan(tmp_path / "m.glb")
+    assert same_triangles(scan, back)
+    assert np.array_equal(distinct_positions(scan), distinct_positions(back))
+    assert back.n_faces == scan.n_faces
+    # and GLB -> OBJ -> GLB keeps it too
+    save_scan(back, tmp_path / "m2.obj")
+    save_scan(load_scan(tmp_path / "m2.obj"), tmp_path / "m2.glb")
+    assert same_triangles(scan, load_scan(tmp_path / "m2.glb"))
+
+
+def test_glb_texture_survives(tmp_path, cube):
+    save_scan(cube, tmp_path / "c.glb")
+    back = load_scan(tmp_path / "c.glb")
+    assert back.is_textured and len(back.materials) == 2
+    assert np.array_equal(back.materials[0].image, cube.materials[0].image)
+
+
+def test_ply_with_vertex_colours_roundtrip(tmp_path):
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    colors = np.random.default_rng(0).integers(0, 255, (len(mesh.vertices), 4), dtype=np.uint8)
+    colors[:, 3] = 255
+    mesh.visual.vertex_colors = colors
+    mesh.export(tmp_path / "s.ply")
+    scan = load_scan(tmp_path / "s.ply")
+    assert scan.vertex_colors is not None and np.array_equal(scan.vertex_colors, colors)
+    assert np.array_equal(scan.positions, np.asarray(mesh.vertices, dtype=np.float32).astype(np.float64)) or \
+        np.array_equal(scan.positions, mesh.vertices)
+    for ext in (".obj", ".glb"):
+        save_scan(scan, tmp_path / f"out{ext}")
+        back = load_scan(tmp_path / f"out{ext}")
+        assert same_triangles(scan, back), ext
+        assert np.array_equal(back.vertex_colors[:, :3], scan.vertex_colors[:, :3]), ext
+
+
+def test_ply_face_colours_are_read(tmp_path):
+    mesh = trimesh.creation.box()
+    mesh.visual.face_colors = np.tile([[200, 10, 10, 255]], (len(mesh.faces), 1))
+    mesh.export(tmp_path / "b.ply")
+    scan = load_scan(tmp_path / "b.ply")
+    assert scan.face_colors is not None and (scan.face_colors[:, 0] == 200).all()
+
+
+def test_stl_through_trimesh_keeps_triangles(tmp_path):
+    mesh = trimesh.creation.cylinder(radius=0.5, height=1.0, sections=16)
+    mesh.export(tmp_path / "c.stl")
+    scan = load_scan(tmp_path / "c.stl")
+    ref = trimesh.load(tmp_path / "c.stl", process=False)
+    assert np.array_equal(triangle_multiset_key(scan.positions, scan.faces),
+                          triangle_multiset_key(ref.vertices, ref.faces))
+    save_scan(scan, tmp_path / "c.obj")
+    assert same_triangles(scan, load_scan(tmp_path / "c.obj"))
+
+
+def test_obj_to_glb_rounds_only_to_float32(tmp_path, cube):
+    """GLB holds float32: a float64 OBJ scan's GLB triangles equal its float32-rounded triangles."""
+    save_scan(cube, tmp_path / "c.glb")
+    assert same_triangles(float32_scan(cube), load_scan(tmp_path / "c.glb"))
+
+
+@pytest.mark.parametrize("parts", [
+    ("bathroom_3dscannerapp", "textured_output.obj"),
+    ("polycam_glb", "potted_plant_on_rug_raw.glb"),
+    ("polycam_glb", "tyres_on_tiled_floor_raw.glb"),
+    ("bolster_rgbd_posed", "bloster.ply"),
+])
+def test_real_scans_roundtrip(tmp_path, parts):
+    path = shared_scan(*parts)
+    scan = load_scan(path)
+    save_scan(scan, tmp_path / "out.obj")
+    back = load_scan(tmp_path / "out.obj")
+    assert np.array_equal(back.positions, scan.positions) and np.array_equal(back.faces, scan.faces)
+    if path.suffix != ".obj":  # float32 sources survive GLB exactly too
+        save_scan(scan, tmp_path / "out.glb")
+        assert same_triangles(scan, load_scan(tmp_path / "out.glb"))
+
+
+def test_never_overwrites_the_input(tmp_path, cube):
+    save_scan(cube, tmp_path / "in.obj")
+    scan = load_scan(tmp_path / "in.obj")
+    before = (tmp_path / "in.obj").read_bytes()
+    from scantex.errors import ScanError
+
+    with pytest.raises(ScanError, match="overwrite the input"):
+        save_scan(scan, tmp_path / "in.obj")
+    assert (tmp_path / "in.obj").read_bytes() == before
