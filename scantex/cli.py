@@ -70,7 +70,7 @@ def cmd_render(args) -> int:
     _echo(args, f"{args.mesh}: {scan.summary()}")
     caster = RayCaster(scan.positions, scan.faces)
     cameras = plan_views(scan, args.views, mode=args.mode, width=args.width, height=args.height,
-                         fov_deg=args.fov, seed=args.seed)
+                         fov_deg=args.fov, seed=args.seed, up=up_axis(args.up, args.mesh), caster=caster)
     coverage = face_coverage(scan, cameras, caster=caster)
     _echo(args, f"{len(cameras)} views planned ({args.mode}); {coverage.summary()}")
     with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
@@ -80,6 +80,16 @@ def cmd_render(args) -> int:
         write_views(views, tmp)
     _echo(args, f"{len(cameras)} renders and cameras.json written to {args.output}")
     return 0
+
+
+AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
+    """The scan's up direction: glTF is y-up by specification; OBJ/PLY scans are usually z-up."""
+    if choice == "auto":
+        choice = "y" if mesh.suffix.lower() in (".glb", ".gltf") else "z"
+    return AXES[choice]
 
 
 def cmd_view(args) -> int:
@@ -138,6 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=640, help="image width in pixels (default: 640)")
     p.add_argument("--height", type=int, default=480, help="image height in pixels (default: 480)")
     p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees (default: 60)")
+    p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto",
+                   help="the scan's up axis; auto: y for GLB/GLTF (the format's rule), z otherwise")
     p.add_argument("--unlit", action="store_true",
                    help="plain texture colour instead of the lit preview (directional light + ambient)")
     p.add_argument("--supersample", type=int, default=2, help="rays per pixel per axis (default: 2)")

@@ -43,7 +43,7 @@ def grid_wall(n: int = 12, size: float = 2.0, seed: int = 0) -> Scan:
     positions = np.stack([u.ravel() * size, rng.normal(0, 0.002, n * n), v.ravel() * size], axis=1)
     idx = np.arange(n * n).reshape(n, n)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
-    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([a, d, c], 1)])
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])  # normals -y
     uvs = np.stack([u.ravel(), v.ravel()], axis=1)
     return Scan(positions, faces, uvs, faces.copy(), None, (Material("wall", checker(128, 8)),))
 

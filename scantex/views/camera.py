@@ -88,16 +88,17 @@ class Camera:
         """Rays through every pixel centre, row-major.
 
         Returns:
-            origins: ``(H * W, 3) float64``, all the camera centre.
-            directions: ``(H * W, 3) float64`` world directions with unit camera-z component, so a
+            origin: ``(3,) float64``, the camera centre (shared by all rays).
+            directions: ``(H * W, 3) float32`` world directions with unit camera-z component, so a
             hit distance along them is the pixel's depth.
         """
-        ys, xs = np.mgrid[0:self.height, 0:self.width]
-        pix = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)], axis=1)  # [H*W, 3]
-        d_cam = pix @ np.linalg.inv(self.K).T  # z = 1
-        d_world = d_cam @ self.R  # R^T applied to rows
-        origins = np.broadcast_to(self.center, d_world.shape)
-        return origins, d_world
+        # R^T K^-1 [x, y, 1] = A x + B y + C: built by broadcasting, no (H*W, 3) float64 temporaries
+        M = self.R.T @ np.linalg.inv(self.K)
+        A, B, C = (M[:, k].astype(np.float32) for k in range(3))
+        xs = np.arange(self.width, dtype=np.float32)[None, :, None]
+        ys = np.arange(self.height, dtype=np.float32)[:, None, None]
+        directions = xs * A + (ys * B + C)  # [H, W, 3]
+        return self.center.copy(), directions.reshape(-1, 3)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(N, 2)`` and depths ``(N,)`` of world points ``(N, 3)``."""

@@ -15,8 +15,8 @@ import numpy as np
 
 from scantex.views.camera import Camera
 
-#: rays per embree call; 256k rays take ~30 MB of buffers
-CHUNK = 1 << 18
+#: rays per Embree call: 64k rays take ~4 MB of buffers and split well over threads
+CHUNK = 1 << 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,9 +54,15 @@ class RayCaster:
         self.threads = max(1, min(2, os.cpu_count() or 1))
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """First hits of rays ``origins + t * directions`` (``(N, 3)`` each), ``t > 0``."""
+        """First hits of rays ``origins + t * directions``, ``t > 0``.
+
+        Args:
+            origins: ``(N, 3)``, or ``(3,)`` for rays from one point (a camera).
+            directions: ``(N, 3)``; need not be unit length.
+        """
         origins = np.asarray(origins, dtype=np.float64)
-        directions = np.asarray(directions, dtype=np.float64)
+        directions = np.asarray(directions)
+        shared_origin = origins.ndim == 1
         N = len(directions)
         face_id = np.empty(N, dtype=np.int32)
         bary = np.empty((N, 2), dtype=np.float32)
@@ -64,8 +70,12 @@ class RayCaster:
 
         def run(start: int) -> None:
             stop = min(start + CHUNK, N)
-            o = (np.broadcast_to(origins, (N, 3))[start:stop] - self.origin).astype(np.float32)
-            d = directions[start:stop].astype(np.float32)
+            if shared_origin:
+                o = np.empty((stop - start, 3), dtype=np.float32)
+                o[:] = (origins - self.origin).astype(np.float32)
+            else:
+                o = (origins[start:stop] - self.origin).astype(np.float32)
+            d = np.ascontiguousarray(directions[start:stop], dtype=np.float32)
             out = self._scene.run(o, d, output=1)
             face_id[start:stop] = out["primID"]
             bary[start:stop, 0] = out["u"]
@@ -74,7 +84,7 @@ class RayCaster:
 
         starts = range(0, N, CHUNK)
         if self.threads > 1 and N > CHUNK:
-            with ThreadPoolExecutor(self.threads) as pool:
+            with ThreadPoolExecutor(self.threads) as pool:  # Embree releases the GIL
                 list(pool.map(run, starts))
         else:
             for s in starts:
@@ -82,7 +92,6 @@ class RayCaster:
         miss = face_id < 0
         t[miss] = np.inf
         bary[miss] = 0
-        face_id[miss] = -1
         return Hits(face_id, bary, t)
 
 
@@ -144,8 +153,7 @@ def cast_gbuffer(caster: RayCaster, camera: Camera, face_normals: np.ndarray) ->
     hits = caster.intersect(origins, directions)
     H, W = camera.height, camera.width
     face_id = hits.face_id.reshape(H, W)
-    normal = np.zeros((H * W, 3), dtype=np.float32)
-    hit = hits.face_id >= 0
-    normal[hit] = face_normals[hits.face_id[hit]]
+    normal = np.asarray(face_normals, dtype=np.float32)[hits.face_id]  # -1 picks the last row...
+    normal[hits.face_id < 0] = 0  # ...so misses are cleared
     # directions have unit camera-z, so the ray parameter is the depth
     return GBuffer(face_id, hits.bary.reshape(H, W, 2), hits.t.reshape(H, W), normal.reshape(H, W, 3))
