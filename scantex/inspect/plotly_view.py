@@ -10,12 +10,11 @@ colours. plotly.js is embedded, so the file opens offline.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from scantex.io.atomic import atomic_files
 from scantex.scan import Scan
 from scantex.views.render import shade_hits, to_uint8
 
@@ -81,14 +80,8 @@ def view_html(scan: Scan, path: str | Path, *, max_faces: int = 200_000, title: 
     html = pio.to_html(figure, include_plotlyjs=True, full_html=True)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(html)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_files() as files:
+        files.path(path).write_text(html, encoding="utf-8")
     return path
 
 

@@ -68,6 +68,9 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
         raise OutputExistsError(final, "already exists (pass --overwrite to replace it)")
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the output is the user's ordinary folder
     try:
         yield tmp
     except BaseException:

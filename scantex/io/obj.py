@@ -254,7 +254,7 @@ def write_obj(scan: Scan, obj_path: Path, files) -> None:
     tex_names = texture_names(scan, stem)
     mat_names = [re.sub(r"\s+", "_", m.name) or f"material_{i}" for i, m in enumerate(scan.materials)]
 
-    mtl = [f"# written by scantex\n"]
+    mtl = ["# written by scantex\n"]
     for m, name, tex in zip(scan.materials, mat_names, tex_names):
         r, g, b, a = m.diffuse
         mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")

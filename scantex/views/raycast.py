@@ -57,11 +57,13 @@ class RayCaster:
         """First hits of rays ``origins + t * directions``, ``t > 0``.
 
         Args:
-            origins: ``(N, 3)``, or ``(3,)`` for rays from one point (a camera).
+            origins: ``(N, 3)``, or ``(3,)`` / ``(1, 3)`` for rays from one point (a camera).
             directions: ``(N, 3)``; need not be unit length.
         """
         origins = np.asarray(origins, dtype=np.float64)
         directions = np.asarray(directions)
+        if origins.shape == (1, 3):
+            origins = origins[0]
         shared_origin = origins.ndim == 1
         N = len(directions)
         face_id = np.empty(N, dtype=np.int32)
