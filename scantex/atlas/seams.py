@@ -102,7 +102,8 @@ def seam_visibility(scan: Scan, edges: SeamEdges | None = None, samples_per_edge
     """Mean absolute RGB difference (0-255 scale) between the two sides of every seam.
 
     Points along each seam edge are looked up in the atlas through each of its two faces; each lookup
-    is moved ``inset_texels`` into its own face so that it reads the chart's texels, not the gutter.
+    is moved ``inset_texels`` into its own face, perpendicular to the edge, so that it reads the
+    chart's texels, not the gutter.
     """
     edges = seam_edges(scan) if edges is None else edges
     if len(edges) == 0 or not scan.is_textured:
@@ -115,7 +116,7 @@ def seam_visibility(scan: Scan, edges: SeamEdges | None = None, samples_per_edge
         uv_tri = scan.uvs[scan.face_uvs[f]]  # [E, 3, 2]
         rows = np.arange(len(f))
         p0, p1 = uv_tri[rows, c0], uv_tri[rows, c1]
-        centroid = uv_tri.mean(axis=1)
+        opposite = uv_tri[rows, 3 - c0 - c1]
         pts = p0[:, None] + t[None, :, None] * (p1 - p0)[:, None]  # [E, S, 2]
         mat = scan.face_materials[f]
         colours = np.zeros(pts.shape[:2] + (3,), np.float32)
@@ -124,10 +125,16 @@ def seam_visibility(scan: Scan, edges: SeamEdges | None = None, samples_per_edge
             if material.image is None or sel.size == 0:
                 continue
             H, W = material.image.shape[:2]
-            towards = centroid[sel, None] - pts[sel]
-            dist = np.linalg.norm(towards * [W, H], axis=-1, keepdims=True)
-            step = np.divide(inset_texels, dist, out=np.zeros_like(dist), where=dist > 0)
-            inset = pts[sel] + towards * np.minimum(step, 0.5)
+            px = np.array([W, H], np.float64)
+            # step perpendicular to the edge, in texels, towards the face's third corner; at most half
+            # the face's height so the lookup stays inside the face
+            e = (p1[sel] - p0[sel]) * px
+            normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
+            length = np.linalg.norm(normal, axis=1, keepdims=True)
+            normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+            height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
+            step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
+            inset = pts[sel] + (normal * step / px)[:, None, :]
             colours[sel] = sample_texture(material.image, inset.reshape(-1, 2))[:, :3].reshape(len(sel), -1, 3)
         diffs.append(colours)
     return float(np.abs(diffs[0] - diffs[1]).mean() * 255.0)

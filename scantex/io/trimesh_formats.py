@@ -137,7 +137,7 @@ def write_glb(scan: Scan, path: Path, files) -> None:
 
     f32 = scan.positions.astype(np.float32)
     if not np.array_equal(f32.astype(np.float64), scan.positions):
-        log.warning("%s: glTF stores float32 positions; this scan's float64 coordinates are rounded "
+        log.info("%s: glTF stores float32 positions; this scan's float64 coordinates are rounded "
                     "in the GLB (the OBJ output keeps them exactly)", path)
     scene = trimesh.Scene()
     for m, material in enumerate(scan.materials):

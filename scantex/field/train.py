@@ -1,0 +1,165 @@
+"""Fitting the radiance field to views of the scan.
+
+Rays come from the views' G-buffers: each pixel that sees a usable face (textured, not a hole) gives
+a ray, the depth of the surface it hits (for mesh-guided sampling) and the colour to match. The loop
+samples random batches, renders them through the field within a band around the surface, applies the
+ray's chart transform and minimises the squared error; checkpoints make it resumable.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from scantex.field.appearance import ChartAppearance
+from scantex.field.model import FieldConfig, RadianceField
+from scantex.field.volume import BoxNormaliser, render_rays
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class RayDataset:
+    """Training rays.
+
+    Attributes:
+        origins: ``(R, 3) float32`` ray origins (camera centres), world.
+        directions: ``(R, 3) float32`` directions with unit camera-z, so ``depth`` is a ray parameter.
+        depth: ``(R,) float32`` the mesh surface's depth along each ray.
+        rgb: ``(R, 3) float32`` target colours in [0, 1].
+        chart: ``(R,) int64`` the input atlas chart each ray sees.
+    """
+
+    origins: np.ndarray
+    directions: np.ndarray
+    depth: np.ndarray
+    rgb: np.ndarray
+    chart: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.depth)
+
+    @staticmethod
+    def concatenate(parts: list[RayDataset]) -> RayDataset:
+        return RayDataset(*(np.concatenate([getattr(p, k) for p in parts])
+                            for k in ("origins", "directions", "depth", "rgb", "chart")))
+
+
+@dataclass(frozen=True, eq=False)
+class FittedField:
+    """A trained field with what is needed to query it in world coordinates."""
+
+    field: RadianceField
+    appearance: ChartAppearance | None
+    normaliser: BoxNormaliser
+    n_samples: int
+    band: float
+    losses: np.ndarray
+    seconds: float
+    steps_run: int
+
+    @torch.no_grad()
+    def surface_colour(self, points: np.ndarray, normals: np.ndarray, device: torch.device) -> np.ndarray:
+        """Canonical colour ``(N, 3)`` at surface ``points (N, 3)`` with unit ``normals (N, 3)``.
+
+        The field is rendered along a short ray that crosses the surface along its normal, the way
+        training rays crossed it, so a banded (volumetric) field bakes what it renders.
+        """
+        n = torch.as_tensor(normals, dtype=torch.float32, device=device)
+        p = torch.as_tensor(points, dtype=torch.float32, device=device)
+        half = 0.5 * self.band
+        origins = p + n * half
+        rgb, _ = render_rays(self.field, origins, -n, torch.full((len(p),), half, device=device),
+                             self.n_samples, self.band, self.normaliser, stratified=False)
+        return rgb.clamp(0, 1).cpu().numpy()
+
+
+Progress = Callable[[int, int], None]
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldConfig, train,
+              n_charts: int, band: float, *, device: torch.device, seed: int = 0, progress: Progress | None = None,
+              checkpoint: Path | None = None, resume: bool = False) -> FittedField:
+    """Train a :class:`RadianceField` (and per-chart appearance) on ``data``.
+
+    Args:
+        train: a :class:`scantex.pipeline.config.TrainConfig`.
+        band: width of the sampling band around the surface, world units.
+        checkpoint: file to save state to every ``train.checkpoint_every`` steps; with ``resume``,
+            training continues from it when it exists.
+    """
+    torch.manual_seed(seed)
+    gen = torch.Generator(device="cpu").manual_seed(seed)
+    field = RadianceField(field_config).to(device)
+    counts = torch.bincount(torch.as_tensor(data.chart), minlength=n_charts)
+    appearance = ChartAppearance(n_charts, counts).to(device) if train.appearance else None
+    groups = [{"params": field.parameters(), "lr": train.lr}]
+    if appearance is not None:
+        groups.append({"params": appearance.parameters(), "lr": train.appearance_lr})
+    optim = torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15)
+    # exponential decay to 10 % of the learning rate by the last step
+    sched = torch.optim.lr_scheduler.LambdaLR(optim, lambda s: 0.1 ** (s / max(1, train.steps)))
+
+    start, losses = 0, []
+    if resume and checkpoint is not None and checkpoint.exists():
+        state = torch.load(checkpoint, map_location=device, weights_only=True)
+        field.load_state_dict(state["field"])
+        if appearance is not None and "appearance" in state:
+            appearance.load_state_dict(state["appearance"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        gen.set_state(state["rng"])
+        start, losses = int(state["step"]), state["losses"].tolist()
+        log.info("resuming field training at step %d of %d", start, train.steps)
+
+    origins = torch.as_tensor(data.origins, device=device)
+    directions = torch.as_tensor(data.directions, device=device)
+    depth = torch.as_tensor(data.depth, device=device)
+    target = torch.as_tensor(data.rgb, device=device)
+    chart = torch.as_tensor(data.chart, device=device)
+    R = len(data)
+    t0 = time.perf_counter()
+    for step in range(start, train.steps):
+        idx = torch.randint(0, R, (min(train.batch_rays, R),), generator=gen).to(device)
+        rgb, _ = render_rays(field, origins[idx], directions[idx], depth[idx], train.n_samples, band,
+                             normaliser, stratified=True)
+        if appearance is not None:
+            rgb = appearance(rgb, chart[idx])
+        loss = torch.mean((rgb - target[idx]) ** 2)
+        total = loss + (train.appearance_reg * appearance.regulariser() if appearance is not None else 0.0)
+        optim.zero_grad(set_to_none=True)
+        total.backward()
+        optim.step()
+        sched.step()
+        losses.append(loss.item())
+        if progress:
+            progress(step + 1, train.steps)
+        if checkpoint is not None and (step + 1) % train.checkpoint_every == 0 and step + 1 < train.steps:
+            _save(checkpoint, field, appearance, optim, sched, gen, step + 1, losses)
+    seconds = time.perf_counter() - t0
+    field.eval()
+    return FittedField(field, appearance, normaliser, train.n_samples, band, np.array(losses), seconds,
+                       steps_run=train.steps - start)
+
+
+def _save(path: Path, field, appearance, optim, sched, gen, step: int, losses: list[float]) -> None:
+    state = {"field": field.state_dict(), "optim": optim.state_dict(), "sched": sched.state_dict(),
+             "rng": gen.get_state(), "step": step, "losses": torch.tensor(losses)}
+    if appearance is not None:
+        state["appearance"] = appearance.state_dict()
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)

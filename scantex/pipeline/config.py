@@ -1,0 +1,179 @@
+"""One config dataclass per stage, composed into :class:`EnhanceConfig`; named presets.
+
+Every field's docstring (the string right after it) is the ``--help`` text of the matching option.
+The resolved config is written as ``config.json`` next to every output and loads back with
+:func:`load_config` (plain JSON; nothing executable).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from dataclasses import field as default
+from pathlib import Path
+
+from scantex.errors import ScanError
+
+
+@dataclass(frozen=True)
+class ViewsConfig:
+    n_views: int = 24
+    """number of synthetic views rendered from the scan (80 % train, 20 % held out)"""
+    width: int = 320
+    """render width in pixels"""
+    height: int = 240
+    """render height in pixels"""
+    fov_deg: float = 60.0
+    """horizontal field of view of the views, degrees"""
+    mode: str = "auto"
+    """camera placement: auto, orbit, hemisphere or surface"""
+    up: str = "auto"
+    """the scan's up axis (x, y, z); auto: y for glTF, z otherwise"""
+    supersample: int = 2
+    """rays per pixel per axis when rendering the training views"""
+    test_fraction: float = 0.2
+    """share of views held out for scoring"""
+    adaptive: bool = True
+    """add views where per-face coverage is low (the paper's future work)"""
+
+
+@dataclass(frozen=True)
+class FieldSettings:
+    encoding: str = "hash"
+    """positional encoding of the field: hash (multiresolution hash grid) or frequency (the paper's)"""
+    hidden: int = 64
+    """width of the field's MLP"""
+    n_layers: int = 3
+    """layers of the field's MLP (a skip connection re-injects the encoding)"""
+    log2_table_size: int = 19
+    """hash grid: log2 of entries per level"""
+    n_levels: int = 16
+    """hash grid: resolution levels"""
+    max_resolution: int = 2048
+    """hash grid: finest grid resolution over the scan's bounding box"""
+    n_freqs: int = 10
+    """frequency encoding: octaves"""
+    use_viewdirs: bool = False
+    """feed the view direction to the colour head (textures are view-independent; off by default)"""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    steps: int = 1500
+    """optimisation steps"""
+    batch_rays: int = 8192
+    """rays per step"""
+    lr: float = 1e-2
+    """Adam learning rate of the field"""
+    n_samples: int = 1
+    """samples per ray inside the band around the surface (1: a surface colour field)"""
+    band_width: float = 0.01
+    """width of the sampling band around the mesh surface, as a share of the bounding-box diagonal"""
+    appearance: bool = True
+    """learn a per-chart affine colour transform so exposure jumps between charts stay out of the field"""
+    appearance_lr: float = 2e-3
+    """Adam learning rate of the per-chart colour transforms"""
+    appearance_reg: float = 1.0
+    """weight keeping the charts' mean gain at 1 and mean offset at 0"""
+    checkpoint_every: int = 250
+    """steps between checkpoints (for --resume)"""
+
+
+@dataclass(frozen=True)
+class BakeConfig:
+    texture_size: int = 0
+    """output atlas size in texels (0: twice the input atlas, at most 8192)"""
+    chunk: int = 16384
+    """texels evaluated per field call (bounded memory)"""
+
+
+@dataclass(frozen=True)
+class EnhanceConfig:
+    preset: str = "default"
+    """the preset these settings started from"""
+    seed: int = 0
+    """random seed (views, split, training)"""
+    device: str = "auto"
+    """torch device: auto (CUDA when present), cpu or cuda"""
+    threads: int = 0
+    """CPU threads for torch (0: all cores)"""
+    views: ViewsConfig = default(default_factory=ViewsConfig)
+    field: FieldSettings = default(default_factory=FieldSettings)
+    train: TrainConfig = default(default_factory=TrainConfig)
+    bake: BakeConfig = default(default_factory=BakeConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
+        subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "bake": BakeConfig}
+        kwargs = {}
+        for key, value in d.items():
+            if key in subs:
+                kwargs[key] = _build(subs[key], value, where, key)
+            elif key in {f.name for f in dataclasses.fields(cls)}:
+                kwargs[key] = value
+            else:
+                raise ScanError(where, f"unknown config key '{key}'")
+        return cls(**kwargs)
+
+    def override(self, **dotted) -> EnhanceConfig:
+        """A copy with ``section__name=value`` (or top-level ``name=value``) settings changed."""
+        cfg = self
+        for key, value in dotted.items():
+            if value is None:
+                continue
+            section, _, name = key.partition("__")
+            if name:
+                cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(getattr(cfg, section), **{name: value})})
+            else:
+                cfg = dataclasses.replace(cfg, **{section: value})
+        return cfg
+
+
+def _build(cls, values: dict, where, section: str):
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        raise ScanError(where, f"unknown config key '{section}.{sorted(unknown)[0]}'")
+    return cls(**values)
+
+
+PRESETS: dict[str, EnhanceConfig] = {
+    "fast": EnhanceConfig(
+        preset="fast",
+        views=ViewsConfig(n_views=16, width=256, height=192, adaptive=False),
+        field=FieldSettings(hidden=32, n_layers=2, n_levels=12, log2_table_size=18),
+        train=TrainConfig(steps=500, batch_rays=8192),
+    ),
+    "default": EnhanceConfig(),
+    "best": EnhanceConfig(
+        preset="best",
+        views=ViewsConfig(n_views=40, width=480, height=360),
+        field=FieldSettings(hidden=64, n_layers=3, log2_table_size=20, max_resolution=4096),
+        train=TrainConfig(steps=5000, batch_rays=16384),
+    ),
+}
+
+
+def preset(name: str) -> EnhanceConfig:
+    if name not in PRESETS:
+        raise ScanError(None, f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
+    return PRESETS[name]
+
+
+def load_config(path: str | Path) -> EnhanceConfig:
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScanError(path, "config file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ScanError(path, f"not a JSON config ({e})") from None
+    return EnhanceConfig.from_dict(d, path)
+
+
+def save_config(config: EnhanceConfig, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(config.to_dict(), indent=2))

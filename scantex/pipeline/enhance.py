@@ -1,0 +1,315 @@
+"""``enhance``: the whole pipeline, stage after stage, on one scan.
+
+views (plan, ray-cast, render, split 80/20) -> rays -> field (fit) -> bake into the scan's own UV
+layout -> metrics. Each stage is a function of its own module; this one only wires them and times them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scantex.atlas.bake import bake
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
+from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.metrics.geometry import geometry_identity
+from scantex.metrics.image import psnr, ssim
+from scantex.pipeline.config import EnhanceConfig
+from scantex.scan import Material, Scan
+from scantex.views.camera import Camera
+from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
+from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.render import downsample, render, render_gbuffer
+from scantex.views.viewset import ViewSet, split_train_test
+
+log = logging.getLogger(__name__)
+
+Update = Callable[[int, int], None]
+
+
+class Reporter:
+    """How the pipeline reports progress: one ``stage`` context per stage, yielding an update callback.
+
+    The default reports nothing; the CLI passes one that draws progress bars.
+    """
+
+    @contextlib.contextmanager
+    def stage(self, name: str) -> Iterator[Update]:
+        yield lambda done, total: None
+
+
+@dataclass(frozen=True, eq=False)
+class TrainingViews:
+    """Rendered views with what training needs from their G-buffers."""
+
+    views: ViewSet
+    face_id: np.ndarray  # [N, H, W] int32 centre-sample face, -1 where unusable
+    depth: np.ndarray  # [N, H, W] float32 mean depth of the sub-samples
+    valid: np.ndarray  # [N, H, W] bool: every sub-sample sees the same usable surface
+
+
+@dataclass(frozen=True, eq=False)
+class EnhanceResult:
+    """What ``enhance`` made: the new scan (same geometry), its metrics and the renders used."""
+
+    scan: Scan
+    metrics: dict
+    config: EnhanceConfig
+    views: TrainingViews
+    comparisons: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
+    axes = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+    if choice == "auto":
+        suffix = Path(scan.source).suffix.lower() if scan.source else ""
+        choice = "y" if suffix in (".glb", ".gltf") else "z"  # glTF is y-up by specification
+    return axes[choice]
+
+
+def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray, supersample: int,
+                          caster: RayCaster, test_fraction: float, seed: int,
+                          update: Update) -> TrainingViews:
+    """Unlit renders (box-filtered supersamples) plus per-pixel validity for training."""
+    s = supersample
+    images, alpha, fids, depths, valids = [], [], [], [], []
+    normals = scan.face_normals
+    for i, cam in enumerate(cameras):
+        g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, normals)
+        rgb = render_gbuffer(scan, g)
+        H, W = cam.height, cam.width
+        fid = g.face_id.reshape(H, s, W, s)
+        ok = fid >= 0
+        ok &= usable[np.where(fid >= 0, fid, 0)]
+        hit = g.mask.reshape(H, s, W, s)
+        depth = g.depth.reshape(H, s, W, s)
+        n_hit = hit.sum(axis=(1, 3))
+        mean_depth = np.where(hit, depth, 0).sum(axis=(1, 3)) / np.maximum(n_hit, 1)
+        spread = np.where(hit, depth, -np.inf).max(axis=(1, 3)) - np.where(hit, depth, np.inf).min(axis=(1, 3))
+        # a pixel is a clean sample of one surface when all its sub-samples hit usable faces at
+        # nearly the same depth (no silhouette, no hole border)
+        valid = ok.all(axis=(1, 3)) & (spread < 0.02 * mean_depth)
+        images.append(downsample(rgb, s))
+        alpha.append(downsample(g.mask.astype(np.float32)[..., None], s)[..., 0])
+        fids.append(fid[:, s // 2, :, s // 2])
+        depths.append(mean_depth.astype(np.float32))
+        valids.append(valid)
+        update(i + 1, len(cameras))
+    train, test = split_train_test(len(cameras), test_fraction, seed)
+    views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test)
+    return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
+
+
+def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarray):
+    """Training rays of the views ``indices`` (see :class:`scantex.field.train.RayDataset`)."""
+    from scantex.field.train import RayDataset
+
+    parts = []
+    for i in indices:
+        cam = tv.views.cameras[i]
+        _, directions = cam.pixel_rays()
+        valid = tv.valid[i].reshape(-1)
+        n = int(valid.sum())
+        parts.append(RayDataset(
+            origins=np.broadcast_to(cam.center.astype(np.float32), (n, 3)).copy(),
+            directions=directions[valid],
+            depth=tv.depth[i].reshape(-1)[valid],
+            rgb=tv.views.images[i].reshape(-1, 3)[valid].astype(np.float32),
+            chart=chart_of_face[tv.face_id[i].reshape(-1)[valid]].astype(np.int64),
+        ))
+    return RayDataset.concatenate(parts)
+
+
+def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], scans: dict[str, Scan],
+                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = 2) -> dict:
+    """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
+
+    Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
+    one of ``hole_faces`` (what the input left black).
+    """
+    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "hole_psnr": []} for name in scans}
+    hole_pixels = {name: [] for name in scans}
+    for cam in cameras:
+        ref, ref_alpha = reference(cam)
+        mask = ref_alpha >= 0.999
+        g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
+        holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
+        for name, scan in scans.items():
+            img, _ = render(scan, cam, caster, supersample=supersample)
+            out[name]["psnr"].append(psnr(img, ref, mask))
+            out[name]["ssim"].append(ssim(img, ref, mask))
+            out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))
+            if holes.any():
+                hole_pixels[name].append(((img - ref) ** 2)[holes])
+    result = {}
+    for name in scans:
+        r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
+        if hole_pixels[name]:
+            e = float(np.concatenate(hole_pixels[name]).mean())
+            r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")
+        result[name] = r
+    return result
+
+
+def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, device):
+    """The field's colour, except on ``fill`` faces (untaught: holes and their border), which get a
+    harmonic interpolation of the field's colours at the surrounding vertices."""
+    taught = np.zeros(scan.n_vertices, bool)
+    taught[scan.faces[~fill].ravel()] = True
+    vertex_normals = np.zeros((scan.n_vertices, 3))
+    np.add.at(vertex_normals, scan.faces[~fill].ravel(), np.repeat(scan.face_normals[~fill], 3, axis=0))
+    length = np.linalg.norm(vertex_normals, axis=1, keepdims=True)
+    vertex_normals = np.divide(vertex_normals, length, out=np.zeros_like(vertex_normals), where=length > 0)
+    known = np.zeros((scan.n_vertices, 3))
+    idx = np.flatnonzero(taught)
+    for s in range(0, idx.size, 16384):
+        sel = idx[s:s + 16384]
+        known[sel] = fitted.surface_colour(scan.positions[sel], vertex_normals[sel], device)
+    vertex_rgb = harmonic_vertex_colours(scan, taught, known) if fill.any() else known
+
+    def colour(points, normals, face_ids, bary):
+        rgb = fitted.surface_colour(points, normals, device)
+        hole = fill[face_ids]
+        if hole.any():
+            corners = vertex_rgb[scan.faces[face_ids[hole]]]  # [n, 3, 3]
+            b = bary[hole].astype(np.float64)
+            w = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)
+            rgb[hole] = np.einsum("nk,nkc->nc", w, corners)
+        return rgb
+
+    return colour
+
+
+def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
+            work_dir: str | Path | None = None, resume: bool = False,
+            reporter: Reporter | None = None) -> EnhanceResult:
+    """Enhance ``scan``'s texture; its positions and faces are returned untouched.
+
+    Args:
+        scan: the input scan (with UVs: the input layout is kept).
+        config: all settings (see :mod:`scantex.pipeline.config` and its presets).
+        ground_truth: the same geometry with the true texture, when known (synthetic scans): held-out
+            views are then scored against it, for the input and for the result.
+        work_dir: where field checkpoints go (for ``resume``).
+        resume: continue from the checkpoint in ``work_dir`` if there is one.
+        reporter: progress reporting (default: silent).
+    """
+    import torch
+
+    from scantex.field.model import FieldConfig
+    from scantex.field.train import fit_field, resolve_device
+    from scantex.field.volume import BoxNormaliser
+
+    reporter = reporter or Reporter()
+    if not scan.has_uvs:
+        from scantex.errors import ScanError
+
+        raise ScanError(scan.source, "the mesh has no texture coordinates; mesh-only enhancement keeps the "
+                                     "input UV layout (unwrapping comes with --uv unwrap)")
+    if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
+                                     or ground_truth.faces.shape != scan.faces.shape):
+        from scantex.errors import ScanError
+
+        raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
+    torch.set_num_threads(config.threads or os.cpu_count() or 1)
+    device = resolve_device(config.device)
+    timings: dict[str, float] = {}
+    rng_seed = config.seed
+    vc, tc = config.views, config.train
+
+    t = time.perf_counter()
+    caster = RayCaster(scan.positions, scan.faces)
+    holes = untextured_faces(scan)
+    # bilinear lookups at a hole's border read its black texels: keep one ring of faces out of training
+    excluded = grow_faces(scan, holes, rings=1)
+    charts = uv_shells(scan)
+    up = up_axis(scan, vc.up)
+    with reporter.stage("planning views") as update:
+        cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height,
+                             fov_deg=vc.fov_deg, seed=rng_seed, up=up, caster=caster)
+        if vc.adaptive:
+            cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4),
+                                             up=up, seed=rng_seed, caster=caster)
+        coverage = face_coverage(scan, cameras, caster=caster)
+        update(1, 1)
+    timings["plan"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    with reporter.stage("rendering views") as update:
+        tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
+                                   rng_seed, update)
+    timings["render"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    data = gather_rays(tv, charts, tv.views.train)
+    lo, hi = scan.bounds
+    normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
+    band = tc.band_width * float(np.linalg.norm(hi - lo))
+    fs = config.field
+    field_config = FieldConfig(encoding=fs.encoding, hidden=fs.hidden, n_layers=fs.n_layers,
+                               skip_at=fs.n_layers // 2,
+                               log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
+                               max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
+                               use_viewdirs=fs.use_viewdirs)
+    checkpoint = Path(work_dir) / "field.pt" if work_dir is not None else None
+    with reporter.stage("training the field") as update:
+        fitted = fit_field(data, normaliser, field_config, tc, int(charts.max()) + 1, band, device=device,
+                           seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume)
+    timings["train"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    with reporter.stage("baking the texture") as update:
+        colour = surface_colour_with_fill(scan, fitted, excluded, device)
+        images = bake(scan, colour, size=config.bake.texture_size, chunk=config.bake.chunk, progress=update)
+    materials = tuple(
+        m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
+                                                  diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
+        for m, img in zip(scan.materials, images))
+    enhanced = scan.replace(materials=materials, source=None)
+    timings["bake"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    with reporter.stage("measuring") as update:
+        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
+        update(1, 1)
+    timings["metrics"] = time.perf_counter() - t
+    metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
+    metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
+    return EnhanceResult(enhanced, metrics, config, tv)
+
+
+def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
+            charts: np.ndarray, caster: RayCaster, coverage, fitted) -> dict:
+    """The run's metrics: geometry identity always; texture scores on the held-out views."""
+    edges = seam_edges(scan)
+    metrics: dict = {
+        "geometry": geometry_identity(scan, enhanced),
+        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "charts": int(charts.max()) + 1,
+                  "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
+        "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
+                  "coverage": coverage.summary()},
+        "field": {"train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run, "final_loss": float(np.mean(fitted.losses[-50:])),
+                  "train_rays": int(tv.valid[tv.views.train].sum())},
+        "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
+                            "enhanced": round(seam_visibility(enhanced, edges), 3)},
+    }
+    test_cams = [tv.views.cameras[i] for i in tv.views.test]
+    if ground_truth is not None:
+        metrics["held_out_vs_ground_truth"] = score_views(
+            lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
+            test_cams, caster, holes)
+    else:
+        # no truth: how faithfully the result reproduces the input where the input has colour
+        metrics["held_out_vs_input"] = score_views(
+            lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},
+            test_cams, caster, holes)
+    return metrics

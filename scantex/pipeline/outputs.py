@@ -1,0 +1,40 @@
+"""Writing an enhance run's outputs into a folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from scantex.io import save_scan
+from scantex.pipeline.config import save_config
+from scantex.views.viewset import write_views
+
+
+def work_dir_for(output: Path) -> Path:
+    """Where an unfinished run keeps its checkpoints (kept for --resume until the run completes)."""
+    return output.with_name(output.name + ".partial")
+
+
+def write_outputs(result, out_dir: str | Path) -> None:
+    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``."""
+    out_dir = Path(out_dir)
+    save_scan(result.scan, out_dir / "enhanced.obj")
+    save_scan(result.scan, out_dir / "enhanced.glb")
+    (out_dir / "metrics.json").write_text(json.dumps(result.metrics, indent=2, default=_json))
+    save_config(result.config, out_dir / "config.json")
+    write_views(result.views.views, out_dir / "renders")
+
+
+def _json(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(type(value))
+
+
+def save_png(path: Path, image: np.ndarray) -> None:
+    Image.fromarray(image).save(path)

@@ -1,0 +1,130 @@
+"""UV shells and seams, hole detection, harmonic fill, gutter padding and baking."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from scantex.atlas.bake import bake
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
+from scantex.atlas.padding import pad_gutters
+from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.scan import Material, Scan
+from scantex.views.render import sample_texture
+from tests.conftest import checker, grid_wall, textured_cube
+
+
+def test_cube_has_six_shells_and_twelve_seam_edges(cube):
+    shells = uv_shells(cube)
+    assert len(np.unique(shells)) == 6
+    assert (shells[0::2] == shells[1::2]).all()  # the two triangles of a side share a shell
+    edges = seam_edges(cube)
+    assert len(edges) == 12  # every cube edge joins two sides
+    assert (shells[edges.faces[:, 0]] != shells[edges.faces[:, 1]]).all()
+
+
+def cylinder_with_one_seam(sections: int = 12) -> Scan:
+    """An open cylinder unrolled into one chart: a single seam where u = 0 meets u = 1."""
+    ring = np.linspace(0, 2 * np.pi, sections, endpoint=False)
+    positions = np.concatenate([np.stack([np.cos(ring), np.sin(ring), np.full(sections, z)], 1) for z in (0, 1)])
+    u = np.arange(sections + 1) / sections
+    uvs = np.concatenate([np.stack([u, np.full(sections + 1, v)], 1) for v in (0.1, 0.9)])
+    faces, face_uvs = [], []
+    for k in range(sections):
+        a, b, c, d = k, (k + 1) % sections, sections + (k + 1) % sections, sections + k
+        ua, ub, uc, ud = k, k + 1, sections + 1 + k + 1, sections + 1 + k
+        faces += [[a, b, c], [a, c, d]]
+        face_uvs += [[ua, ub, uc], [ua, uc, ud]]
+    img = np.zeros((32, 64, 3), np.uint8)
+    img[:, :32] = 50
+    img[:, 32:] = 200  # u < 0.5 dark, u > 0.5 bright: the seam joins the two halves
+    return Scan(positions, np.array(faces), uvs, np.array(face_uvs), None, (Material("c", img),))
+
+
+def test_cylinder_has_one_shell_and_one_seam():
+    scan = cylinder_with_one_seam()
+    assert len(np.unique(uv_shells(scan))) == 1
+    edges = seam_edges(scan)
+    assert len(edges) == 1
+    assert abs(seam_visibility(scan, edges) - 150.0) < 1.0  # dark one side, bright the other
+
+
+def test_seam_visibility_is_zero_for_a_continuous_texture():
+    scan = cylinder_with_one_seam()
+    flat = scan.replace(materials=(Material("c", np.full((32, 64, 3), 120, np.uint8)),))
+    assert seam_visibility(flat) < 1e-3
+
+
+def test_black_faces_are_holes():
+    wall = grid_wall(n=6)
+    img = wall.materials[0].image.copy()
+    img[: img.shape[0] // 2] = 0  # the top half of the atlas (v > 0.5) is untextured
+    scan = wall.replace(materials=(Material("w", img),))
+    holes = untextured_faces(scan)
+    v_centre = scan.triangle_uvs[:, :, 1].mean(axis=1)
+    assert holes[v_centre > 0.6].all() and not holes[v_centre < 0.4].any()
+    assert not untextured_faces(wall).any()
+
+
+def test_harmonic_fill_is_linear_on_a_strip():
+    wall = grid_wall(n=9)
+    x = wall.positions[:, 0]
+    z = wall.positions[:, 2]
+    known = (x < 0.3) | (x > 1.7) | (z < 0.01) | (z > 1.99)  # a closed boundary
+    colours = np.stack([x, x, x], axis=1) / 2.0
+    filled = harmonic_vertex_colours(wall, known, np.where(known[:, None], colours, 0))
+    assert np.allclose(filled[known], colours[known])
+    inside = ~known
+    # linear data on a closed boundary: the graph-harmonic interior of a regular grid is that linear function
+    assert np.abs(filled[inside] - colours[inside]).max() < 0.01
+
+
+def test_grow_faces_adds_a_ring():
+    wall = grid_wall(n=8)
+    seed = np.zeros(wall.n_faces, bool)
+    seed[40] = True
+    grown = grow_faces(wall, seed)
+    assert grown.sum() > 1 and grown[40]
+    shared = np.isin(wall.faces, wall.faces[40]).any(axis=1)
+    assert np.array_equal(grown, shared)
+
+
+def test_pad_gutters_fills_from_nearest():
+    img = np.zeros((4, 4, 3), np.float32)
+    img[1, 1] = 1.0
+    covered = np.zeros((4, 4), bool)
+    covered[1, 1] = True
+    assert (pad_gutters(img, covered) == 1.0).all()
+
+
+def test_bake_of_the_texture_lookup_reproduces_the_texture(wall):
+    """Baking "the scan's own colour at each point" must give back (nearly) the same atlas."""
+    image = wall.materials[0].image
+
+    def colour(points, normals, faces, bary):
+        uv_tri = wall.triangle_uvs[faces]
+        w = np.stack([1 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], 1)
+        return sample_texture(image, np.einsum("nk,nkc->nc", w, uv_tri))
+
+    (baked,) = bake(wall, colour, size=image.shape[0])
+    inner = (slice(2, -2), slice(2, -2))
+    assert np.abs(baked[inner].astype(int) - image[inner].astype(int)).max() <= 1
+
+
+def test_bake_keeps_layout_per_material(cube):
+    def colour(points, normals, faces, bary):
+        return np.tile(np.array([[0.0, 1.0, 0.0]], np.float32), (len(points), 1))
+
+    images = bake(cube, colour, size=32)
+    assert len(images) == 2 and all(im.shape == (32, 32, 3) for im in images)
+    assert (images[0][..., 1] == 255).all()  # gutters padded too
+
+
+def test_untextured_scan_has_no_holes():
+    mesh = trimesh.creation.icosphere(2)
+    assert not untextured_faces(Scan(mesh.vertices, mesh.faces)).any()
+
+
+def test_checker_helper_is_two_colour():
+    assert len(np.unique(checker(16, 4).reshape(-1, 3), axis=0)) == 2

@@ -1,0 +1,66 @@
+"""End to end through the command line, at toy size, and the cost of ``import scantex``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from PIL import Image
+
+from scantex.io import load_scan, save_scan
+from scantex.synth import make_wall
+
+
+def run(*args: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "scantex", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_render_and_view_end_to_end(tmp_path):
+    demo = make_wall(grid=(24, 18), gt_texture_size=256, scan_texture_size=64)
+    save_scan(demo.scan, tmp_path / "wall.obj")
+    proc = run("render", str(tmp_path / "wall.obj"), "--views", "3", "--width", "64", "--height", "48",
+               "-o", str(tmp_path / "renders"), "-q")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "renders" / "cameras.json").read_text())
+    assert len(doc["frames"]) == 3
+    for frame in doc["frames"]:
+        image = np.asarray(Image.open(tmp_path / "renders" / frame["image"]))
+        assert image.shape == (48, 64, 3)
+        assert (image.max(axis=2) > 0).mean() > 0.2  # the wall is in view
+        assert np.array(frame["K"]).shape == (3, 3) and np.array(frame["world_to_camera"]).shape == (4, 4)
+    assert {f["split"] for f in doc["frames"]} == {"train", "test"}
+
+    proc = run("view", str(tmp_path / "wall.obj"), "-o", str(tmp_path / "view.html"), "-q")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "view.html").stat().st_size > 1_000_000  # plotly.js embedded
+
+    # an existing output folder is kept unless --overwrite
+    proc = run("render", str(tmp_path / "wall.obj"), "--views", "2", "-o", str(tmp_path / "renders"))
+    assert proc.returncode == 2 and "already exists" in proc.stderr
+    assert len(json.loads((tmp_path / "renders" / "cameras.json").read_text())["frames"]) == 3
+
+
+def test_demo_scan_room_variant(tmp_path):
+    proc = run("demo-scan", "--variant", "room", "-o", str(tmp_path / "demo"), "-q")
+    assert proc.returncode == 0, proc.stderr
+    scan = load_scan(tmp_path / "demo" / "scan.obj")
+    truth = load_scan(tmp_path / "demo" / "ground_truth.obj")
+    assert np.array_equal(scan.positions, truth.positions) and np.array_equal(scan.faces, truth.faces)
+    assert scan.materials[0].image.shape[0] < truth.materials[0].image.shape[0]
+
+
+def test_help_explains_every_command():
+    proc = run("--help")
+    assert proc.returncode == 0
+    for command in ("demo-scan", "render", "view", "info"):
+        assert command in proc.stdout
+    proc = run("render", "--help")
+    assert "--views" in proc.stdout and "OpenCV" in proc.stdout
+
+
+def test_import_is_cheap():
+    code = "import sys, scantex; print(sorted(m for m in ('torch', 'trimesh', 'plotly', 'scipy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "[]"
