@@ -24,7 +24,7 @@ from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.metrics.geometry import geometry_identity
 from scantex.metrics.image import psnr, ssim
 from scantex.pipeline.config import EnhanceConfig
-from scantex.scan import Material, Scan
+from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer

@@ -12,7 +12,7 @@ from scantex.atlas.padding import pad_gutters
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.scan import Material, Scan
 from scantex.views.render import sample_texture
-from tests.conftest import checker, grid_wall, textured_cube
+from tests.conftest import checker, grid_wall
 
 
 def test_cube_has_six_shells_and_twelve_seam_edges(cube):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-import scantex.inspect.plotly_view as plotly_view
+from scantex.io import atomic
 from scantex.inspect import view_html
 from scantex.scan import Material, Scan
 from tests.conftest import textured_cube
@@ -108,7 +108,7 @@ def test_failed_write_leaves_no_file(tmp_path, cube, monkeypatch):
     def fail(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(plotly_view.os, "replace", fail)
+    monkeypatch.setattr(atomic.os, "replace", fail)
     with pytest.raises(OSError, match="disk full"):
         view_html(cube, tmp_path / "view.html")
     assert os.listdir(tmp_path) == []
