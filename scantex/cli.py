@@ -123,7 +123,7 @@ def cmd_enhance(args) -> int:
 
     config = load_config(args.config) if args.config else preset(args.preset)
     config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
-                             train__steps=args.steps, views__n_views=args.views)
+                             train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv)
     if args.output.exists() and not args.overwrite:
         raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
     scan = load_scan(args.mesh)
@@ -161,6 +161,24 @@ def summary_lines(m: dict) -> str:
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
         f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
     return "\n".join(lines)
+
+
+def cmd_compare(args) -> int:
+    import json
+
+    from scantex.io import load_scan
+    from scantex.metrics.compare import compare, read_photos, summary_lines
+
+    a, b = load_scan(args.a), load_scan(args.b)
+    photos = read_photos(args.cameras) if args.cameras else None
+    result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+    _echo(args, summary_lines(result))
+    if args.json:
+        _echo(args, f"metrics written to {args.json}")
+    return 0
 
 
 def cmd_info(args) -> int:
@@ -229,6 +247,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="speed/quality preset (default: default; ~3 min on a 2-core CPU for an 80k-face scan)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
     p.add_argument("--texture-size", type=int, help="output atlas size (default: 2x the input, at most 8192)")
+    p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
+                   help="texture layout: keep the input's (default), optimize it (merge/split charts by "
+                        "stretch, uniform texel density) or unwrap afresh; meshes without UVs are unwrapped")
     p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
     p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
@@ -246,6 +267,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-faces", type=int, default=200_000,
                    help="show a random subset of faces above this count (display only; default 200000)")
     p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("compare", parents=[common], help="geometry and texture metrics between two meshes",
+                       description="Measure B against A: vertex/face counts, volume, Hausdorff and mean "
+                                   "point-to-mesh distance both ways; seam visibility, texel density and "
+                                   "coverage of each atlas; atlas-space PSNR/SSIM when the UV layouts match; "
+                                   "and render PSNR/SSIM, against photos when --cameras is given, else of "
+                                   "B's renders against A's.")
+    p.add_argument("a", type=Path, help="the reference mesh (e.g. the input scan, or a ground truth)")
+    p.add_argument("b", type=Path, help="the mesh measured against it (e.g. enhanced.obj)")
+    p.add_argument("--cameras", type=Path, metavar="JSON",
+                   help="cameras.json with photos (frames of image, width, height, K, world_to_camera): "
+                        "both meshes' renders are scored against the photos")
+    p.add_argument("--views", type=int, default=8, help="views planned on A when there are no photos (default: 8)")
+    p.add_argument("--samples", type=int, default=100_000,
+                   help="surface points per direction for the distances, besides every vertex (default: 100000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed for samples and views (default: 0)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="also write every metric to this JSON file")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("info", parents=[common], help="print what a mesh file holds")
     p.add_argument("mesh", type=Path, help="mesh file")

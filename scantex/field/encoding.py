@@ -236,6 +236,13 @@ class HashGridEncoding(nn.Module):
         self.layout = hash_grid_layout(n_levels, log2_table_size, base_resolution, max_resolution)
         self.features_per_level = features_per_level
         self.table = nn.Parameter(torch.empty(self.layout.rows, features_per_level).uniform_(-1e-4, 1e-4))
+        # 1 for active levels, 0 for masked ones (coarse-to-fine training); not part of the state
+        self.register_buffer("level_mask", torch.ones(self.out_dim), persistent=False)
+
+    def set_active_levels(self, n: float) -> None:
+        """Use only the ``n`` coarsest levels (fractional ``n`` fades the next one in)."""
+        weights = torch.clamp(n - torch.arange(self.layout.n_levels, dtype=torch.float32), 0.0, 1.0)
+        self.level_mask.copy_(weights.repeat_interleave(self.features_per_level).to(self.level_mask.device))
 
     @property
     def out_dim(self) -> int:
@@ -244,7 +251,8 @@ class HashGridEncoding(nn.Module):
     def forward(self, x: torch.Tensor, *, fused_backward: bool = True) -> torch.Tensor:
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"hash grid input must be (N, 3), got {tuple(x.shape)}")
-        return hash_grid_encode(x.to(self.table.dtype), self.table, self.layout, fused_backward=fused_backward)
+        encoded = hash_grid_encode(x.to(self.table.dtype), self.table, self.layout, fused_backward=fused_backward)
+        return encoded * self.level_mask
 
 
 def hash_grid_reference(encoding: HashGridEncoding, x: torch.Tensor) -> torch.Tensor:

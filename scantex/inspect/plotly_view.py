@@ -37,15 +37,46 @@ def view_html(scan: Scan, path: str | Path, *, max_faces: int = 200_000, title: 
         title: the figure's title; ``None``: the scan's file name, or "scan".
         seed: seeds the display subset.
     """
-    try:
-        import plotly.graph_objects as go
-        import plotly.io as pio
-    except ImportError as error:
-        raise ImportError(f"{error}; the 3D view needs plotly: pip install plotly") from error
+    pio = _plotly_io()
+    figure = mesh_figure(scan, max_faces=max_faces, title=title, seed=seed)
+    html = pio.to_html(figure, include_plotlyjs=True, full_html=True)
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_files() as files:
+        files.path(path).write_text(html, encoding="utf-8")
+    return path
+
+
+def mesh_figure(scan: Scan, *, max_faces: int = 200_000, title: str | None = None, seed: int = 0):
+    """A ``plotly.graph_objects.Figure`` holding :func:`mesh_trace` of ``scan``, titled with what it shows."""
+    _plotly_io()
+    import plotly.graph_objects as go
+
+    trace, note = mesh_trace(scan, max_faces=max_faces, seed=seed)
+    name = title if title is not None else (scan.source.name if scan.source is not None else "scan")
+    figure = go.Figure(trace)
+    figure.update_layout(
+        title=f"{name} — {note}",
+        scene=dict(aspectmode="data", xaxis_title="x", yaxis_title="y", zaxis_title="z"),
+        margin=dict(l=0, r=0, t=40, b=0),
+    )
+    return figure
+
+
+def mesh_trace(scan: Scan, *, max_faces: int = 200_000, seed: int = 0):
+    """A plotly ``Mesh3d`` trace of ``scan`` coloured from its texture, and a note of what it shows.
+
+    Above ``max_faces`` faces a random subset (seeded by ``seed``) is shown, for display only.
+
+    Returns:
+        ``(trace, note)``: the trace and e.g. ``"1,200 faces"`` or ``"200,000 of 1,000,000 faces (...)"``.
+    """
+    _plotly_io()
+    import plotly.graph_objects as go
+
     if max_faces < 1:
         raise ValueError(f"max_faces must be positive, got {max_faces}")
-    path = Path(path)
-
     F = scan.n_faces
     if F > max_faces:
         shown = np.sort(np.random.default_rng(seed).choice(F, size=max_faces, replace=False))
@@ -69,20 +100,16 @@ def view_html(scan: Scan, path: str | Path, *, max_faces: int = 200_000, title: 
         mesh["vertexcolor"] = _hex(scan.vertex_colors[used, :3])
     else:
         mesh["facecolor"] = _hex(to_uint8(face_display_colors(scan, shown)))
+    return go.Mesh3d(**mesh), note
 
-    name = title if title is not None else (scan.source.name if scan.source is not None else "scan")
-    figure = go.Figure(go.Mesh3d(**mesh))
-    figure.update_layout(
-        title=f"{name} — {note}",
-        scene=dict(aspectmode="data", xaxis_title="x", yaxis_title="y", zaxis_title="z"),
-        margin=dict(l=0, r=0, t=40, b=0),
-    )
-    html = pio.to_html(figure, include_plotlyjs=True, full_html=True)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_files() as files:
-        files.path(path).write_text(html, encoding="utf-8")
-    return path
+def _plotly_io():
+    try:
+        import plotly.graph_objects  # noqa: F401
+        import plotly.io as pio
+    except ImportError as error:
+        raise ImportError(f"{error}; the 3D view needs plotly: pip install plotly") from error
+    return pio
 
 
 def face_display_colors(scan: Scan, faces: np.ndarray) -> np.ndarray:

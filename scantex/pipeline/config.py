@@ -76,8 +76,26 @@ class TrainConfig:
     """Adam learning rate of the per-chart colour transforms"""
     appearance_reg: float = 1.0
     """weight keeping the charts' mean gain at 1 and mean offset at 0"""
+    coarse_to_fine: float = 0.3
+    """share of the steps over which hash-grid levels are switched on, coarse first (0: all at once)"""
+    start_levels: int = 4
+    """hash-grid levels active at the first step"""
     checkpoint_every: int = 250
     """steps between checkpoints (for --resume)"""
+
+
+@dataclass(frozen=True)
+class UVConfig:
+    mode: str = "keep"
+    """texture layout: keep the input's, optimize it (merge/split shells by stretch), or unwrap afresh"""
+    threshold: float = 1.1
+    """largest per-chart L2 stretch allowed when merging/splitting/unwrapping (1 = no distortion)"""
+    time_budget_s: float = 60.0
+    """time allowed for optimize/unwrap"""
+    blend_seams: bool = True
+    """after baking, give texels on both sides of every seam the same colour (no line when filtered)"""
+    band_texels: float = 3.0
+    """width of the seam-blending band, texels"""
 
 
 @dataclass(frozen=True)
@@ -101,6 +119,7 @@ class EnhanceConfig:
     views: ViewsConfig = default(default_factory=ViewsConfig)
     field: FieldSettings = default(default_factory=FieldSettings)
     train: TrainConfig = default(default_factory=TrainConfig)
+    uv: UVConfig = default(default_factory=UVConfig)
     bake: BakeConfig = default(default_factory=BakeConfig)
 
     def to_dict(self) -> dict:
@@ -108,7 +127,8 @@ class EnhanceConfig:
 
     @classmethod
     def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
-        subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "bake": BakeConfig}
+        subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
+                "bake": BakeConfig}
         kwargs = {}
         for key, value in d.items():
             if key in subs:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scantex.atlas.bake import bake
+from scantex.atlas.bake import bake, output_size
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
@@ -66,6 +66,10 @@ class EnhanceResult:
     config: EnhanceConfig
     views: TrainingViews
     comparisons: dict[str, np.ndarray] = field(default_factory=dict)
+    input_scan: Scan | None = None
+    """the scan that was enhanced (for the report's before/after)"""
+    ground_truth: Scan | None = None
+    """the ground truth it was scored against, if any"""
 
 
 def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
@@ -209,12 +213,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     from scantex.field.train import fit_field, resolve_device
     from scantex.field.volume import BoxNormaliser
 
-    reporter = reporter or Reporter()
-    if not scan.has_uvs:
-        from scantex.errors import ScanError
+    from scantex.uv import blend_seams, plan_uvs
 
-        raise ScanError(scan.source, "the mesh has no texture coordinates; mesh-only enhancement keeps the "
-                                     "input UV layout (unwrapping comes with --uv unwrap)")
+    reporter = reporter or Reporter()
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         from scantex.errors import ScanError
@@ -267,24 +268,38 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     timings["train"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    uc = config.uv
+    mode = uc.mode if scan.has_uvs else "unwrap"  # an untextured mesh needs an atlas to hold its texture
+    size = config.bake.texture_size or max(output_size(scan, m)[0] for m in range(len(scan.materials)))
+    with reporter.stage(f"UV layout ({mode})") as update:
+        plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
+        update(1, 1)
+    timings["uv"] = time.perf_counter() - t
+
+    t = time.perf_counter()
     with reporter.stage("baking the texture") as update:
         colour = surface_colour_with_fill(scan, fitted, excluded, device)
-        images = bake(scan, colour, size=config.bake.texture_size, chunk=config.bake.chunk, progress=update)
+        target = plan.scan
+        images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size,
+                      chunk=config.bake.chunk, progress=update)
     materials = tuple(
         m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
                                                   diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
-        for m, img in zip(scan.materials, images))
-    enhanced = scan.replace(materials=materials, source=None)
+        for m, img in zip(target.materials, images))
+    baked = target.replace(materials=materials, source=None)
+    enhanced = blend_seams(baked, band_texels=uc.band_texels) if uc.blend_seams else baked
     timings["bake"] = time.perf_counter() - t
 
     t = time.perf_counter()
     with reporter.stage("measuring") as update:
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
+        metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
+        metrics["uv"] = {"mode": mode, **plan.report}
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
-    return EnhanceResult(enhanced, metrics, config, tv)
+    return EnhanceResult(enhanced, metrics, config, tv, input_scan=scan, ground_truth=ground_truth)
 
 
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
@@ -299,8 +314,9 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                   "coverage": coverage.summary()},
         "field": {"train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run, "final_loss": float(np.mean(fitted.losses[-50:])),
                   "train_rays": int(tv.valid[tv.views.train].sum())},
+        # each texture is measured along its own layout's seams
         "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
-                            "enhanced": round(seam_visibility(enhanced, edges), 3)},
+                            "enhanced": round(seam_visibility(enhanced), 3)},
     }
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
     if ground_truth is not None:

@@ -19,13 +19,36 @@ def work_dir_for(output: Path) -> Path:
 
 
 def write_outputs(result, out_dir: str | Path) -> None:
-    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``."""
+    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
+    ``report.html``."""
+    from scantex.report import write_report
+
     out_dir = Path(out_dir)
     save_scan(result.scan, out_dir / "enhanced.obj")
     save_scan(result.scan, out_dir / "enhanced.glb")
-    (out_dir / "metrics.json").write_text(json.dumps(result.metrics, indent=2, default=_json))
+    metrics = completed_metrics(result)
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json))
     save_config(result.config, out_dir / "config.json")
     write_views(result.views.views, out_dir / "renders")
+    write_report(result, out_dir / "report.html", metrics=metrics)
+
+
+def completed_metrics(result) -> dict:
+    """``result.metrics`` with what the written outputs report besides: the surface distances and volume
+    between input and output, and each atlas's own properties (texel density, coverage), when the run
+    did not measure them already and knows its input scan. ``result`` is not changed."""
+    from scantex.metrics.geometry import geometry_metrics
+    from scantex.metrics.texture import texture_summary
+
+    metrics = dict(result.metrics)
+    before = getattr(result, "input_scan", None)
+    if before is None:
+        return metrics
+    if "distance" not in metrics.get("geometry", {}):
+        metrics["geometry"] = geometry_metrics(before, result.scan)
+    if "texture" not in metrics:
+        metrics["texture"] = {"input": texture_summary(before), "enhanced": texture_summary(result.scan)}
+    return metrics
 
 
 def _json(value):

@@ -63,12 +63,11 @@ def test_resume_continues_from_checkpoint(tmp_path, toy_demo):
     import torch
 
     cfg = TOY.override(train__steps=60, train__checkpoint_every=20)
-    first = enhance(toy_demo.scan, cfg, work_dir=tmp_path)
+    enhance(toy_demo.scan, cfg, work_dir=tmp_path)
     ckpt = tmp_path / "field.pt"
     # the last checkpoint before the end is the state an interrupted run would resume from
     assert torch.load(ckpt, weights_only=True)["step"] == 40
     resumed = enhance(toy_demo.scan, cfg, work_dir=tmp_path, resume=True)
-    assert len(resumed.metrics["field"]) and resumed.metrics["field"]["train_seconds"] < first.metrics["field"]["train_seconds"]
     # 20 steps were left: the loss history holds all 60, the first 40 restored from the checkpoint
     assert resumed.metrics["field"]["steps_run"] == 20
 

@@ -1,0 +1,109 @@
+"""UV planning on the paper-scale demo wall (40,000 vertices, 79,202 faces): unwrap and optimise time,
+shells and seam edges before and after, stretch and texel density, and seam visibility before and after
+seam blending.
+
+    python bench/bench_uv.py          # updates the 'uv' section of bench/RESULTS.md
+
+Each timing is one run (the planners are deterministic; this machine is shared and noisy).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench._results import update_section
+from scantex.atlas.seams import seam_visibility
+from scantex.scan import Scan
+from scantex.synth.demo import make_geometry
+from scantex.synth.wall import make_wall, wall_panels
+from scantex.uv import blend_seams, plan_uvs
+
+
+def timed(fn):
+    start = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - start
+
+
+def fmt(s: dict | None, key: str) -> str:
+    if s is None:
+        return "-"
+    d = s[key]
+    return f"{d['min']:.3f} / {d['median']:.3f} / {d['max']:.3f}" if d["count"] else "-"
+
+
+def main() -> None:
+    rows = []
+    # 1. unwrap the bare geometry (as a PLY without UVs would arrive)
+    mesh = make_geometry(wall_panels(), 0)
+    bare = Scan(mesh.positions, mesh.faces)
+    plan, t_unwrap = timed(lambda: plan_uvs(bare, "unwrap", texture_size=4096))
+    r = plan.report
+    rows.append(("unwrap, no input UVs", bare.n_faces, "-", r["after"]["shells"], "-", r["after"]["seam_edges"],
+                 fmt(r["after"], "stretch"), "-", fmt(r["after"], "density_px_per_cm"), t_unwrap))
+
+    # 2. the demo scan (80 charts as a capture app cuts them); 1024² atlases keep the set-up short
+    demo = make_wall(gt_texture_size=1024, scan_texture_size=1024)
+    scan = demo.scan
+    for mode in ("optimize", "unwrap"):
+        plan, t = timed(lambda mode=mode: plan_uvs(scan, mode, texture_size=1024))
+        r = plan.report
+        rows.append((f"{mode}, demo scan", scan.n_faces, r["before"]["shells"], r["after"]["shells"],
+                     r["before"]["seam_edges"], r["after"]["seam_edges"], fmt(r["after"], "stretch"),
+                     fmt(r["before"], "density_px_per_cm"), fmt(r["after"], "density_px_per_cm"), t))
+
+    # 3. seam blending on textures with per-chart exposure jumps
+    blend_rows = []
+    small = make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128)
+    for name, s in (("demo wall 40x30, 128² atlas", small.scan), ("demo wall 200x200, 1024² atlas", scan)):
+        before = seam_visibility(s)
+        blended, t = timed(lambda s=s: blend_seams(s, band_texels=3.0))
+        blend_rows.append((name, before, seam_visibility(blended), t))
+    small_plan = plan_uvs(small.scan, "optimize", texture_size=128)
+
+    lines = [
+        "## UV planning on the demo wall (200 x 200 grid: 40,000 vertices, 79,202 faces)",
+        "",
+        ("Stretch: Sander's L2 stretch per chart (1 = isometric; threshold 1.1). Density: px/cm per chart, "
+         "min / median / max."),
+        "",
+        ("| run | faces | shells before | after | seam edges before | after | stretch after | "
+         "px/cm before | px/cm after | time (s) |"),
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        lines.append("| " + " | ".join(str(x) for x in row[:-1]) + f" | {row[-1]:.2f} |")
+    lines += [
+        "",
+        (f"Small demo wall (40 x 30, 2,262 faces) optimised: {small_plan.report['before']['shells']} -> "
+        f"{small_plan.report['after']['shells']} shells, {small_plan.report['before']['seam_edges']} -> "
+        f"{small_plan.report['after']['seam_edges']} seam edges, max stretch "
+        f"{small_plan.report['after']['stretch']['max']:.4f}, {small_plan.report['time_s']:.2f} s."),
+        "",
+        "### Seam blending (band 3 texels): seam visibility, mean |RGB| difference (0-255) across seams",
+        "",
+        "| texture | before | after blending | time (s) |",
+        "|---|---|---|---|",
+    ]
+    for name, before, after, t in blend_rows:
+        lines.append(f"| {name} | {before:.2f} | {after:.2f} | {t:.2f} |")
+    lines += [
+        "",
+        ("The metric reads each side one texel inside its chart, so even a perfect texture differs there by "
+         "the texture's own detail over two texels."),
+        "",
+        "Command: `python bench/bench_uv.py`",
+    ]
+    text = "\n".join(lines)
+    print(text)
+    update_section("uv", text)
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()

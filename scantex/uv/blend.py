@@ -1,0 +1,172 @@
+"""Seam blending after a bake, and moving a texture onto a new UV layout.
+
+Along a seam the same 3D points are stored twice, once in each chart. :func:`blend_seams` levels the two
+copies: at every point of a seam edge it measures the colour on both sides (just inside each chart),
+and moves the texels of each side towards their mean. Texels within ``core_texels`` of the seam (the ones
+bilinear filtering reads at the seam) move all the way, so both sides end equal; the shift then falls
+off linearly to nothing at ``band_texels``, so texture detail is kept and no step appears inside the
+chart. Gutters are padded again afterwards from the blended texels.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from scantex.atlas.padding import pad_gutters
+from scantex.atlas.seams import SeamEdges, seam_edges, uv_shells
+from scantex.atlas.texelmap import texel_map, uv_to_pixel
+from scantex.scan import Scan
+from scantex.views.raycast import interpolate
+from scantex.views.render import sample_texture, to_uint8
+
+log = logging.getLogger(__name__)
+
+#: candidate texels examined per batch of seam edges (bounds memory on large atlases)
+CANDIDATES_PER_BATCH = 2_000_000
+
+
+def _seam_side_samples(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.ndarray,
+                       inset_texels: float) -> np.ndarray:
+    """``(N, 3)`` colour at parameter ``t (N,)`` along each seam edge's UV segment in face ``faces (N,)``,
+    looked up ``inset_texels`` inside the face (away from the gutter)."""
+    rows = np.arange(len(faces))
+    uv_tri = scan.uvs[scan.face_uvs[faces]]  # [N, 3, 2]
+    p0, p1 = uv_tri[rows, corners[:, 0]], uv_tri[rows, corners[:, 1]]
+    opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
+    point = p0 + t[:, None] * (p1 - p0)
+    out = np.zeros((len(faces), 3), np.float32)
+    mat = scan.face_materials[faces]
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(mat == m)
+        if material.image is None or sel.size == 0:
+            continue
+        H, W = material.image.shape[:2]
+        px = np.array([W, H], np.float64)
+        e = (p1[sel] - p0[sel]) * px
+        normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
+        step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
+        out[sel] = sample_texture(material.image, point[sel] + normal * step / px)[:, :3]
+    return out
+
+
+def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
+                edges: SeamEdges | None = None) -> Scan:
+    """The same scan with seam-blended material images (see the module docstring).
+
+    Args:
+        scan: a textured scan.
+        band_texels: texels farther than this from a seam keep their colour.
+        core_texels: texels within this distance of a seam take the mean of both sides fully.
+        inset_texels: how far inside each chart the two sides are read.
+        edges: the seam edges (default: all of :func:`scantex.atlas.seams.seam_edges`).
+    """
+    if band_texels <= 0:
+        raise ValueError(f"band_texels must be positive, got {band_texels}")
+    edges = seam_edges(scan) if edges is None else edges
+    if not scan.is_textured or len(edges) == 0:
+        return scan
+    core = min(core_texels, 0.999 * band_texels)
+    shells = uv_shells(scan)
+    tri_uv = scan.triangle_uvs
+    mats = scan.face_materials
+    out_images = [m.image for m in scan.materials]
+    for m, material in enumerate(scan.materials):
+        image = material.image
+        own = np.flatnonzero(mats[edges.faces.ravel()] == m)
+        if image is None or own.size == 0:
+            continue
+        H, W = image.shape[:2]
+        tmap = texel_map(tri_uv, W, H, np.flatnonzero(mats == m))
+        texel_shell = np.where(tmap.face_id >= 0, shells[np.maximum(tmap.face_id, 0)], -1)
+        offset = np.zeros((3, H * W), np.float64)
+        weight = np.zeros(H * W, np.float64)
+        strongest = np.zeros(H * W, np.float64)
+        edge_id, side = own // 2, own % 2
+        f = edges.faces[edge_id, side]
+        g = edges.faces[edge_id, 1 - side]
+        cf = edges.corners[edge_id, side]
+        cg = edges.corners[edge_id, 1 - side]
+        rows = np.arange(len(f))
+        seg = uv_to_pixel(np.stack([tri_uv[f, cf[:, 0]], tri_uv[f, cf[:, 1]]], axis=1), W, H)  # [n, 2, 2]
+        lo = np.floor(seg.min(axis=1) - band_texels).astype(np.int64)
+        hi = np.ceil(seg.max(axis=1) + band_texels).astype(np.int64)
+        count = np.maximum(hi - lo + 1, 0)
+        per = count[:, 0] * count[:, 1]
+        cum = np.cumsum(per)
+        start = 0
+        while start < len(f):
+            done_before = cum[start - 1] if start else 0
+            end = max(int(np.searchsorted(cum, done_before + CANDIDATES_PER_BATCH, side="right")), start + 1)
+            b = rows[start:end]
+            start = end
+            n_c = per[b]
+            e = np.repeat(b, n_c)
+            k = np.arange(n_c.sum()) - np.repeat(np.cumsum(n_c) - n_c, n_c)
+            x = lo[e, 0] + k % np.maximum(count[e, 0], 1)
+            y = lo[e, 1] + k // np.maximum(count[e, 0], 1)
+            inside = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+            e, x, y = e[inside], x[inside], y[inside]
+            same_chart = texel_shell[y, x] == shells[f[e]]
+            e, x, y = e[same_chart], x[same_chart], y[same_chart]
+            a, d_vec = seg[e, 0], seg[e, 1] - seg[e, 0]
+            length2 = (d_vec ** 2).sum(axis=1)
+            t = np.clip(np.divide(((np.stack([x, y], 1) - a) * d_vec).sum(axis=1), length2,
+                                  out=np.zeros(len(e)), where=length2 > 0), 0.0, 1.0)
+            dist = np.linalg.norm(np.stack([x, y], 1) - (a + t[:, None] * d_vec), axis=1)
+            w = np.clip((band_texels - dist) / (band_texels - core), 0.0, 1.0)
+            keep = w > 0
+            e, x, y, t, w = e[keep], x[keep], y[keep], t[keep], w[keep]
+            if e.size == 0:
+                continue
+            mine = _seam_side_samples(scan, f[e], cf[e], t, inset_texels)
+            theirs = _seam_side_samples(scan, g[e], cg[e], t, inset_texels)
+            delta = 0.5 * (theirs - mine).astype(np.float64)
+            flat = y * W + x
+            for c in range(3):
+                offset[c] += np.bincount(flat, w * delta[:, c], H * W)
+            weight += np.bincount(flat, w, H * W)
+            np.maximum.at(strongest, flat, w)
+        weight, strongest = weight.reshape(H, W), strongest.reshape(H, W)
+        offset = offset.T.reshape(H, W, 3)
+        touched = weight > 0
+        scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+        rgb = image[..., :3].astype(np.float64) * scale
+        rgb[touched] += offset[touched] / weight[touched, None] * strongest[touched, None]
+        rgb = pad_gutters(rgb, tmap.mask)
+        new = image.copy()
+        new[..., :3] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
+        out_images[m] = new
+        log.debug("blended %d seam sides in material %d (%d texels moved)", len(f), m, int(touched.sum()))
+    materials = tuple(mat.with_image(img) if img is not None else mat for mat, img in zip(scan.materials, out_images))
+    return scan.replace(materials=materials)
+
+
+def transfer_texture(source: Scan, target: Scan, size: int) -> Scan:
+    """``target`` (same geometry, new UV layout) with ``source``'s texture baked into its layout.
+
+    Each target texel shows the source texture at the same surface point (same face, same barycentrics).
+    """
+    from scantex.atlas.bake import bake
+
+    if source.n_faces != target.n_faces:
+        raise ValueError(f"source has {source.n_faces} faces, target {target.n_faces}: not the same mesh")
+    src_uv = source.triangle_uvs
+
+    def colour(points, normals, faces, bary):
+        uv = interpolate(faces, bary, src_uv)
+        rgb = np.zeros((len(faces), 3), np.float32)
+        mat = source.face_materials[faces]
+        for m, material in enumerate(source.materials):
+            sel = np.flatnonzero(mat == m)
+            if sel.size and material.image is not None:
+                rgb[sel] = sample_texture(material.image, uv[sel])[:, :3]
+        return rgb
+
+    images = bake(target, colour, size=size)
+    return target.replace(materials=tuple(m.with_image(i) if i is not None else m
+                                          for m, i in zip(target.materials, images)))

@@ -1,0 +1,84 @@
+"""Texture metrics: atlas-space scores, texel density, coverage, render scores."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scantex.metrics.image import psnr
+from scantex.metrics.texture import atlas_scores, chart_texel_density, coverage, layouts_match, render_reference, \
+    render_scores, texel_density, texture_summary
+from scantex.scan import Material
+from scantex.views.camera import Camera
+
+
+def with_image(scan, image):
+    return scan.replace(materials=(Material("m", image),))
+
+
+def test_layouts_match(wall, cube):
+    assert layouts_match(wall, with_image(wall, wall.materials[0].image[::2, ::2]))
+    uvs = wall.uvs.copy()
+    uvs[0] += 0.01
+    assert not layouts_match(wall, wall.replace(uvs=uvs))
+    assert not layouts_match(wall, cube)
+
+
+def test_atlas_scores_identical_and_mismatched(wall, cube):
+    s = atlas_scores(wall, wall)
+    assert s["psnr"] == float("inf") and s["ssim"] == pytest.approx(1.0) and s["texels"] == 128 * 128
+    with pytest.raises(ValueError, match="same UV layout"):
+        atlas_scores(wall, cube)
+
+
+def test_atlas_scores_against_a_direct_computation(wall):
+    rng = np.random.default_rng(0)
+    truth = wall.materials[0].image
+    noisy = np.clip(truth.astype(int) + rng.integers(-20, 21, truth.shape), 0, 255).astype(np.uint8)
+    s = atlas_scores(with_image(wall, noisy), wall)
+    # the grid wall's single chart covers the whole atlas: every texel counts
+    expected = psnr(noisy / 255.0, truth / 255.0)
+    assert s["psnr"] == pytest.approx(expected, abs=1e-6)
+    assert 0 < s["ssim"] < 1
+
+
+def test_atlas_scores_read_a_smaller_atlas_bilinearly(wall):
+    """An atlas at half the resolution is judged as the renderer would show it, not rejected."""
+    truth = wall.materials[0].image
+    half = truth.reshape(64, 2, 64, 2, 3).mean(axis=(1, 3)).astype(np.uint8)
+    s = atlas_scores(with_image(wall, half), wall)
+    assert 10 < s["psnr"] < 40 and s["texels"] == 128 * 128
+
+
+def test_texel_density_of_a_two_metre_wall(wall):
+    # one chart over the whole 128 x 128 atlas, about 200 cm x 200 cm of wall (plus a little relief)
+    d = texel_density(wall)
+    assert d["charts"] == 1
+    assert d["px_per_cm_mean"] == pytest.approx(128 / 200, rel=2e-3)
+    density, area = chart_texel_density(wall, unit_m=0.01)  # the same file read as centimetres
+    assert density[0] == pytest.approx(128 / 2, rel=2e-3) and area[0] == pytest.approx(4e-4, rel=2e-3)
+
+
+def test_coverage_sees_black_holes(wall):
+    full = coverage(wall)
+    assert full["atlas_used"] == pytest.approx(1.0) and full["textured_area_share"] == 1.0
+    image = wall.materials[0].image.copy()
+    image[:40, :40] = 0  # the top-left corner of the atlas: the top-left of the wall
+    holed = coverage(with_image(wall, image))
+    assert 0.8 < holed["textured_area_share"] < 1.0 and holed["hole_faces"] > 0
+
+
+def test_texture_summary_is_json_ready(cube):
+    import json
+
+    s = texture_summary(cube)
+    assert s["charts"] == 6 and s["seam_edges"] > 0
+    json.dumps(s)
+
+
+def test_render_scores(wall):
+    cam = Camera.look_at((1.0, -2.5, 1.0), (1.0, 0.0, 1.0), width=64, height=48)
+    darker = with_image(wall, (wall.materials[0].image * 0.8).astype(np.uint8))
+    s = render_scores(render_reference(wall), {"same": wall, "darker": darker}, [cam])
+    assert s["same"]["psnr"] == float("inf") and s["same"]["views"] == 1
+    assert 10 < s["darker"]["psnr"] < 30 and s["darker"]["ssim"] < 1

@@ -1,0 +1,97 @@
+"""``report.html``: self-contained, one plotly.js for both 3D views, the run's renders and numbers."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from scantex.report import build_report, write_report
+from tests.report.toy import toy_result
+
+
+@pytest.fixture(scope="module")
+def result():
+    return toy_result()
+
+
+@pytest.fixture(scope="module")
+def page(result):
+    return build_report(result)
+
+
+def figures(page: str) -> list[dict]:
+    blocks = re.findall(r'<script type="application/json" class="figure"[^>]*>(.*?)</script>', page, re.S)
+    return [json.loads(b.replace("<\\/", "</")) for b in blocks]
+
+
+def test_self_contained(page):
+    assert page.count("plotly.js v") == 1  # embedded once for both views
+    # nothing is fetched: no script, style or image refers to another file or a server
+    assert not re.search(r'<(script|link|img|iframe)\b[^>]*\b(src|href)="(?!data:)', page)
+
+
+def test_two_3d_views_of_every_face(page, result):
+    before, after = figures(page)
+    for fig, scan in ((before, result.input_scan), (after, result.scan)):
+        (trace,) = fig["data"]
+        assert trace["type"] == "mesh3d"
+        assert len(trace["facecolor"]) == scan.n_faces
+    # the views differ where the textures do
+    assert before["data"][0]["facecolor"] != after["data"][0]["facecolor"]
+
+
+def test_renders_atlases_metrics_timings_config(page, result):
+    n_test = len(result.views.views.test)
+    # input, enhanced and ground truth renders per held-out view, 2 thumbnails and 2 crops of the atlas
+    assert page.count('class="render"') == 3 * n_test
+    assert page.count('class="thumb"') == 2
+    assert page.count("atlas detail") == 2
+    body = page.split("<body>", 1)[1]
+    assert body.count('src="data:image/png;base64,') == 3 * n_test + 4
+    assert "Hausdorff" in page and "mean point-to-mesh" in page
+    assert "identical: 432 vertices, 782 faces" in page
+    assert "&quot;preset&quot;: &quot;toy&quot;" in page  # the config
+    assert "<th>plan</th><td>0.10 s</td>" in page  # the timings
+    assert "open surface" in page  # the volume note
+
+
+def test_decimates_large_meshes_for_display(tmp_path, result):
+    path = write_report(result, tmp_path / "r" / "report.html", max_faces=100)
+    before, after = figures(path.read_text(encoding="utf-8"))
+    assert len(before["data"][0]["i"]["bdata"]) > 0
+    assert "100 of 782 faces" in before["layout"]["title"]["text"]
+    assert sorted(p.name for p in path.parent.iterdir()) == ["report.html"]
+
+
+def test_report_without_input_scan(result):
+    from dataclasses import replace
+
+    page = build_report(replace(result, input_scan=None, ground_truth=None))
+    assert len(figures(page)) == 1 and 'class="thumb"' not in page
+
+
+def test_enhance_outputs_include_report_and_zero_distances(tmp_path):
+    """A real (tiny) enhance run: every output folder holds metrics.json and report.html, and the
+    geometry distances between input and output are exactly zero."""
+    from scantex.pipeline.config import EnhanceConfig, FieldSettings, TrainConfig, ViewsConfig
+    from scantex.pipeline.enhance import enhance
+    from scantex.pipeline.outputs import write_outputs
+    from scantex.synth import make_wall
+
+    demo = make_wall(grid=(12, 10), gt_texture_size=128, scan_texture_size=32, seed=2)
+    config = EnhanceConfig(views=ViewsConfig(n_views=5, width=48, height=36, adaptive=False),
+                           field=FieldSettings(hidden=16, n_layers=2, n_levels=4, log2_table_size=12,
+                                               max_resolution=64),
+                           train=TrainConfig(steps=10, batch_rays=512))
+    result = enhance(demo.scan, config, ground_truth=demo.ground_truth)
+    write_outputs(result, tmp_path)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    d = metrics["geometry"]["distance"]
+    assert d["hausdorff"] == 0.0 and d["mean_a_to_b"] == 0.0 and d["mean_b_to_a"] == 0.0
+    assert metrics["texture"]["enhanced"]["atlas_sizes"] == [[64, 64]]
+    page = (tmp_path / "report.html").read_text(encoding="utf-8")
+    assert len(figures(page)) == 2 and "Held-out views vs ground truth" in page
+    assert np.isfinite(metrics["held_out_vs_ground_truth"]["enhanced"]["psnr"])

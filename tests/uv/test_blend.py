@@ -1,0 +1,80 @@
+"""Seam blending and texture transfer onto a new layout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scantex.atlas.seams import seam_visibility
+from scantex.scan import Material, Scan
+from scantex.uv import blend_seams, plan_uvs, transfer_texture
+from tests.atlas.test_seams_holes_bake import cylinder_with_one_seam
+from tests.conftest import grid_wall, textured_cube
+
+
+def test_blending_closes_the_cylinder_seam_and_leaves_the_rest():
+    scan = cylinder_with_one_seam()
+    assert seam_visibility(scan) == pytest.approx(150.0, abs=1.0)
+    blended = blend_seams(scan, band_texels=3.0)
+    assert blended.positions is scan.positions and blended.faces is scan.faces
+    assert seam_visibility(blended) < 5.0
+    before, after = scan.materials[0].image, blended.materials[0].image
+    # the seam runs along u = 0 / u = 1 (columns 0 and 63); columns farther than the band stay
+    assert np.array_equal(after[4:-4, 8:56], before[4:-4, 8:56])
+    # next to the seam both sides meet at the mean (50 + 200) / 2
+    assert abs(int(after[16, 0, 0]) - 125) <= 10 and abs(int(after[16, 63, 0]) - 125) <= 10
+
+
+def test_blending_needs_a_positive_band():
+    with pytest.raises(ValueError, match="band"):
+        blend_seams(cylinder_with_one_seam(), band_texels=0)
+
+
+def test_blending_an_untextured_or_seamless_scan_changes_nothing():
+    wall = grid_wall(n=6)
+    bare = Scan(wall.positions, wall.faces)
+    assert blend_seams(bare) is bare
+    assert blend_seams(wall) is wall  # one chart, no seam
+
+
+def test_blending_across_materials():
+    cube = textured_cube(materials=2)
+    solid = cube.replace(materials=(Material("a", np.full((64, 64, 3), 40, np.uint8)),
+                                    Material("b", np.full((64, 64, 3), 220, np.uint8))))
+    before = seam_visibility(solid)
+    assert before > 50
+    assert seam_visibility(blend_seams(solid)) < 0.2 * before
+
+
+def test_blending_lowers_seam_visibility_on_the_demo_wall():
+    from scantex.synth.wall import make_wall
+
+    demo = make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128)
+    before = seam_visibility(demo.scan)
+    blended = blend_seams(demo.scan)
+    after = seam_visibility(blended)
+    assert after < 0.6 * before
+    # texels deeper inside a chart than the band keep their colour
+    from scipy import ndimage
+
+    from scantex.atlas.texelmap import texel_map
+
+    covered = texel_map(demo.scan.triangle_uvs, 128, 128).mask
+    inner = ndimage.binary_erosion(covered, iterations=4)
+    same = (blended.materials[0].image == demo.scan.materials[0].image).all(axis=2)
+    assert inner.sum() > 100 and same[inner].mean() > 0.9
+
+
+def test_transfer_texture_onto_a_new_layout_keeps_the_colours():
+    wall = grid_wall(n=12)
+    plan = plan_uvs(wall, "unwrap", texture_size=128)
+    moved = transfer_texture(wall, plan.scan, size=128)
+    assert moved.materials[0].image.shape == (128, 128, 3)
+    # the same surface points show the same colour through either layout
+    rng = np.random.default_rng(0)
+    faces = rng.integers(0, wall.n_faces, 200)
+    bary = rng.dirichlet([2, 2, 2], 200)[:, 1:]
+    from scantex.views.render import shade_hits
+
+    a, b = shade_hits(wall, faces, bary), shade_hits(moved, faces, bary)
+    assert np.median(np.abs(a - b)) < 0.05

@@ -1,0 +1,125 @@
+"""Chart flattening, distortion, overlap detection and packing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from scantex.uv.charts import Charts, compact
+from scantex.uv.pack import min_area_rotation, pack
+from scantex.uv.param import distortion, lscm, overlap_share, planar_projection
+
+
+def flat_grid(n: int = 6, size: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    u, v = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n))
+    points = np.stack([u.ravel(), v.ravel(), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    return points, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_distortion_of_an_isometry_and_of_a_stretch():
+    points, tris = flat_grid()
+    iso = distortion(points[tris], points[tris][..., :2] * 7.0)  # a uniform scale is no distortion
+    assert iso.stretch == pytest.approx(1.0, abs=1e-9) and iso.flipped_share == 0
+    squash = points[:, :2] * np.array([2.0, 1.0])
+    d = distortion(points[tris], squash[tris])
+    # singular values (2, 1): Sander's L2 of the inverse, normalised: sqrt((1/4 + 1) / 2 * 2) = sqrt(1.25)
+    assert d.stretch == pytest.approx(np.sqrt(1.25), rel=1e-9)
+    assert d.max_anisotropy == pytest.approx(2.0)
+
+
+def test_distortion_counts_mirrored_faces():
+    points, tris = flat_grid()
+    uv = points[:, :2].copy()
+    tri_uv = uv[tris]
+    tri_uv[0] = tri_uv[0][[0, 2, 1]]  # one face mirrored
+    d = distortion(points[tris], tri_uv)
+    assert 0 < d.flipped_share < 0.1
+
+
+def test_planar_projection_keeps_lengths_and_winding():
+    points, tris = flat_grid()
+    rotation = trimesh.transformations.random_rotation_matrix(np.random.default_rng(1).random(3))[:3, :3]
+    moved = points @ rotation.T + 5.0
+    uv = planar_projection(moved, tris)
+    d = distortion(moved[tris], uv[tris])
+    assert d.stretch == pytest.approx(1.0, abs=1e-9) and d.flipped_share == 0
+    assert d.uv_area == pytest.approx(4.0)
+    e1, e2 = uv[tris[:, 1]] - uv[tris[:, 0]], uv[tris[:, 2]] - uv[tris[:, 0]]
+    assert (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] > 0).all()  # counter-clockwise seen from the front
+
+
+def test_lscm_unfolds_a_bent_strip_isometrically():
+    points, tris = flat_grid(n=7)
+    bent = points.copy()
+    fold = bent[:, 0] > 1.0
+    bent[fold, 2] = bent[fold, 0] - 1.0  # the right half turned up by 90 degrees
+    bent[fold, 0] = 1.0
+    # projected onto the mean plane each half is squashed by cos 45°: L2 stretch sqrt((1 + 1/2) / sqrt(2))
+    planar = distortion(bent[tris], planar_projection(bent, tris)[tris])
+    assert planar.stretch == pytest.approx(np.sqrt(1.5 / np.sqrt(2)))
+    assert planar.max_anisotropy == pytest.approx(np.sqrt(2))
+    uv = lscm(bent, tris)
+    d = distortion(bent[tris], uv[tris])
+    assert d.stretch == pytest.approx(1.0, abs=1e-6) and d.flipped_share == 0
+    assert d.uv_area == pytest.approx(d.surface_area)
+
+
+def test_lscm_of_a_sphere_cap_has_scale_distortion():
+    sphere = trimesh.creation.icosphere(3)
+    keep = sphere.triangles_center[:, 2] > 0.2
+    tris, vertex = compact(sphere.faces[keep])
+    uv = lscm(sphere.vertices[vertex], tris)
+    d = distortion(sphere.vertices[vertex][tris], uv[tris])
+    assert d.flipped_share == 0 and 1.01 < d.stretch < 1.2
+
+
+def test_overlap_share_sees_a_fold_but_not_shared_edges():
+    points, tris = flat_grid()
+    assert overlap_share(points[tris][..., :2]) == 0.0
+    folded = points[:, :2].copy()
+    folded[folded[:, 0] > 1.0, 0] = 2.0 - folded[folded[:, 0] > 1.0, 0]  # right half folded onto the left
+    assert overlap_share(folded[tris]) > 0.3
+
+
+def test_min_area_rotation_straightens_a_turned_rectangle():
+    rect = np.array([[0, 0], [3, 0], [3, 1], [0, 1]], float)
+    a = 0.4
+    turned = rect @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T
+    R = min_area_rotation(turned)
+    q = turned @ R.T
+    ext = q.max(axis=0) - q.min(axis=0)
+    assert ext == pytest.approx([3.0, 1.0]) and np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_pack_places_charts_apart_at_one_density():
+    # three square charts of 1, 2 and 0.5 metres
+    face_uvs, uvs, chart = [], [], []
+    for c, side in enumerate([1.0, 2.0, 0.5]):
+        base = len(uvs)
+        uvs += [[0, 0], [side, 0], [side, side], [0, side]]
+        face_uvs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        chart += [c, c]
+    charts = Charts(np.array(chart), np.array(face_uvs), np.array(uvs, float))
+    atlas = pack(charts, 256, gutter=3)
+    assert (atlas.uvs >= 0).all() and (atlas.uvs <= 1).all()
+    px = atlas.uvs * 256
+    boxes = []
+    for c in range(3):
+        p = px[np.unique(atlas.face_uvs[np.array(chart) == c])]
+        boxes.append((p.min(axis=0), p.max(axis=0)))
+        side = [1.0, 2.0, 0.5][c]
+        assert (p.max(axis=0) - p.min(axis=0)) == pytest.approx([side * atlas.texels_per_metre] * 2)
+    for i in range(3):
+        for j in range(i + 1, 3):
+            gap = np.maximum(boxes[j][0] - boxes[i][1], boxes[i][0] - boxes[j][1]).max()
+            assert gap >= 2 * 3 - 1  # gutters of both charts, less one texel of rounding
+    assert atlas.texels_per_metre > 256 / 3.5 * 0.8  # a decent fill: 2 + 1 + 0.5 metres across at most
+
+
+def test_pack_fails_loudly_when_nothing_fits():
+    charts = Charts(np.zeros(1, np.int64), np.array([[0, 1, 2]]), np.array([[0, 0], [1, 0], [0, 1.0]]))
+    with pytest.raises(ValueError, match="do not fit"):
+        pack(charts, 8, gutter=4)

@@ -1,0 +1,166 @@
+"""Shells and seam distances, optimise (split / merge), unwrap, density, and the public ``plan_uvs``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from scantex.atlas.seams import seam_edges, uv_shells
+from scantex.scan import Scan
+from scantex.uv import plan_uvs, seam_distances, summarise, texel_density
+from scantex.uv.param import overlap_share
+from scantex.uv.unwrap import (
+    UnwrapLog,
+    UnwrapOptions,
+    _run_xatlas,
+    unwrap,
+    xatlas_pieces,
+)
+from tests.atlas.test_seams_holes_bake import cylinder_with_one_seam
+from tests.conftest import grid_wall, textured_cube
+
+
+@pytest.fixture(scope="module")
+def demo_wall():
+    from scantex.synth.wall import make_wall
+
+    return make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128)
+
+
+def check_layout(before: Scan, after: Scan, threshold: float) -> None:
+    """Geometry untouched, UVs inside the atlas, no chart over the threshold, no overlap anywhere."""
+    assert after.positions is before.positions and after.faces is before.faces
+    assert after.has_uvs and (after.uvs >= 0).all() and (after.uvs <= 1).all()
+    summary = summarise(after)
+    assert summary.stretch["max"] <= threshold
+    assert overlap_share(after.triangle_uvs) == 0.0
+
+
+# -- shells and seams -----------------------------------------------------------------------------
+
+
+def test_cube_seam_distances():
+    cube = textured_cube(materials=1)
+    d = seam_distances(cube)
+    assert d.shape == (12,) and np.isfinite(d).all() and (d > 1.0).all()
+    two = seam_distances(textured_cube(materials=2))
+    assert np.isinf(two).sum() > 0  # sides in different atlases are infinitely far apart
+
+
+def test_cylinder_seam_distance_is_the_atlas_width():
+    scan = cylinder_with_one_seam()
+    (d,) = seam_distances(scan)
+    assert d == pytest.approx(64.0)  # u = 0 and u = 1 of a 64-texel-wide atlas
+
+
+def test_texel_density_of_the_cube():
+    cube = textured_cube(materials=1)
+    density = texel_density(cube)
+    # each side: a 0.29 x 0.46 UV rectangle of a 64² atlas over about 1 m² = 10^4 cm²
+    expected = np.sqrt(0.29 * 64 * 0.46 * 64 / 1e4)
+    assert density.shape == (6,) and density == pytest.approx(expected, rel=0.01)
+
+
+def test_summary_counts(cube):
+    s = summarise(cube)
+    assert s.shells == 6 and s.seam_edges == 12
+    assert s.stretch["max"] > 1.0  # 0.29 x 0.46 rectangles on unit squares are anisotropic
+    assert summarise(Scan(cube.positions, cube.faces)) is None
+
+
+# -- optimize -------------------------------------------------------------------------------------
+
+
+def test_optimize_merges_cube_sides_within_the_threshold():
+    cube = textured_cube(materials=2)
+    plan = plan_uvs(cube, "optimize", threshold=1.1, texture_size=64)
+    after = plan.report["after"]
+    assert after["shells"] < 6 and after["seam_edges"] < 12
+    check_layout(cube, plan.scan, 1.1)
+    assert len(plan.scan.materials) == 1 and plan.scan.materials[0].image.shape == (64, 64, 3)
+
+
+def test_optimize_splits_a_stretched_shell():
+    wall = grid_wall(n=10)
+    u, v = wall.uvs[:, 0], wall.uvs[:, 1]
+    warped = wall.replace(uvs=np.stack([u ** 3, v], axis=1))  # strongly non-uniform along u
+    assert summarise(warped).stretch["max"] > 1.5
+    plan = plan_uvs(warped, "optimize", threshold=1.1, texture_size=128)
+    assert plan.report["optimize"]["shells_split"] == 1
+    check_layout(warped, plan.scan, 1.1)
+
+
+def test_optimize_reduces_shells_and_seams_on_the_demo_wall(demo_wall):
+    scan = demo_wall.scan
+    plan = plan_uvs(scan, "optimize", threshold=1.1, texture_size=128)
+    before, after = plan.report["before"], plan.report["after"]
+    assert before["shells"] == len(np.unique(uv_shells(scan))) and before["shells"] > 10
+    assert after["shells"] < before["shells"] / 4 and after["seam_edges"] < before["seam_edges"] / 4
+    check_layout(scan, plan.scan, 1.1)
+    density = after["density_px_per_cm"]
+    assert density["max"] / density["min"] < 1.01  # uniform texel density
+    json.dumps(plan.report)
+
+
+def test_optimize_keeps_relative_density_when_asked(demo_wall):
+    scan = demo_wall.scan
+    plan = plan_uvs(scan, "optimize", texture_size=128, equalise_density=False)
+    assert plan.report["equalise_density"] is False and plan.scan.has_uvs
+
+
+# -- unwrap ---------------------------------------------------------------------------------------
+
+
+def test_unwrap_a_mesh_without_uvs():
+    sphere = trimesh.creation.icosphere(2)
+    scan = Scan(sphere.vertices, sphere.faces)
+    plan = plan_uvs(scan, "unwrap", texture_size=256)
+    check_layout(scan, plan.scan, 1.1)
+    assert plan.report["before"] is None and plan.report["after"]["shells"] >= 2
+    kept = plan_uvs(scan, "keep", texture_size=256)
+    assert kept.scan.has_uvs and any("no UVs" in f for f in kept.report["fallbacks"])
+
+
+def test_unwrap_a_flat_wall_is_one_chart():
+    wall = grid_wall(n=20)
+    plan = plan_uvs(Scan(wall.positions, wall.faces), "unwrap", texture_size=128)
+    assert plan.report["after"]["shells"] == 1 and plan.report["after"]["seam_edges"] == 0
+
+
+def test_xatlas_runs_in_a_subprocess_and_times_out_cleanly():
+    sphere = trimesh.creation.icosphere(2)
+    result = _run_xatlas(sphere.vertices, sphere.faces, timeout=120)
+    assert result is not None
+    region = np.arange(len(sphere.faces))
+    pieces = xatlas_pieces(sphere.vertices, sphere.faces, region, result)
+    assert sum(len(p[0]) for p in pieces) == len(sphere.faces) and len(pieces) > 1
+    assert _run_xatlas(sphere.vertices, sphere.faces, timeout=0.01) is None
+
+
+def test_unwrap_hands_small_charts_to_xatlas():
+    sphere = trimesh.creation.icosphere(2)
+    record = UnwrapLog()
+    # every chart counts as small: what merging leaves goes to xatlas
+    charts = unwrap(sphere.vertices, sphere.faces, UnwrapOptions(min_chart_faces=10**6), record=record)
+    assert record.xatlas_regions == 1 and record.xatlas_charts == charts.n_charts
+    for d in charts.distortions(sphere.vertices[sphere.faces]):
+        assert d.flipped_share == 0
+
+
+# -- the public entry point ------------------------------------------------------------------------
+
+
+def test_plan_rejects_bad_arguments(cube):
+    with pytest.raises(ValueError, match="mode"):
+        plan_uvs(cube, "shuffle")
+    with pytest.raises(ValueError, match="threshold"):
+        plan_uvs(cube, "optimize", threshold=0.5)
+
+
+def test_keep_returns_the_scan_itself(cube):
+    plan = plan_uvs(cube, "keep")
+    assert plan.scan is cube and plan.report["before"] == plan.report["after"]
+    assert plan.report["before"]["shells"] == 6 and len(seam_edges(cube)) == 12
