@@ -5,7 +5,7 @@ low-resolution atlas and strong compression noise. Methods: the input as it is; 
 the atlas; inpainting of holes plus Gaussian seam blending; multi-view average back-projection of the
 input's renders; scantex's presets (``fast`` everywhere, ``default`` too on the demo wall).
 
-Every method's output is scored the same way, with :func:`scantex.pipeline.enhance.score_views`: unlit
+Every method's output is scored the same way, with :func:`scantex.metrics.views.score_views`: unlit
 renders at held-out cameras that no method saw (planned with their own seed) against renders of the
 ground truth; hole PSNR over the pixels whose face the input left black. Seam visibility is measured
 on the output atlas along the input's seams. Wall time and peak memory (resident set above the level
@@ -37,7 +37,8 @@ from bench.baselines import backproject, bicubic, inpaint_and_blend  # noqa: E40
 from scantex.atlas.holes import untextured_faces  # noqa: E402
 from scantex.atlas.seams import seam_edges, seam_visibility  # noqa: E402
 from scantex.pipeline.config import EnhanceConfig, FieldSettings, TrainConfig, ViewsConfig, preset  # noqa: E402
-from scantex.pipeline.enhance import enhance, score_views  # noqa: E402
+from scantex.metrics.views import score_views
+from scantex.pipeline.enhance import enhance  # noqa: E402
 from scantex.scan import Scan  # noqa: E402
 from scantex.synth import make_room, make_wall  # noqa: E402
 from scantex.synth.degrade import Degradation  # noqa: E402

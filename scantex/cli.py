@@ -138,16 +138,17 @@ def cmd_enhance(args) -> int:
     import shutil
 
     shutil.rmtree(work, ignore_errors=True)
-    _echo(args, summary_lines(result.metrics))
+    _echo(args, enhance_summary(result.metrics))
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb, "
-                f"metrics.json, config.json)")
+                f"metrics.json, config.json, report.html)")
     return 0
 
 
-def summary_lines(m: dict) -> str:
+def enhance_summary(m: dict) -> str:
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
-             f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces)",
+             f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces; Hausdorff "
+             f"{g['distance']['hausdorff']:.3g}, mean distance {g['distance']['mean']:.3g})",
              f"seam visibility: {m['seam_visibility']['input']:.2f} -> {m['seam_visibility']['enhanced']:.2f}"]
     if "held_out_vs_ground_truth" in m:
         s = m["held_out_vs_ground_truth"]

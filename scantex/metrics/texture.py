@@ -154,7 +154,7 @@ def render_scores(reference: Reference, scans: dict[str, Scan], cameras: Sequenc
                   supersample: int = 2) -> dict:
     """Mean PSNR / SSIM / MSE over ``cameras`` of each scan's unlit renders against ``reference``.
 
-    Unlike :func:`scantex.pipeline.enhance.score_views`, each scan is ray-cast on its own, so the scans
+    Unlike :func:`scantex.metrics.views.score_views`, each scan is ray-cast on its own, so the scans
     may differ in geometry; a pixel counts where the reference's mask says so (a scan that does not
     cover it there is scored against its black background).
     """

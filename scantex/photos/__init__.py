@@ -17,7 +17,12 @@ world frame = the mesh's); each format's module docstring says exactly how it is
     write_colmap_binary(photos, "as_colmap/")  # convert
 """
 
-from scantex.photos.alignment import AlignmentReport, PhotoAlignment, check_alignment, require_alignment
+from scantex.photos.alignment import (
+           AlignmentReport,
+           PhotoAlignment,
+           check_alignment,
+           require_alignment,
+)
 from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
 from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
 from scantex.photos.load import detect_format, load_photos

@@ -26,7 +26,12 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import MAX_DISTORTION_PX, accept_distortion, check_intrinsics, check_pose
+from scantex.photos.conventions import (
+    MAX_DISTORTION_PX,
+    accept_distortion,
+    check_intrinsics,
+    check_pose,
+)
 from scantex.photos.files import check_sizes, copy_into, load_json, need, resolve_file
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera

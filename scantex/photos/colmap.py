@@ -33,8 +33,14 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import (CORNER_CONVENTION, MAX_DISTORTION_PX, accept_distortion,
-                                        check_intrinsics, intrinsics, principal_point)
+from scantex.photos.conventions import (
+    CORNER_CONVENTION,
+    MAX_DISTORTION_PX,
+    accept_distortion,
+    check_intrinsics,
+    intrinsics,
+    principal_point,
+)
 from scantex.photos.files import check_sizes, copy_into
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera

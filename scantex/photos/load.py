@@ -73,7 +73,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
             JSON or binary, non-finite poses, unsupported camera models.
     """
     fmt, target = detect_format(path)
-    loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, cameras_json.FORMAT: cameras_json.load_cameras_json,
-               "colmap": colmap.load_colmap, polycam.FORMAT: polycam.load_polycam,
+    loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
+               cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
                scannerapp.FORMAT: scannerapp.load_3dscannerapp}
     return loaders[fmt](target, max_distortion_px=max_distortion_px)

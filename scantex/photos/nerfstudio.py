@@ -36,11 +36,25 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import (CORNER_CONVENTION, MAX_DISTORTION_PX, accept_distortion,
-                                        check_intrinsics, check_pose, intrinsics,
-                                        opengl_camera_to_world, principal_point,
-                                        world_to_camera_from_opengl)
-from scantex.photos.files import check_sizes, copy_into, load_json, number, resolve_file
+from scantex.photos.conventions import (
+    CORNER_CONVENTION,
+    MAX_DISTORTION_PX,
+    accept_distortion,
+    check_intrinsics,
+    check_pose,
+    intrinsics,
+    opengl_camera_to_world,
+    principal_point,
+    world_to_camera_from_opengl,
+)
+from scantex.photos.files import (
+    check_sizes,
+    copy_into,
+    load_json,
+    need,
+    number,
+    resolve_file,
+)
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -82,18 +96,15 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
         what = f"frame {i}"
         if not isinstance(frame, dict):
             raise ScanError(path, f"{what} is not an object")
-
-        def get(key, default=None):
-            return frame.get(key, doc.get(key, default))
-
+        scope = {**doc, **frame}  # a frame's own intrinsics win over the file's
+        get = scope.get
         if "file_path" not in frame:
             raise ScanError(path, f"{what}: missing 'file_path'")
         image = _image_path(base, str(frame["file_path"]), path, what)
         if get("w") is not None and get("h") is not None:
-            width, height = int(get("w")), int(get("h"))
+            width, height = int(number(scope, "w", path, what)), int(number(scope, "h", path, what))
         else:
             width, height = image_size(image)
-        scope = {**doc, **frame}
         if get("fl_x") is not None:
             fx = number(scope, "fl_x", path, what)
             fy = number(scope, "fl_y", path, what) if get("fl_y") is not None else fx
@@ -106,7 +117,7 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
         K = intrinsics(fx, fy, cx, cy, pixel_centre=CORNER_CONVENTION)
         check_intrinsics(K, width, height, path, what)
 
-        c2w = check_pose(frame.get("transform_matrix"), path, what)
+        c2w = check_pose(need(frame, "transform_matrix", path, what), path, what)
         if applied is not None and undo_applied_transform:
             c2w = np.linalg.inv(applied) @ c2w
         camera = Camera(K, world_to_camera_from_opengl(c2w), width, height)

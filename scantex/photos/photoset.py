@@ -15,7 +15,6 @@ smeared by exactly that many pixels.
 from __future__ import annotations
 
 import dataclasses
-import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +23,6 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.views.camera import Camera
-
-log = logging.getLogger(__name__)
 
 #: metres per depth-map unit in every format scantex reads: uint16 PNG in millimetres
 DEPTH_SCALE_MM = 0.001

@@ -25,9 +25,16 @@ from pathlib import Path
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import (CORNER_CONVENTION, MAX_DISTORTION_PX, check_intrinsics,
-                                        check_pose, intrinsics, opengl_camera_to_world, principal_point,
-                                        world_to_camera_from_opengl)
+from scantex.photos.conventions import (
+    CORNER_CONVENTION,
+    MAX_DISTORTION_PX,
+    check_intrinsics,
+    check_pose,
+    intrinsics,
+    opengl_camera_to_world,
+    principal_point,
+    world_to_camera_from_opengl,
+)
 from scantex.photos.files import check_sizes, copy_into, load_json, number
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera

@@ -28,8 +28,14 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import (CORNER_CONVENTION, MAX_DISTORTION_PX, check_intrinsics,
-                                        check_pose, opengl_camera_to_world, world_to_camera_from_opengl)
+from scantex.photos.conventions import (
+    CORNER_CONVENTION,
+    MAX_DISTORTION_PX,
+    check_intrinsics,
+    check_pose,
+    opengl_camera_to_world,
+    world_to_camera_from_opengl,
+)
 from scantex.photos.files import copy_into, load_json, need
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera

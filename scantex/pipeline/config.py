@@ -60,9 +60,9 @@ class FieldSettings:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    steps: int = 1500
+    steps: int = 800
     """optimisation steps"""
-    batch_rays: int = 8192
+    batch_rays: int = 16384
     """rays per step"""
     lr: float = 1e-2
     """Adam learning rate of the field"""

@@ -21,8 +21,8 @@ from scantex.atlas.bake import bake, output_size
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
-from scantex.metrics.geometry import geometry_identity
-from scantex.metrics.image import psnr, ssim
+from scantex.metrics.geometry import geometry_metrics
+from scantex.metrics.views import score_views
 from scantex.pipeline.config import EnhanceConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -131,37 +131,6 @@ def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarra
             chart=chart_of_face[tv.face_id[i].reshape(-1)[valid]].astype(np.int64),
         ))
     return RayDataset.concatenate(parts)
-
-
-def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], scans: dict[str, Scan],
-                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = 2) -> dict:
-    """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
-
-    Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
-    one of ``hole_faces`` (what the input left black).
-    """
-    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "hole_psnr": []} for name in scans}
-    hole_pixels = {name: [] for name in scans}
-    for cam in cameras:
-        ref, ref_alpha = reference(cam)
-        mask = ref_alpha >= 0.999
-        g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
-        holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
-        for name, scan in scans.items():
-            img, _ = render(scan, cam, caster, supersample=supersample)
-            out[name]["psnr"].append(psnr(img, ref, mask))
-            out[name]["ssim"].append(ssim(img, ref, mask))
-            out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))
-            if holes.any():
-                hole_pixels[name].append(((img - ref) ** 2)[holes])
-    result = {}
-    for name in scans:
-        r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
-        if hole_pixels[name]:
-            e = float(np.concatenate(hole_pixels[name]).mean())
-            r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")
-        result[name] = r
-    return result
 
 
 def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, device):
@@ -307,7 +276,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     """The run's metrics: geometry identity always; texture scores on the held-out views."""
     edges = seam_edges(scan)
     metrics: dict = {
-        "geometry": geometry_identity(scan, enhanced),
+        "geometry": geometry_metrics(scan, enhanced),
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "charts": int(charts.max()) + 1,
                   "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
         "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),

@@ -96,7 +96,7 @@ def test_enhance_cli_writes_everything(tmp_path, toy_demo):
                            "--config", str(tmp_path / "toy.json"), "--ground-truth", str(tmp_path / "truth.obj"),
                            "-q"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    for name in ("enhanced.obj", "enhanced.mtl", "enhanced_scan.png", "enhanced.glb", "metrics.json",
+    for name in ("enhanced.obj", "enhanced.mtl", "enhanced_scan.png", "enhanced.glb", "metrics.json", "report.html",
                  "config.json", "renders/cameras.json"):
         assert (out / name).exists(), name
     assert not (tmp_path / "out.partial").exists()

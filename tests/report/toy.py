@@ -8,7 +8,8 @@ from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_visibility
 from scantex.metrics.geometry import geometry_metrics
 from scantex.pipeline.config import EnhanceConfig, ViewsConfig
-from scantex.pipeline.enhance import EnhanceResult, TrainingViews, score_views
+from scantex.metrics.views import score_views
+from scantex.pipeline.enhance import EnhanceResult, TrainingViews
 from scantex.synth import make_wall
 from scantex.synth.degrade import Degradation
 from scantex.views.planning import plan_views

@@ -1,0 +1,134 @@
+"""The alignment check: aligned synthetic photos pass, a moved or turned mesh fails with a clear line."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scantex.errors import ScanError
+from scantex.photos import PhotoSet, check_alignment, load_photos, require_alignment
+from scantex.photos.alignment import contour_map, edge_map, resized_camera
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from scantex.views.render import render, to_uint8
+from tests.conftest import grid_wall, shared_scan, textured_cube
+
+
+def photograph(scan, cams, folder) -> PhotoSet:
+    caster = RayCaster(scan.positions, scan.faces)
+    images = []
+    for i, cam in enumerate(cams):
+        Image.fromarray(to_uint8(render(scan, cam, caster)[0])).save(folder / f"p{i}.png")
+        images.append(folder / f"p{i}.png")
+    return PhotoSet(cameras=tuple(cams), images=tuple(images), source=folder, format="rendered")
+
+
+def cube_photos(tmp_path):
+    scan = textured_cube()
+    eyes = [(2.6, -1.8, 1.9), (-1.6, -2.2, 1.4), (2.4, 2.0, 2.2), (-1.5, 2.4, 0.9)]
+    cams = [Camera.look_at(e, (0.5, 0.5, 0.5), fov_deg=50, width=96, height=72) for e in eyes]
+    return scan, photograph(scan, cams, tmp_path)
+
+
+def moved(scan, offset=(0.0, 0.0, 0.0), turn_deg=0.0, axis=2, about=(0.0, 0.0, 0.0)):
+    a = np.radians(turn_deg)
+    c, s = np.cos(a), np.sin(a)
+    i, j = [k for k in range(3) if k != axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    positions = (scan.positions - about) @ R.T + np.asarray(about) + offset
+    return dataclasses.replace(scan, positions=positions)
+
+
+def test_aligned_photos_pass(tmp_path):
+    scan, photos = cube_photos(tmp_path)
+    report = require_alignment(scan, photos)
+    assert report.ok and report.problem is None and len(report.photos) == 4
+    assert report.edge_distance_px < 0.5 and report.ratio < 0.1
+    assert all(0.05 < p.coverage < 0.9 for p in report.photos)
+    assert report.summary().startswith("mesh and photos aligned") and "\n" not in report.summary()
+
+
+def test_photos_are_compared_at_max_side(tmp_path):
+    scan, photos = cube_photos(tmp_path)
+    report = check_alignment(scan, photos, n_photos=2, max_side=48)
+    assert [p.size for p in report.photos] == [(48, 36), (48, 36)] and report.ok
+
+
+def test_mesh_far_away_fails(tmp_path):
+    scan, photos = cube_photos(tmp_path)
+    with pytest.raises(ScanError) as err:
+        require_alignment(moved(scan, offset=(30.0, 0.0, 0.0)), photos)
+    message = str(err.value)
+    assert message.startswith(f"{photos.source}: the mesh is not in the cameras' frame")
+    assert "projects outside 4 of the 4 photos" in message and "median edge distance" in message
+    assert "\n" not in message
+
+
+def test_turned_mesh_fails(tmp_path):
+    """A wall turned 90 degrees about a vertical line through its middle: still in view, edges wrong."""
+    wall = grid_wall()  # x-z plane, x and z in [0, 2]
+    cams = [Camera.look_at((1.0 + dx, -3.0, 1.0 + dz), (1.0, 0.0, 1.0), fov_deg=70, width=96, height=72)
+            for dx, dz in ((0.0, 0.0), (1.2, 0.4), (-1.2, -0.3), (0.5, 1.0))]
+    photos = photograph(wall, cams, tmp_path)
+    assert check_alignment(wall, photos).ok
+    turned = moved(wall, turn_deg=90, axis=2, about=(1.0, 0.0, 1.0))  # now in the y-z plane
+    report = check_alignment(turned, photos)
+    assert not report.ok and "miss the photos' edges" in report.problem
+    with pytest.raises(ScanError, match="the mesh is not in the cameras' frame"):
+        require_alignment(turned, photos)
+
+
+def test_small_shift_of_a_textured_mesh_is_caught(tmp_path):
+    scan, photos = cube_photos(tmp_path)
+    report = check_alignment(moved(scan, offset=(0.15, -0.1, 0.1)), photos)
+    assert not report.ok and report.ratio > 0.5
+
+
+def test_contour_map_marks_the_nearer_side():
+    mask = np.zeros((6, 8), bool)
+    mask[1:5, 2:6] = True
+    depth = np.where(mask, 2.0, np.inf).astype(np.float32)
+    depth[1:5, 4:6] = 3.0  # a step back on the right half
+    edges = contour_map(mask, depth)
+    ring = mask & ~np.pad(mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2]
+                          & mask[1:-1, 2:], 1)
+    expected = ring.copy()
+    expected[1:5, 3] = True  # the near side of the depth step
+    assert np.array_equal(edges, expected)
+
+
+def test_edge_map_finds_a_step_once():
+    img = np.zeros((20, 20), np.float32)
+    img[:, 10:] = 1.0
+    edges = edge_map(img)
+    cols = np.nonzero(edges.any(axis=0))[0]
+    assert set(cols) <= {9, 10} and edges[:, 9:11].any(axis=1).all()
+    assert not edge_map(np.full((20, 20), 0.5, np.float32)).any()
+
+
+def test_resized_camera_keeps_image_corners():
+    cam = Camera.look_at((0, -3, 0), (0, 0, 0), width=64, height=48)
+    small = resized_camera(cam, 16, 12)
+    X = np.array([[0.3, 0.0, -0.2]])
+    (p,), _ = cam.project(X)
+    (q,), _ = small.project(X)
+    np.testing.assert_allclose((p + 0.5) / 4, q + 0.5)
+
+
+def test_bolster_alignment():
+    """The real Kinect capture: untextured mesh, contours only. Aligned, and a mesh moved by 20 cm or
+    turned by 90 degrees is caught."""
+    from scantex.io import load_scan
+
+    folder = shared_scan("bolster_rgbd_posed")
+    photos = load_photos(folder)
+    scan = load_scan(folder / "bloster.ply")
+    report = require_alignment(scan, photos)
+    assert report.ratio < 0.35 and report.coverage > 0.05
+    centre = scan.positions.mean(axis=0)
+    assert not check_alignment(moved(scan, offset=(0.2, 0.0, 0.0)), photos).ok
+    assert not check_alignment(moved(scan, turn_deg=90, axis=2, about=centre), photos).ok

@@ -1,0 +1,403 @@
+"""Posed-photo importers: conventions against hand-made files, synthetic round trips through every
+writer (render, write, read, render again: the same pixels), bad input, and the real bolster capture."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import struct
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scantex.errors import ScanError
+from scantex.photos import (
+    PhotoSet,
+    detect_format,
+    load_photos,
+    write_3dscannerapp,
+    write_cameras_json,
+    write_colmap_binary,
+    write_colmap_text,
+    write_nerfstudio,
+    write_polycam,
+)
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.render import render, to_uint8
+from tests.conftest import shared_scan, textured_cube
+
+W, H = 48, 36
+
+
+# ---- a small posed capture made in code ---------------------------------------------------------
+
+def capture_cameras() -> list[Camera]:
+    """Four views of the unit cube, with off-centre principal points and non-square pixels."""
+    eyes = [(2.6, -1.8, 1.9), (-1.6, -2.2, 1.4), (2.4, 2.0, 2.2), (0.4, -2.6, 0.3)]
+    cams = []
+    for k, eye in enumerate(eyes):
+        cam = Camera.look_at(eye, (0.5, 0.5, 0.5), up=(0, 0, 1), fov_deg=55, width=W, height=H)
+        K = cam.K.copy()
+        K[0, 0] *= 1.0 + 0.05 * k       # fx != fy
+        K[1, 1] *= 1.0 - 0.03 * k
+        K[0, 2] += 2.75 - 1.5 * k       # off-centre principal point, fractional
+        K[1, 2] += -1.25 + 0.8 * k
+        cams.append(dataclasses.replace(cam, K=K))
+    return cams
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    """``(scan, photos, renders, depths_mm)``: PNG photos rendered from known cameras, with depth."""
+    scan = textured_cube()
+    caster = RayCaster(scan.positions, scan.faces)
+    folder = tmp_path_factory.mktemp("capture")
+    cams = capture_cameras()
+    renders, images, depth_files, depths = [], [], [], []
+    for i, cam in enumerate(cams):
+        rgb = to_uint8(render(scan, cam, caster)[0])
+        depth = cast_gbuffer(caster, cam, scan.face_normals).depth
+        mm = np.where(np.isfinite(depth), np.rint(depth * 1000), 0).astype(np.uint16)
+        Image.fromarray(rgb).save(folder / f"photo_{i}.png")
+        Image.fromarray(mm).save(folder / f"depth_{i}.png")
+        renders.append(rgb)
+        depths.append(mm)
+        images.append(folder / f"photo_{i}.png")
+        depth_files.append(folder / f"depth_{i}.png")
+    photos = PhotoSet(cameras=tuple(cams), images=tuple(images), depths=tuple(depth_files),
+                      source=folder, format="rendered")
+    return scan, photos, renders, depths
+
+
+WRITERS = [  # writer, format read back, keeps depth
+    (write_nerfstudio, "nerfstudio", True),
+    (write_colmap_text, "colmap-text", False),
+    (write_colmap_binary, "colmap-binary", False),
+    (write_3dscannerapp, "3dscannerapp", True),
+    (write_polycam, "polycam", True),
+    (write_cameras_json, "cameras.json", True),
+]
+
+
+@pytest.mark.parametrize("writer, fmt, keeps_depth", WRITERS, ids=[w[1] for w in WRITERS])
+def test_round_trip_renders_the_same_pixels(capture, tmp_path, writer, fmt, keeps_depth):
+    scan, photos, renders, depths = capture
+    written = writer(photos, tmp_path / "out")
+    for where in (written, tmp_path / "out"):  # the file the writer names, and the folder
+        back = load_photos(where)
+        assert back.format == fmt and len(back) == len(photos)
+    caster = RayCaster(scan.positions, scan.faces)
+    for i, (cam, ref) in enumerate(zip(photos.cameras, back.cameras)):
+        assert (ref.width, ref.height) == (cam.width, cam.height)
+        np.testing.assert_allclose(ref.K, cam.K, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(ref.world_to_camera, cam.world_to_camera, rtol=0, atol=1e-9)
+        assert np.array_equal(back.load_image(i), renders[i])
+        again = to_uint8(render(scan, ref, caster)[0])
+        diff = np.abs(again.astype(int) - renders[i].astype(int))
+        assert diff.max() <= 1, f"photo {i}: re-rendered pixels differ by up to {diff.max()}"
+        assert (diff == 0).mean() > 0.999  # float64 poses: in practice every pixel is identical
+        if keeps_depth:
+            depth = back.load_depth(i)
+            expected = np.where(depths[i] > 0, depths[i] * np.float32(0.001), np.nan).astype(np.float32)
+            np.testing.assert_array_equal(depth, expected)
+        else:
+            assert back.load_depth(i) is None
+
+
+# ---- conventions, against files written by hand --------------------------------------------------
+
+def reference_camera() -> Camera:
+    """At (0, -4, 0) looking at the origin, +z up: camera +x = world +x, camera +y (down) = world -z,
+    camera +z (forward) = world +y. Principal point at the image centre, fx 50, fy 40."""
+    cam = Camera.look_at((0, -4, 0), (0, 0, 0), up=(0, 0, 1), width=W, height=H)
+    R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    assert np.allclose(cam.R, R) and np.allclose(cam.t, [0, 0, 4])
+    K = np.array([[50.0, 0, (W - 1) / 2], [0, 40.0, (H - 1) / 2], [0, 0, 1]])
+    return dataclasses.replace(cam, K=K)
+
+
+# the same camera, OpenGL camera-to-world: columns are camera right, up, back in world coordinates
+GL_C2W = [[1.0, 0, 0, 0], [0, 0, -1, -4], [0, 1, 0, 0], [0, 0, 0, 1]]
+
+
+def blank_png(path, w=W, h=H):
+    Image.fromarray(np.zeros((h, w, 3), np.uint8)).save(path)
+
+
+def assert_reference(photos):
+    ref = reference_camera()
+    cam = photos.cameras[0]
+    np.testing.assert_allclose(cam.K, ref.K, atol=1e-12)
+    np.testing.assert_allclose(cam.world_to_camera, ref.world_to_camera, atol=1e-12)
+    # the world point 1 m right of and 1 m above the target lands right of and above the centre
+    pix, z = cam.project(np.array([[1.0, 0.0, 1.0]]))
+    np.testing.assert_allclose(pix[0], [(W - 1) / 2 + 50 / 4, (H - 1) / 2 - 40 / 4])
+    assert z[0] == pytest.approx(4.0)
+
+
+def test_nerfstudio_convention(tmp_path):
+    blank_png(tmp_path / "a.png")
+    doc = {"camera_model": "OPENCV", "fl_x": 50, "fl_y": 40, "cx": W / 2, "cy": H / 2, "w": W, "h": H,
+           "frames": [{"file_path": "a.png", "transform_matrix": GL_C2W}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    assert_reference(load_photos(tmp_path))
+
+
+def test_nerfstudio_blender_layout(tmp_path):
+    """``camera_angle_x``, no intrinsics, an extensionless file_path."""
+    (tmp_path / "train").mkdir()
+    blank_png(tmp_path / "train" / "r_0.png")
+    angle = 2 * math.atan(W / 2 / 50)
+    doc = {"camera_angle_x": angle, "frames": [{"file_path": "./train/r_0", "transform_matrix": GL_C2W}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    cam = load_photos(tmp_path / "transforms.json").cameras[0]
+    np.testing.assert_allclose(cam.K, [[50, 0, (W - 1) / 2], [0, 50, (H - 1) / 2], [0, 0, 1]], atol=1e-9)
+
+
+def test_nerfstudio_applied_transform_can_be_undone(tmp_path):
+    from scantex.photos import load_nerfstudio
+
+    blank_png(tmp_path / "a.png")
+    shift = np.eye(4)
+    shift[:3, 3] = [1.0, 2.0, 3.0]
+    moved = (shift @ np.array(GL_C2W)).tolist()
+    doc = {"fl_x": 50, "fl_y": 40, "cx": W / 2, "cy": H / 2, "w": W, "h": H,
+           "applied_transform": shift[:3].tolist(),
+           "frames": [{"file_path": "a.png", "transform_matrix": moved}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    assert_reference(load_nerfstudio(tmp_path, undo_applied_transform=True))
+    assert np.allclose(load_nerfstudio(tmp_path).cameras[0].center, [1.0, -2.0, 3.0])
+
+
+def test_colmap_text_convention(tmp_path):
+    (tmp_path / "images").mkdir()
+    blank_png(tmp_path / "images" / "a.png")
+    model = tmp_path / "sparse" / "0"
+    model.mkdir(parents=True)
+    (model / "cameras.txt").write_text(f"# comment\n1 PINHOLE {W} {H} 50 40 {W / 2} {H / 2}\n")
+    s = math.sqrt(0.5)  # world-to-camera rotation: +90 degrees about x
+    (model / "images.txt").write_text(f"# comment\n1 {s} {s} 0 0 0 0 4 1 a.png\n\n")
+    photos = load_photos(tmp_path)
+    assert photos.format == "colmap-text"
+    assert_reference(photos)
+
+
+def test_colmap_binary_matches_text(tmp_path, capture):
+    """The two COLMAP writers read back to the same cameras, and the binary layout is COLMAP's."""
+    _, photos, _, _ = capture
+    write_colmap_text(photos, tmp_path / "t")
+    model = write_colmap_binary(photos, tmp_path / "b")
+    a, b = load_photos(tmp_path / "t"), load_photos(tmp_path / "b")
+    for ca, cb in zip(a.cameras, b.cameras):
+        assert np.allclose(ca.K, cb.K, atol=1e-12)
+        assert np.allclose(ca.world_to_camera, cb.world_to_camera, atol=1e-12)
+    data = (model / "cameras.bin").read_bytes()
+    count, cid, model_id, w, h = struct.unpack_from("<QiiQQ", data)
+    assert count == 4 and (cid, model_id, w, h) == (1, 1, W, H)  # 4 intrinsics; PINHOLE is model 1
+
+
+def test_3dscannerapp_convention_and_frames_without_photos(tmp_path):
+    blank_png(tmp_path / "frame_00003.png")
+    doc = {"cameraPoseARFrame": np.array(GL_C2W).reshape(-1).tolist(),
+           "intrinsics": [50, 0, W / 2, 0, 40, H / 2, 0, 0, 1], "frame_index": 3}
+    (tmp_path / "frame_00003.json").write_text(json.dumps(doc))
+    (tmp_path / "frame_00001.json").write_text(json.dumps(doc))  # a pose-only frame: skipped
+    photos = load_photos(tmp_path / "frame_00003.json")
+    assert photos.format == "3dscannerapp" and len(photos) == 1
+    assert_reference(photos)
+
+
+def test_polycam_convention(tmp_path):
+    root = tmp_path / "keyframes"
+    (root / "images").mkdir(parents=True)
+    (root / "cameras").mkdir()
+    blank_png(root / "images" / "1700.jpg")
+    blank_png(root / "images" / "1700(1).jpg")  # unzip duplicate: ignored
+    doc = {"fx": 50, "fy": 40, "cx": W / 2, "cy": H / 2, "width": W, "height": H, "blur_score": 3.0}
+    doc.update({f"t_{r}{c}": GL_C2W[r][c] for r in range(3) for c in range(4)})
+    (root / "cameras" / "1700.json").write_text(json.dumps(doc))
+    photos = load_photos(tmp_path)
+    assert photos.format == "polycam" and len(photos) == 1
+    assert_reference(photos)
+
+
+def test_cameras_json_convention_is_scantex_own(tmp_path):
+    blank_png(tmp_path / "a.png")
+    ref = reference_camera()
+    frame = {"image": "a.png", **ref.to_dict(), "R": "ignored", "C": [0, 0, 0]}
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [frame]}))
+    assert_reference(load_photos(tmp_path / "cameras.json"))
+
+
+def test_detect_format(tmp_path, capture):
+    _, photos, _, _ = capture
+    write_colmap_binary(photos, tmp_path / "c")
+    assert detect_format(tmp_path / "c") == ("colmap", tmp_path / "c" / "sparse" / "0")
+    assert detect_format(tmp_path / "c" / "sparse" / "0" / "images.bin")[0] == "colmap"
+    write_polycam(photos, tmp_path / "p")
+    assert detect_format(tmp_path / "p" / "keyframes" / "cameras" / "1.json")[0] == "polycam"
+
+
+# ---- lens distortion -----------------------------------------------------------------------------
+
+def write_opencv_colmap(tmp_path, k1):
+    (tmp_path / "images").mkdir()
+    blank_png(tmp_path / "images" / "a.png")
+    (tmp_path / "cameras.txt").write_text(f"1 OPENCV {W} {H} 50 40 24 18 {k1} 0 0 0\n")
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 4 1 a.png\n\n")
+
+
+def test_strong_distortion_is_refused(tmp_path):
+    write_opencv_colmap(tmp_path, k1=0.2)
+    with pytest.raises(ScanError, match="undistorted photos"):
+        load_photos(tmp_path)
+    assert len(load_photos(tmp_path, max_distortion_px=10)) == 1
+
+
+def test_small_distortion_is_ignored_with_a_warning(tmp_path, caplog):
+    write_opencv_colmap(tmp_path, k1=0.001)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path)
+    assert "ignoring a small lens distortion" in caplog.text
+    assert photos.distortions[0].model == "OPENCV" and photos.distortions[0].radial == (0.001, 0.0)
+
+
+def test_distortion_shift_against_a_direct_evaluation():
+    from scantex.photos import Distortion
+
+    cam = reference_camera()
+    d = Distortion("OPENCV", (0.01, 0.0), (0.0, 0.0))
+    # the corner pixel (0, 0): x = -23.5/50, y = -17.5/40; shift = f * x * k1 * r^2 per axis
+    x, y = -23.5 / 50, -17.5 / 40
+    r2 = x * x + y * y
+    expected = math.hypot(50 * x * 0.01 * r2, 40 * y * 0.01 * r2)
+    assert d.max_shift_px(cam) == pytest.approx(expected)
+
+
+# ---- bad input -----------------------------------------------------------------------------------
+
+def bad_missing(tmp_path):
+    return tmp_path / "nope", "no such file"
+
+
+def bad_unknown_layout(tmp_path):
+    (tmp_path / "stuff").mkdir()
+    (tmp_path / "stuff" / "notes.txt").write_text("hi")
+    return tmp_path / "stuff", "no posed photos found"
+
+
+def bad_json(tmp_path):
+    (tmp_path / "transforms.json").write_text('{"frames": [{"file_path": "a.png",')
+    return tmp_path, "not valid JSON"
+
+
+def bad_missing_image(tmp_path):
+    doc = {"fl_x": 50, "fl_y": 40, "cx": 24, "cy": 18, "w": W, "h": H,
+           "frames": [{"file_path": "gone.png", "transform_matrix": GL_C2W}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    return tmp_path, "gone.png does not exist"
+
+
+def bad_nan_pose(tmp_path):
+    blank_png(tmp_path / "a.png")
+    pose = [row[:] for row in GL_C2W]
+    pose[0][3] = float("nan")
+    doc = {"fl_x": 50, "fl_y": 40, "cx": 24, "cy": 18, "w": W, "h": H,
+           "frames": [{"file_path": "a.png", "transform_matrix": pose}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    return tmp_path, "non-finite"
+
+
+def bad_scaled_pose(tmp_path):
+    blank_png(tmp_path / "a.png")
+    frame = {"image": "a.png", **reference_camera().to_dict()}
+    frame["world_to_camera"] = (2 * np.array(frame["world_to_camera"])).tolist()
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [frame]}))
+    return tmp_path, "last row"
+
+
+def bad_truncated_binary(tmp_path):
+    photos = PhotoSet(cameras=(reference_camera(),), images=(tmp_path / "a.png",), source=tmp_path,
+                      format="test")
+    blank_png(tmp_path / "a.png")
+    model = write_colmap_binary(photos, tmp_path / "c")
+    data = (model / "images.bin").read_bytes()
+    (model / "images.bin").write_bytes(data[:40])
+    return tmp_path / "c", "COLMAP binary file"
+
+
+def bad_fisheye(tmp_path):
+    blank_png(tmp_path / "a.png")
+    (tmp_path / "cameras.txt").write_text(f"1 OPENCV_FISHEYE {W} {H} 50 40 24 18 0 0 0 0\n")
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 4 1 a.png\n\n")
+    return tmp_path, "OPENCV_FISHEYE is not supported"
+
+
+def bad_image_size(tmp_path):
+    blank_png(tmp_path / "a.png", w=2 * W, h=2 * H)
+    frame = {"image": "a.png", **reference_camera().to_dict()}
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [frame]}))
+    return tmp_path, f"a.png is {2 * W}x{2 * H} but its camera is {W}x{H}"
+
+
+def bad_polycam_without_camera(tmp_path):
+    (tmp_path / "keyframes" / "images").mkdir(parents=True)
+    (tmp_path / "keyframes" / "cameras").mkdir()
+    blank_png(tmp_path / "keyframes" / "images" / "5.jpg")
+    return tmp_path, "keyframe 5.jpg has no camera file"
+
+
+BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
+       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera]
+
+
+@pytest.mark.parametrize("case", BAD, ids=[c.__name__ for c in BAD])
+def test_bad_input_is_one_clear_line(tmp_path, case):
+    path, message = case(tmp_path)
+    with pytest.raises(ScanError) as err:
+        load_photos(path)
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+    assert err.value.path is not None
+
+
+def test_load_image_checks_the_file(tmp_path):
+    blank_png(tmp_path / "a.png")
+    photos = PhotoSet(cameras=(reference_camera(),), images=(tmp_path / "a.png",), source=tmp_path,
+                      format="test")
+    assert photos.load_image(0).shape == (H, W, 3) and photos.load_depth(0) is None
+    (tmp_path / "a.png").write_bytes(b"not a png")
+    with pytest.raises(ScanError, match="not an image"):
+        photos.load_image(0)
+
+
+# ---- the real bolster capture (skipped without ../shared/data) ---------------------------------
+
+def test_bolster_cameras_json():
+    from scantex.io import load_scan
+
+    folder = shared_scan("bolster_rgbd_posed")
+    photos = load_photos(folder / "cameras.json")
+    assert photos.format == "cameras.json" and len(photos) == 14
+    assert all((c.width, c.height) == (1920, 1080) for c in photos.cameras)
+    assert photos.load_image(0).shape == (1080, 1920, 3)
+    depth = photos.load_depth(0)
+    assert depth.shape == (540, 960) and 0.3 < np.nanmedian(depth) < 5.0  # metres
+    # the file's R and C agree with world_to_camera, which is what scantex reads
+    doc = json.loads((folder / "cameras.json").read_text())
+    for frame, cam in zip(doc["frames"], photos.cameras):
+        assert np.allclose(cam.R, frame["R"], atol=1e-6)
+        assert np.allclose(cam.center, frame["C"], atol=1e-4)
+    scan = load_scan(folder / "bloster.ply")
+    good = 0
+    for cam in photos.cameras:
+        pix, z = cam.project(scan.positions)
+        inside = (z > 0) & (pix[:, 0] > -0.5) & (pix[:, 0] < cam.width - 0.5) \
+            & (pix[:, 1] > -0.5) & (pix[:, 1] < cam.height - 0.5)
+        assert (z > 0).mean() > 0.99
+        good += inside.mean() > 0.9
+    assert good >= 12
