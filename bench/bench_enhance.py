@@ -53,7 +53,8 @@ def row(name: str, r: dict) -> str:
     i, e = r["scores"]["input"], r["scores"]["enhanced"]
     hole = f"{i.get('hole_psnr', float('nan')):.2f} -> {e.get('hole_psnr', float('nan')):.2f}"
     return (f"| {name} | {i['psnr']:.2f} -> **{e['psnr']:.2f}** | {i['ssim']:.3f} -> {e['ssim']:.3f} | "
-            f"{r['seams']['input']:.1f} -> {r['seams']['enhanced']:.1f} | {hole} | "
+            f"{r['seams']['input']:.1f} -> {r['seams']['enhanced']:.1f} "
+            f"({r['seams'].get('before_blending', float('nan')):.1f} before blending) | {hole} | "
             f"{r['seconds']:.0f} (train {r['timings']['train']:.0f}) | {r['peak_mb'] / 1024:.2f} | "
             f"{'yes' if r['geometry'] else 'NO'} |")
 

@@ -38,6 +38,13 @@ class ChartAppearance(nn.Module):
         mean = torch.einsum("k,kij->ij", self.weights, self.delta)
         return (mean**2).sum() + 1e-3 * (self.delta**2).mean()
 
+    @torch.no_grad()
+    def canonical(self, observed: torch.Tensor, chart: torch.Tensor) -> torch.Tensor:
+        """Invert the transform: the canonical colour ``(N, 3)`` of ``observed (N, 3)`` in ``chart (N,)``."""
+        d = self.delta[chart]
+        A = torch.eye(3, device=d.device) + d[:, :, :3]
+        return torch.linalg.solve(A, (observed - d[:, :, 3]).unsqueeze(-1)).squeeze(-1)
+
     def gains(self) -> torch.Tensor:
         """``(n_charts, 3)`` diagonal gains, for reports."""
         return 1 + torch.diagonal(self.delta[:, :, :3], dim1=1, dim2=2)

@@ -104,6 +104,9 @@ class BakeConfig:
     """output atlas size in texels (0: twice the input atlas, at most 8192)"""
     chunk: int = 16384
     """texels evaluated per field call (bounded memory)"""
+    detail: float = 0.0
+    """share of the input's own detail put back: field + detail x (input through its chart's inverse
+    colour transform - field); 0 bakes the field alone"""
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import downsample, render, render_gbuffer
+from scantex.views.render import downsample, render, render_gbuffer, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -133,24 +133,62 @@ def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarra
     return RayDataset.concatenate(parts)
 
 
-def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, device):
-    """The field's colour, except on ``fill`` faces (untaught: holes and their border), which get a
-    harmonic interpolation of the field's colours at the surrounding vertices."""
-    taught = np.zeros(scan.n_vertices, bool)
-    taught[scan.faces[~fill].ravel()] = True
-    vertex_normals = np.zeros((scan.n_vertices, 3))
-    np.add.at(vertex_normals, scan.faces[~fill].ravel(), np.repeat(scan.face_normals[~fill], 3, axis=0))
-    length = np.linalg.norm(vertex_normals, axis=1, keepdims=True)
-    vertex_normals = np.divide(vertex_normals, length, out=np.zeros_like(vertex_normals), where=length > 0)
-    known = np.zeros((scan.n_vertices, 3))
-    idx = np.flatnonzero(taught)
+def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarray:
+    """``(F,) bool`` faces that at least ``min_rays`` training rays landed on."""
+    train = tv.views.train
+    hit = tv.face_id[train][tv.valid[train]]
+    return np.bincount(hit, minlength=n_faces) >= min_rays
+
+
+def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray,
+                             device, *, detail: float = 0.0):
+    """The colour to bake at surface points, by what is known about each face.
+
+    - taught faces: the field's canonical colour, mixed with ``detail`` of the input's own colour brought
+      to the canonical appearance by its chart's inverse transform (``field + detail * (input - field)``:
+      fine detail the field smooths away, exposure still levelled);
+    - faces no training ray reached but the input textures: that canonical input colour (a hash grid is
+      noise where nothing taught it);
+    - ``fill`` faces (holes and their border): a harmonic interpolation over the mesh of the colours
+      around them.
+    """
+    import torch
+
+    use_input = fitted.appearance is not None and scan.is_textured
+
+    def base(face_ids, bary, points, normals):
+        rgb = fitted.surface_colour(points, normals, device)
+        if not use_input:
+            return rgb
+        weight = np.where(taught[face_ids], detail, 1.0)[:, None]
+        sel = np.flatnonzero(weight[:, 0] > 0)
+        if sel.size:
+            observed = shade_hits(scan, face_ids[sel], bary[sel])
+            canon = fitted.appearance.canonical(torch.as_tensor(observed, device=device),
+                                                torch.as_tensor(charts[face_ids[sel]], device=device))
+            rgb[sel] = np.clip(rgb[sel] + weight[sel] * (canon.cpu().numpy() - rgb[sel]), 0, 1)
+        return rgb
+
+    # colours at the vertices of faces outside the fill region, read through one such face each
+    outside = np.flatnonzero(~fill)
+    corner_face = np.full(scan.n_vertices, -1)
+    corner_slot = np.zeros(scan.n_vertices, int)
+    for k in range(3):
+        corner_face[scan.faces[outside, k]] = outside
+        corner_slot[scan.faces[outside, k]] = k
+    known = corner_face >= 0
+    vertex_rgb = np.zeros((scan.n_vertices, 3))
+    idx = np.flatnonzero(known)
+    corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
     for s in range(0, idx.size, 16384):
-        sel = idx[s:s + 16384]
-        known[sel] = fitted.surface_colour(scan.positions[sel], vertex_normals[sel], device)
-    vertex_rgb = harmonic_vertex_colours(scan, taught, known) if fill.any() else known
+        v = idx[s:s + 16384]
+        f = corner_face[v]
+        vertex_rgb[v] = base(f, corner_bary[corner_slot[v]], scan.positions[v], scan.face_normals[f])
+    if fill.any():
+        vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
 
     def colour(points, normals, face_ids, bary):
-        rgb = fitted.surface_colour(points, normals, device)
+        rgb = base(face_ids, bary, points, normals)
         hole = fill[face_ids]
         if hole.any():
             corners = vertex_rgb[scan.faces[face_ids[hole]]]  # [n, 3, 3]
@@ -247,7 +285,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     t = time.perf_counter()
     with reporter.stage("baking the texture") as update:
-        colour = surface_colour_with_fill(scan, fitted, excluded, device)
+        taught = taught_faces(tv, scan.n_faces)
+        colour = surface_colour_with_fill(scan, fitted, excluded, taught, charts, device,
+                                          detail=config.bake.detail)
         target = plan.scan
         images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size,
                       chunk=config.bake.chunk, progress=update)
@@ -264,6 +304,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
+        metrics["field"]["untaught_faces"] = int((~taught & ~excluded).sum())
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}

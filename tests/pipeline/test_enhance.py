@@ -108,3 +108,25 @@ def test_enhance_cli_writes_everything(tmp_path, toy_demo):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["geometry"]["arrays_identical"] is True
     assert load_config(out / "config.json") == TOY
+
+
+def test_chart_appearance_inverts():
+    import torch
+
+    from scantex.field.appearance import ChartAppearance
+
+    app = ChartAppearance(3, torch.tensor([1.0, 2.0, 3.0]))
+    with torch.no_grad():
+        app.delta.normal_(0, 0.1)
+    rgb = torch.rand(50, 3)
+    chart = torch.randint(0, 3, (50,))
+    assert torch.allclose(app.canonical(app(rgb, chart), chart), rgb, atol=1e-5)
+    # the regulariser is zero at identity and grows with a common gain
+    assert float(ChartAppearance(3).regulariser()) == 0.0
+
+
+def test_detail_transfer_keeps_geometry_and_changes_texture(toy_demo, toy_result):
+    with_detail = enhance(toy_demo.scan, TOY.override(bake__detail=1.0), ground_truth=toy_demo.ground_truth)
+    assert with_detail.metrics["geometry"]["arrays_identical"]
+    a, b = toy_result.scan.materials[0].image, with_detail.scan.materials[0].image
+    assert a.shape == b.shape and not np.array_equal(a, b)
