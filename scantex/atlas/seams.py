@@ -60,7 +60,10 @@ def seam_edges(scan: Scan) -> SeamEdges:
     """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped)."""
     if scan.face_uvs is None:
         return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
-    f = scan.faces
+    # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
+    # so the two faces of a seam edge do not share vertex indices (an analysis-only weld)
+    _, weld = np.unique(scan.positions, axis=0, return_inverse=True)
+    f = weld.reshape(-1)[scan.faces]
     F = len(f)
     local = np.array([[0, 1], [1, 2], [2, 0]])
     a = f[:, local[:, 0]].ravel()  # [F*3]

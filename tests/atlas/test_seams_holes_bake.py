@@ -128,3 +128,17 @@ def test_untextured_scan_has_no_holes():
 
 def test_checker_helper_is_two_colour():
     assert len(np.unique(checker(16, 4).reshape(-1, 3), axis=0)) == 2
+
+
+def test_seams_found_when_positions_are_repeated_along_them(cube):
+    """glTF stores one vertex per (position, UV): the seam's two faces share no vertex index."""
+    pairs = np.unique(np.stack([cube.faces.ravel(), cube.face_uvs.ravel()], 1), axis=0, return_inverse=True)[1]
+    corner_pos = cube.faces.ravel()
+    positions = np.zeros((pairs.max() + 1, 3))
+    positions[pairs] = cube.positions[corner_pos]
+    uvs = np.zeros((pairs.max() + 1, 2))
+    uvs[pairs] = cube.uvs[cube.face_uvs.ravel()]
+    faces = pairs.reshape(-1, 3)
+    split = Scan(positions, faces, uvs, faces.copy(), cube.face_materials, cube.materials)
+    assert len(seam_edges(split)) == len(seam_edges(cube)) == 12
+    assert abs(seam_visibility(split) - seam_visibility(cube)) < 1e-6
