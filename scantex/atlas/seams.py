@@ -111,33 +111,38 @@ def seam_visibility(scan: Scan, edges: SeamEdges | None = None, samples_per_edge
     edges = seam_edges(scan) if edges is None else edges
     if len(edges) == 0 or not scan.is_textured:
         return 0.0
-    t = (np.arange(samples_per_edge) + 0.5) / samples_per_edge  # along the edge
-    diffs = []
+    S = samples_per_edge
+    t = np.tile((np.arange(S) + 0.5) / S, len(edges))  # along each edge
+    sides = []
     for side in range(2):
-        f = edges.faces[:, side]
-        c0, c1 = edges.corners[:, side, 0], edges.corners[:, side, 1]
-        uv_tri = scan.uvs[scan.face_uvs[f]]  # [E, 3, 2]
-        rows = np.arange(len(f))
-        p0, p1 = uv_tri[rows, c0], uv_tri[rows, c1]
-        opposite = uv_tri[rows, 3 - c0 - c1]
-        pts = p0[:, None] + t[None, :, None] * (p1 - p0)[:, None]  # [E, S, 2]
-        mat = scan.face_materials[f]
-        colours = np.zeros(pts.shape[:2] + (3,), np.float32)
-        for m, material in enumerate(scan.materials):
-            sel = np.flatnonzero(mat == m)
-            if material.image is None or sel.size == 0:
-                continue
-            H, W = material.image.shape[:2]
-            px = np.array([W, H], np.float64)
-            # step perpendicular to the edge, in texels, towards the face's third corner; at most half
-            # the face's height so the lookup stays inside the face
-            e = (p1[sel] - p0[sel]) * px
-            normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
-            length = np.linalg.norm(normal, axis=1, keepdims=True)
-            normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-            height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
-            step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
-            inset = pts[sel] + (normal * step / px)[:, None, :]
-            colours[sel] = sample_texture(material.image, inset.reshape(-1, 2))[:, :3].reshape(len(sel), -1, 3)
-        diffs.append(colours)
-    return float(np.abs(diffs[0] - diffs[1]).mean() * 255.0)
+        faces = np.repeat(edges.faces[:, side], S)
+        corners = np.repeat(edges.corners[:, side], S, axis=0)
+        sides.append(seam_side_colours(scan, faces, corners, t, inset_texels))
+    return float(np.abs(sides[0] - sides[1]).mean() * 255.0)
+
+
+def seam_side_colours(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.ndarray,
+                       inset_texels: float) -> np.ndarray:
+    """``(N, 3)`` colour at parameter ``t (N,)`` along each seam edge's UV segment in face ``faces (N,)``,
+    looked up ``inset_texels`` inside the face (away from the gutter)."""
+    rows = np.arange(len(faces))
+    uv_tri = scan.uvs[scan.face_uvs[faces]]  # [N, 3, 2]
+    p0, p1 = uv_tri[rows, corners[:, 0]], uv_tri[rows, corners[:, 1]]
+    opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
+    point = p0 + t[:, None] * (p1 - p0)
+    out = np.zeros((len(faces), 3), np.float32)
+    mat = scan.face_materials[faces]
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(mat == m)
+        if material.image is None or sel.size == 0:
+            continue
+        H, W = material.image.shape[:2]
+        px = np.array([W, H], np.float64)
+        e = (p1[sel] - p0[sel]) * px
+        normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
+        step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
+        out[sel] = sample_texture(material.image, point[sel] + normal * step / px)[:, :3]
+    return out

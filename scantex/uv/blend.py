@@ -15,7 +15,7 @@ import logging
 import numpy as np
 
 from scantex.atlas.padding import pad_gutters
-from scantex.atlas.seams import SeamEdges, seam_edges, uv_shells
+from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
 from scantex.atlas.texelmap import texel_map, uv_to_pixel
 from scantex.scan import Scan
 from scantex.views.raycast import interpolate
@@ -25,33 +25,6 @@ log = logging.getLogger(__name__)
 
 #: candidate texels examined per batch of seam edges (bounds memory on large atlases)
 CANDIDATES_PER_BATCH = 2_000_000
-
-
-def _seam_side_samples(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.ndarray,
-                       inset_texels: float) -> np.ndarray:
-    """``(N, 3)`` colour at parameter ``t (N,)`` along each seam edge's UV segment in face ``faces (N,)``,
-    looked up ``inset_texels`` inside the face (away from the gutter)."""
-    rows = np.arange(len(faces))
-    uv_tri = scan.uvs[scan.face_uvs[faces]]  # [N, 3, 2]
-    p0, p1 = uv_tri[rows, corners[:, 0]], uv_tri[rows, corners[:, 1]]
-    opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
-    point = p0 + t[:, None] * (p1 - p0)
-    out = np.zeros((len(faces), 3), np.float32)
-    mat = scan.face_materials[faces]
-    for m, material in enumerate(scan.materials):
-        sel = np.flatnonzero(mat == m)
-        if material.image is None or sel.size == 0:
-            continue
-        H, W = material.image.shape[:2]
-        px = np.array([W, H], np.float64)
-        e = (p1[sel] - p0[sel]) * px
-        normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
-        length = np.linalg.norm(normal, axis=1, keepdims=True)
-        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
-        height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
-        step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
-        out[sel] = sample_texture(material.image, point[sel] + normal * step / px)[:, :3]
-    return out
 
 
 def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
@@ -123,8 +96,8 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
             e, x, y, t, w = e[keep], x[keep], y[keep], t[keep], w[keep]
             if e.size == 0:
                 continue
-            mine = _seam_side_samples(scan, f[e], cf[e], t, inset_texels)
-            theirs = _seam_side_samples(scan, g[e], cg[e], t, inset_texels)
+            mine = seam_side_colours(scan, f[e], cf[e], t, inset_texels)
+            theirs = seam_side_colours(scan, g[e], cg[e], t, inset_texels)
             delta = 0.5 * (theirs - mine).astype(np.float64)
             flat = y * W + x
             for c in range(3):
