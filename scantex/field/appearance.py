@@ -13,7 +13,7 @@ from torch import nn
 
 
 class ChartAppearance(nn.Module):
-    """``(n_charts, 3, 4)`` affine colour transforms, initialised at identity.
+    """``(n_charts, 3, 4)`` affine colour transforms, initialised at identity (or at given gains).
 
     Args:
         n_charts: number of charts.
@@ -22,9 +22,13 @@ class ChartAppearance(nn.Module):
             canonical exposure to the scan's average one.
     """
 
-    def __init__(self, n_charts: int, chart_weights: torch.Tensor | None = None):
+    def __init__(self, n_charts: int, chart_weights: torch.Tensor | None = None,
+                 initial_gains: torch.Tensor | None = None):
         super().__init__()
         self.delta = nn.Parameter(torch.zeros(n_charts, 3, 4))
+        if initial_gains is not None:  # e.g. from the seams (scantex.atlas.levelling.chart_gains)
+            with torch.no_grad():
+                self.delta[:, :, :3] = torch.diag_embed(initial_gains.float() - 1)
         w = torch.ones(n_charts) if chart_weights is None else chart_weights.float()
         self.register_buffer("weights", w / w.sum().clamp_min(1e-12))
 

@@ -92,6 +92,7 @@ def resolve_device(name: str) -> torch.device:
 
 def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldConfig, train,
               n_charts: int, band: float, *, device: torch.device, seed: int = 0, progress: Progress | None = None,
+              initial_gains: np.ndarray | None = None,
               checkpoint: Path | None = None, resume: bool = False) -> FittedField:
     """Train a :class:`RadianceField` (and per-chart appearance) on ``data``.
 
@@ -105,7 +106,8 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     gen = torch.Generator(device="cpu").manual_seed(seed)
     field = RadianceField(field_config).to(device)
     counts = torch.bincount(torch.as_tensor(data.chart), minlength=n_charts)
-    appearance = ChartAppearance(n_charts, counts).to(device) if train.appearance else None
+    gains0 = torch.as_tensor(initial_gains) if initial_gains is not None else None
+    appearance = ChartAppearance(n_charts, counts, gains0).to(device) if train.appearance else None
     groups = [{"params": field.parameters(), "lr": train.lr}]
     if appearance is not None:
         groups.append({"params": appearance.parameters(), "lr": train.appearance_lr})

@@ -76,6 +76,8 @@ class TrainConfig:
     """Adam learning rate of the per-chart colour transforms"""
     appearance_reg: float = 1.0
     """weight keeping the charts' mean gain at 1 and mean offset at 0"""
+    seam_levelling: bool = False
+    """start every chart's transform at the exposure its seams imply (off: measured to hurt the room)"""
     coarse_to_fine: float = 0.3
     """share of the steps over which hash-grid levels are switched on, coarse first (0: all at once)"""
     start_levels: int = 4

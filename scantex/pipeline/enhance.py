@@ -20,6 +20,7 @@ import numpy as np
 from scantex.atlas.bake import bake, output_size
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
+from scantex.atlas.levelling import chart_gains
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.views import score_views
@@ -270,8 +271,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                use_viewdirs=fs.use_viewdirs)
     checkpoint = Path(work_dir) / "field.pt" if work_dir is not None else None
     with reporter.stage("training the field") as update:
+        gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
         fitted = fit_field(data, normaliser, field_config, tc, int(charts.max()) + 1, band, device=device,
-                           seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume)
+                           seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
+                           initial_gains=gains)
     timings["train"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -142,3 +142,17 @@ def test_seams_found_when_positions_are_repeated_along_them(cube):
     split = Scan(positions, faces, uvs, faces.copy(), cube.face_materials, cube.materials)
     assert len(seam_edges(split)) == len(seam_edges(cube)) == 12
     assert abs(seam_visibility(split) - seam_visibility(cube)) < 1e-6
+
+
+def test_chart_gains_recover_an_exposure_step():
+    """Two charts of one flat colour, one stored 20 % brighter: the seam says so."""
+    from scantex.atlas.levelling import chart_gains
+
+    scan = cylinder_with_one_seam()
+    img = np.full((32, 64, 3), 100, np.uint8)
+    img[:, 32:] = 120
+    # two charts: faces whose UVs lie left / right of u = 0.5; the seam at u = 0 / 1 joins them
+    charts = (scan.triangle_uvs[:, :, 0].mean(axis=1) > 0.5).astype(int)
+    gains = chart_gains(scan.replace(materials=(Material("c", img),)), charts)
+    assert np.allclose(gains[1] / gains[0], 1.2, atol=0.03)
+    assert np.allclose(np.log(gains).mean(axis=0), 0, atol=1e-6)
