@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-from PIL import Image
 
 from scantex.io import save_scan
 from scantex.pipeline.config import save_config
@@ -22,12 +20,13 @@ def write_outputs(result, out_dir: str | Path) -> None:
     """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
     ``report.html``."""
     from scantex.report import write_report
+    from scantex.report.html import json_default
 
     out_dir = Path(out_dir)
     save_scan(result.scan, out_dir / "enhanced.obj")
     save_scan(result.scan, out_dir / "enhanced.glb")
     metrics = completed_metrics(result)
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json))
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
     save_config(result.config, out_dir / "config.json")
     write_views(result.views.views, out_dir / "renders")
     write_report(result, out_dir / "report.html", metrics=metrics)
@@ -49,15 +48,3 @@ def completed_metrics(result) -> dict:
     if "texture" not in metrics:
         metrics["texture"] = {"input": texture_summary(before), "enhanced": texture_summary(result.scan)}
     return metrics
-
-
-def _json(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(type(value))
-
-
-def save_png(path: Path, image: np.ndarray) -> None:
-    Image.fromarray(image).save(path)

@@ -90,7 +90,7 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
         _section("Timings", _timings(metrics.get("timings_s", {}))),
         _section("Config", f"<pre>{html.escape(json.dumps(result.config.to_dict(), indent=2))}</pre>"),
         _section("All metrics (metrics.json)", f"<details><summary>show</summary><pre>"
-                 f"{html.escape(json.dumps(metrics, indent=2, default=_json))}</pre></details>"),
+                 f"{html.escape(json.dumps(metrics, indent=2, default=json_default))}</pre></details>"),
     ]
     return PAGE.format(title=html.escape(f"scantex report: {name}"), plotlyjs=get_plotlyjs(),
                        style=STYLE, script=SYNC_SCRIPT, date=time.strftime("%Y-%m-%d %H:%M"),
@@ -337,7 +337,7 @@ def _fmt(v) -> str:
         return f"{int(v):,}"
     if isinstance(v, (float, np.floating)):
         return _num(v)
-    return html.escape(json.dumps(v, default=_json))
+    return html.escape(json.dumps(v, default=json_default))
 
 
 def _img(image: np.ndarray, alt: str, kind: str = "") -> str:
@@ -349,7 +349,8 @@ def _img(image: np.ndarray, alt: str, kind: str = "") -> str:
     return f'<img class="{kind}" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def _json(value):
+def json_default(value):
+    """``json.dumps(default=...)`` for numpy scalars and arrays."""
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
