@@ -32,7 +32,7 @@ from scantex.photos.conventions import (
     check_intrinsics,
     check_pose,
 )
-from scantex.photos.files import check_sizes, copy_into, load_json, need, resolve_file
+from scantex.photos.files import load_frames_file, check_sizes, copy_into, need, resolve_file
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -53,15 +53,7 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
     Raises:
         ScanError: missing or malformed file, missing images, non-finite or non-rigid poses.
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "cameras.json"
-    if not path.is_file():
-        raise ScanError(path, "no such file")
-    doc = load_json(path)
-    frames = doc.get("frames") if isinstance(doc, dict) else None
-    if not isinstance(frames, list) or not frames:
-        raise ScanError(path, "has no 'frames' list")
+    path, doc, frames = load_frames_file(path, "cameras.json", "")
     base = path.parent
     cameras, images, depths, distortions = [], [], [], []
     for i, frame in enumerate(frames):

@@ -21,6 +21,23 @@ def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
     return path
 
 
+def load_frames_file(path: Path, default_name: str, what: str = "") -> tuple[Path, dict, list]:
+    """The file (``default_name`` inside a folder), its JSON document and its non-empty ``frames`` list.
+
+    ``what`` is appended to the error for a document without frames (e.g. ": not a transforms.json").
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / default_name
+    if not path.is_file():
+        raise ScanError(path, "no such file")
+    doc = load_json(path)
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if not isinstance(frames, list) or not frames:
+        raise ScanError(path, f"has no 'frames' list{what}")
+    return path, doc, frames
+
+
 def load_json(path: Path):
     import json
 

@@ -48,9 +48,9 @@ from scantex.photos.conventions import (
     world_to_camera_from_opengl,
 )
 from scantex.photos.files import (
+    load_frames_file,
     check_sizes,
     copy_into,
-    load_json,
     need,
     number,
     resolve_file,
@@ -75,15 +75,7 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
         ScanError: missing or malformed file, missing images, non-finite or non-rigid poses, an
             unsupported camera model or too strong a lens distortion.
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "transforms.json"
-    if not path.is_file():
-        raise ScanError(path, "no such file")
-    doc = load_json(path)
-    frames = doc.get("frames") if isinstance(doc, dict) else None
-    if not isinstance(frames, list) or not frames:
-        raise ScanError(path, "has no 'frames' list: not a nerfstudio transforms.json")
+    path, doc, frames = load_frames_file(path, "transforms.json", ": not a nerfstudio transforms.json")
     applied = None
     if "applied_transform" in doc:
         applied = check_pose(doc["applied_transform"], path, "applied_transform")
