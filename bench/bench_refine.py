@@ -1,0 +1,139 @@
+"""Ablations of the refinement stage (the ViT refiner, its self-supervision, the diffusion denoiser).
+
+    python bench/bench_refine.py            # demo wall + room; writes the 'refine' section of RESULTS.md
+    python bench/bench_refine.py --per-term # also each self-supervised term left out in turn
+    python bench/bench_refine.py --quick    # toy sizes, prints the table only
+
+Rows, per scene, all with the same preset, seed and therefore the same views and field:
+- field only: ``enhance`` without refinement (what the pipeline does with ``--no-refine``);
+- + ViT: the refiner with its three self-supervised terms (masked completion, cross-view consistency,
+  internal super-resolution);
+- + ViT without self-supervision: the same network, steps and views, trained on plain reconstruction of
+  the uncorrupted canonical views (no masking, no cross-view term, no downscale to undo);
+- + ViT without one of the three terms (per-term ablations);
+- + ViT + diffusion: the refined views also denoised by the diffusion model (``--diffusion``).
+
+Every run is its own process. Scores: unlit renders at held-out cameras planned with their own seed
+(seen by no run) against the ground truth's, as in bench_suite; seam visibility of the output atlas along
+the input's seams; wall time of the whole ``enhance`` and of its refinement stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bench._results import update_section  # noqa: E402
+
+WORKER = r"""
+import json, sys, time
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.seams import seam_edges, seam_visibility
+from scantex.metrics.views import score_views
+from scantex.pipeline.config import preset
+from scantex.pipeline.enhance import enhance
+from scantex.synth import make_room, make_wall
+from scantex.views.planning import plan_views
+from scantex.views.raycast import RayCaster
+from scantex.views.render import render
+spec = json.loads(sys.argv[1])
+demo = (make_wall if spec["scene"] == "wall" else make_room)(**spec["make"])
+scan, truth = demo.scan, demo.ground_truth
+cfg = preset(spec["preset"]).override(**spec.get("override", {}))
+t = time.perf_counter()
+result = enhance(scan, cfg)
+seconds = time.perf_counter() - t
+caster = RayCaster(scan.positions, scan.faces)
+W, H = spec["eval_size"]
+cameras = plan_views(scan, spec["eval_views"], width=W, height=H, fov_deg=60.0, seed=1000, caster=caster)
+scores = score_views(lambda cam: render(truth, cam, caster, supersample=2), {"input": scan, "enhanced": result.scan},
+                     cameras, caster, untextured_faces(scan))
+edges = seam_edges(scan)
+print(json.dumps({"seconds": seconds, "scores": scores, "timings": result.metrics["timings_s"],
+                  "seams": {"input": seam_visibility(scan, edges), "enhanced": seam_visibility(result.scan, edges)},
+                  "refine": result.metrics.get("refine"),
+                  "geometry": result.metrics["geometry"]["arrays_identical"]}))
+"""
+
+OFF = {"refine__masked": False, "refine__cross_view": False, "refine__super_resolution": False}
+ROWS = [
+    ("field only", {"refine__enabled": False}),
+    ("+ ViT (masked + cross-view + super-resolution)", {"refine__enabled": True}),
+    ("+ ViT without self-supervision (plain reconstruction)", {"refine__enabled": True, **OFF}),
+    ("+ ViT without masked completion", {"refine__enabled": True, "refine__masked": False}),
+    ("+ ViT without cross-view consistency", {"refine__enabled": True, "refine__cross_view": False}),
+    ("+ ViT without super-resolution", {"refine__enabled": True, "refine__super_resolution": False}),
+    ("+ ViT + diffusion", {"refine__enabled": True, "refine__diffusion": True}),
+]
+
+SCENES = {
+    "full": [
+        ("demo wall (79k faces, 1024² atlas), `fast`", "wall", {}, "fast", ROWS[:3] + ROWS[-1:]),
+        ("room (4.8k faces, 256² atlas), `fast`", "room", {}, "fast", ROWS[:3] + ROWS[-1:]),
+    ],
+    "quick": [
+        ("toy wall", "wall", {"grid": (24, 18), "gt_texture_size": 256, "scan_texture_size": 64}, "fast",
+         ROWS[:3]),
+    ],
+}
+
+
+def run(spec: dict) -> dict:
+    proc = subprocess.run([sys.executable, "-c", WORKER, json.dumps(spec)], capture_output=True, text=True,
+                          cwd=ROOT)
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-3000:])
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def row(scene: str, name: str, r: dict) -> str:
+    i, e = r["scores"]["input"], r["scores"]["enhanced"]
+    hole = f"{e['hole_psnr']:.2f}" if "hole_psnr" in e else "—"
+    refine = r["timings"].get("refine")
+    return (f"| {scene} | {name} | {i['psnr']:.2f} -> **{e['psnr']:.2f}** | {e['mse'] * 1e3:.2f} | "
+            f"{i['ssim']:.3f} -> {e['ssim']:.3f} | {hole} | {r['seams']['input']:.1f} -> {r['seams']['enhanced']:.2f} | "
+            f"{r['seconds']:.0f} | {'—' if refine is None else f'{refine:.0f}'} | {'yes' if r['geometry'] else 'NO'} |")
+
+
+HEADER = ["| scene | run | held-out PSNR dB (input -> result) | MSE x1e3 | SSIM | hole PSNR dB | seam visibility | "
+          "enhance s | refine s | geometry identical |", "|---|---|---|---|---|---|---|---|---|---|"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="toy sizes; print the table only")
+    parser.add_argument("--per-term", action="store_true",
+                        help="also the per-term ablations (without masking / cross-view / super-resolution)")
+    args = parser.parse_args()
+    lines = list(HEADER)
+    start = time.perf_counter()
+    eval_views, eval_size = (2, (96, 72)) if args.quick else (6, (320, 240))
+    for scene, kind, make, preset, rows in SCENES["quick" if args.quick else "full"]:
+        if args.per_term and not args.quick:
+            rows = rows[:-1] + ROWS[3:6] + rows[-1:]
+        for name, override in rows:
+            r = run({"scene": kind, "make": make, "preset": preset, "override": override,
+                     "eval_views": eval_views, "eval_size": eval_size})
+            lines.append(row(scene, name, r))
+            print(lines[-1], json.dumps(r["refine"]) if r["refine"] else "", flush=True)
+    total = time.perf_counter() - start
+    table = "\n".join(lines)
+    print(table, f"\ntotal {total:.0f} s")
+    if not args.quick:
+        update_section("refine", "## Refinement ablations: ViT refiner, its self-supervision, diffusion\n\n"
+                       f"Held-out: {eval_views} cameras per scene ({eval_size[0]}x{eval_size[1]}, planned with "
+                       "their own seed, seen by no run), unlit renders against the ground truth's; MSE over "
+                       "covered pixels; hole PSNR over pixels of faces the input left black; seam visibility "
+                       "along the input's seams in the output atlas (mean RGB step, 0-255). Rows of a scene "
+                       "share preset, seed, views and field. Each run is its own process.\n\n"
+                       f"{table}\n\nTotal bench time {total:.0f} s. Command: `python bench/bench_refine.py`")
+
+
+if __name__ == "__main__":
+    main()
