@@ -123,15 +123,23 @@ def cmd_enhance(args) -> int:
 
     config = load_config(args.config) if args.config else preset(args.preset)
     config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
-                             train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv)
+                             train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
+                             photos__holdout=args.holdout, refine__enabled=args.refine,
+                             refine__diffusion=True if args.diffusion else None)
     if args.output.exists() and not args.overwrite:
         raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
     scan = load_scan(args.mesh)
     truth = load_scan(args.ground_truth) if args.ground_truth else None
     _echo(args, f"{args.mesh}: {scan.summary()}")
+    photos = None
+    if args.photos:
+        from scantex.photos import load_photos
+
+        photos = load_photos(args.photos)
+        _echo(args, f"{args.photos}: {len(photos)} photos ({photos.format})")
     work = work_dir_for(args.output)
     work.mkdir(parents=True, exist_ok=True)
-    result = enhance(scan, config, ground_truth=truth, work_dir=work, resume=args.resume,
+    result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
                      reporter=BarReporter(args.quiet))
     with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
         write_outputs(result, tmp)
@@ -159,6 +167,15 @@ def enhance_summary(m: dict) -> str:
     elif "held_out_vs_input" in m:
         s = m["held_out_vs_input"]["enhanced"]
         lines.append(f"held-out views, enhanced vs input renders (fidelity, not quality): PSNR {s['psnr']:.2f} dB")
+    if "held_out_photos" in m:
+        s, n = m["held_out_photos"], m["held_out_photos"]["input"].get("photos", 0)
+        lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
+                     f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
+                     f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    if "held_out_photos_vs_ground_truth" in m:
+        s = m["held_out_photos_vs_ground_truth"]
+        lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
+                     f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
         f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
     return "\n".join(lines)
@@ -257,6 +274,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="random seed (default: 0)")
     p.add_argument("--ground-truth", type=Path, metavar="MESH",
                    help="the same geometry with its true texture (synthetic scans): scores held-out views")
+    p.add_argument("--photos", type=Path, metavar="PATH",
+                   help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
+                        "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
+                        "the texture is then learnt from them")
+    p.add_argument("--holdout", type=float, metavar="X",
+                   help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
+    p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="refine views of the field with a Vision Transformer trained self-supervised on the "
+                        "scan's own views (masked completion, cross-view consistency, internal "
+                        "super-resolution) and fuse them back into the atlas (default: the preset's)")
+    p.add_argument("--diffusion", action="store_true",
+                   help="with the refiner: also denoise the refined views with a small diffusion model "
+                        "trained on them (SDEdit-style partial noising)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=cmd_enhance)

@@ -34,7 +34,10 @@ class RayDataset:
         directions: ``(R, 3) float32`` directions with unit camera-z, so ``depth`` is a ray parameter.
         depth: ``(R,) float32`` the mesh surface's depth along each ray.
         rgb: ``(R, 3) float32`` target colours in [0, 1].
-        chart: ``(R,) int64`` the input atlas chart each ray sees.
+        chart: ``(R,) int64`` the appearance group of each ray: the input atlas chart it sees (synthetic
+            views), or its photo (photo mode).
+        weight: ``(R,) float32`` weight of each ray in the loss (rays are drawn in proportion to it), or
+            ``None`` for all 1.
     """
 
     origins: np.ndarray
@@ -42,14 +45,23 @@ class RayDataset:
     depth: np.ndarray
     rgb: np.ndarray
     chart: np.ndarray
+    weight: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.depth)
 
+    def weights(self) -> np.ndarray:
+        """``(R,) float32`` loss weights (ones when none were given)."""
+        return np.ones(len(self), np.float32) if self.weight is None else self.weight
+
     @staticmethod
     def concatenate(parts: list[RayDataset]) -> RayDataset:
-        return RayDataset(*(np.concatenate([getattr(p, k) for p in parts])
-                            for k in ("origins", "directions", "depth", "rgb", "chart")))
+        arrays = [np.concatenate([getattr(p, k) for p in parts])
+                  for k in ("origins", "directions", "depth", "rgb", "chart")]
+        weight = None
+        if any(p.weight is not None for p in parts):
+            weight = np.concatenate([p.weights() for p in parts])
+        return RayDataset(*arrays, weight=weight)
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,13 +104,16 @@ def resolve_device(name: str) -> torch.device:
 
 def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldConfig, train,
               n_charts: int, band: float, *, device: torch.device, seed: int = 0, progress: Progress | None = None,
-              initial_gains: np.ndarray | None = None,
+              initial_gains: np.ndarray | None = None, appearance_weights: np.ndarray | None = None,
               checkpoint: Path | None = None, resume: bool = False) -> FittedField:
     """Train a :class:`RadianceField` (and per-chart appearance) on ``data``.
 
     Args:
         train: a :class:`scantex.pipeline.config.TrainConfig`.
         band: width of the sampling band around the surface, world units.
+        appearance_weights: ``(n_charts,)`` how much each appearance group counts in fixing the canonical
+            appearance (default: its number of rays). Photo mode gives the synthetic views' charts 0, so
+            the canonical appearance is the photos' average one.
         checkpoint: file to save state to every ``train.checkpoint_every`` steps; with ``resume``,
             training continues from it when it exists.
     """
@@ -106,6 +121,8 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     gen = torch.Generator(device="cpu").manual_seed(seed)
     field = RadianceField(field_config).to(device)
     counts = torch.bincount(torch.as_tensor(data.chart), minlength=n_charts)
+    if appearance_weights is not None:
+        counts = torch.as_tensor(appearance_weights, dtype=torch.float32)
     gains0 = torch.as_tensor(initial_gains) if initial_gains is not None else None
     appearance = ChartAppearance(n_charts, counts, gains0).to(device) if train.appearance else None
     groups = [{"params": field.parameters(), "lr": train.lr}]
@@ -133,6 +150,13 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     depth = torch.as_tensor(data.depth, device=device)
     target = torch.as_tensor(data.rgb, device=device)
     chart = torch.as_tensor(data.chart, device=device)
+    # weighted rays are drawn in proportion to their weight (inverse-CDF sampling) rather than
+    # down-weighted in the loss: the same objective in expectation, and a batch is not mostly rays of
+    # little weight (photo mode: a few photo rays among many synthetic ones)
+    cdf = None
+    if data.weight is not None:
+        cdf = torch.cumsum(torch.as_tensor(data.weight, dtype=torch.float64), 0)
+        cdf = (cdf / cdf[-1]).to(device)
     R = len(data)
     t0 = time.perf_counter()
     coarse_steps = int(train.coarse_to_fine * train.steps)
@@ -143,7 +167,11 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
             # coarse to fine: while the field is smooth, only the chart transforms can explain an
             # exposure jump at a seam; fine levels arrive once the transforms have taken it
             levels(train.start_levels + (n_levels - train.start_levels) * min(1.0, step / coarse_steps))
-        idx = torch.randint(0, R, (min(train.batch_rays, R),), generator=gen).to(device)
+        if cdf is None:
+            idx = torch.randint(0, R, (min(train.batch_rays, R),), generator=gen).to(device)
+        else:
+            u = torch.rand(min(train.batch_rays, R), generator=gen, dtype=torch.float64).to(device)
+            idx = torch.searchsorted(cdf, u).clamp_max(R - 1)
         rgb, _ = render_rays(field, origins[idx], directions[idx], depth[idx], train.n_samples, band,
                              normaliser, stratified=True)
         if appearance is not None:

@@ -14,6 +14,7 @@ from dataclasses import field as default
 from pathlib import Path
 
 from scantex.errors import ScanError
+from scantex.refine.config import RefineConfig
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,24 @@ class BakeConfig:
 
 
 @dataclass(frozen=True)
+class PhotosConfig:
+    holdout: float = 0.1
+    """photos held out for scoring: a share of them (rounded up, spread over the capture), or a count if >= 1"""
+    max_side: int = 640
+    """photos are box-filtered down to this longer side for training and scoring"""
+    synthetic_weight: float = 0.1
+    """weight of the synthetic views of the input texture relative to the photos (they teach what no photo sees)"""
+    edge_margin_px: int = 2
+    """photo pixels this close to a silhouette or depth discontinuity teach nothing"""
+    max_angle_deg: float = 75.0
+    """photo pixels seeing the surface more obliquely than this teach nothing"""
+    depth_tolerance: float = 0.05
+    """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
+    check_alignment: bool = True
+    """refuse to train when the mesh is clearly not in the photos' frame"""
+
+
+@dataclass(frozen=True)
 class EnhanceConfig:
     preset: str = "default"
     """the preset these settings started from"""
@@ -126,6 +145,8 @@ class EnhanceConfig:
     train: TrainConfig = default(default_factory=TrainConfig)
     uv: UVConfig = default(default_factory=UVConfig)
     bake: BakeConfig = default(default_factory=BakeConfig)
+    photos: PhotosConfig = default(default_factory=PhotosConfig)
+    refine: RefineConfig = default(default_factory=RefineConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -133,7 +154,8 @@ class EnhanceConfig:
     @classmethod
     def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
         subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
-                "bake": BakeConfig}
+                "bake": BakeConfig, "photos": PhotosConfig,
+                "refine": RefineConfig}
         kwargs = {}
         for key, value in d.items():
             if key in subs:

@@ -24,7 +24,9 @@ from scantex.atlas.levelling import chart_gains
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.views import score_views
-from scantex.pipeline.config import EnhanceConfig
+from scantex.photos.photoset import PhotoSet
+from scantex.photos.training import PhotoView
+from scantex.pipeline.config import EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
@@ -201,8 +203,62 @@ def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, taught: np.nd
     return colour
 
 
+@dataclass(frozen=True, eq=False)
+class PhotoData:
+    """The capture's photos as the pipeline uses them (photo mode)."""
+
+    photos: PhotoSet
+    train: list[PhotoView]
+    held_out: list[PhotoView]
+    alignment: object | None
+    """the :class:`scantex.photos.alignment.AlignmentReport`, when checked"""
+
+
+def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
+                update: Update) -> PhotoData:
+    """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
+    from scantex.photos.alignment import require_alignment
+    from scantex.photos.training import VisibilitySettings, prepare_photos, split_photos
+
+    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
+    if report is not None:
+        log.info("%s", report.summary())
+    train, held = split_photos(len(photos), pc.holdout, seed)
+    settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
+                                  max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
+    views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
+    return PhotoData(photos, views[:len(train)], views[len(train):], report)
+
+
+def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float):
+    """All training rays of photo mode and their appearance groups.
+
+    Groups ``0 .. P-1`` are the training photos (one exposure / white balance each), ``P .. P+C-1``
+    the input atlas's charts seen in the synthetic views (``synthetic`` may be ``None``: an untextured
+    scan has nothing to render). The synthetic rays weigh ``synthetic_weight`` each against a photo
+    ray's 1; only the photos fix the canonical appearance.
+
+    Returns:
+        ``(rays, chart_offset, appearance_weights)``: the synthetic rays' groups are their chart + offset.
+    """
+    from scantex.field.train import RayDataset
+    from scantex.photos.training import photo_rays
+
+    P = len(photo.train)
+    parts = [photo_rays(photo.train, range(P))]
+    parts[0] = RayDataset(*(getattr(parts[0], k) for k in ("origins", "directions", "depth", "rgb", "chart")),
+                          weight=np.ones(len(parts[0]), np.float32))
+    if synthetic is not None and len(synthetic) and synthetic_weight > 0:
+        parts.append(RayDataset(synthetic.origins, synthetic.directions, synthetic.depth, synthetic.rgb,
+                                synthetic.chart + P, weight=np.full(len(synthetic), synthetic_weight, np.float32)))
+    rays = RayDataset.concatenate(parts)
+    weights = np.zeros(P + n_charts, np.float32)
+    weights[:P] = np.bincount(rays.chart[rays.chart < P], minlength=P)
+    return rays, P, weights
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
-            work_dir: str | Path | None = None, resume: bool = False,
+            photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
     """Enhance ``scan``'s texture; its positions and faces are returned untouched.
 
@@ -211,6 +267,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         config: all settings (see :mod:`scantex.pipeline.config` and its presets).
         ground_truth: the same geometry with the true texture, when known (synthetic scans): held-out
             views are then scored against it, for the input and for the result.
+        photos: the capture's posed photos (photo mode): the field learns from them, with the
+            synthetic views of the input texture at a lower weight for surface no photo sees; a share
+            of them is held out and the input and the result are scored against it.
         work_dir: where field checkpoints go (for ``resume``).
         resume: continue from the checkpoint in ``work_dir`` if there is one.
         reporter: progress reporting (default: silent).
@@ -258,8 +317,21 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                    rng_seed, update)
     timings["render"] = time.perf_counter() - t
 
+    photo = None
+    if photos is not None:
+        t = time.perf_counter()
+        with reporter.stage("reading photos") as update:
+            photo = read_photos(scan, photos, config.photos, caster, rng_seed, update)
+        timings["photos"] = time.perf_counter() - t
+
     t = time.perf_counter()
     data = gather_rays(tv, charts, tv.views.train)
+    n_groups, chart_offset, appearance_weights = int(charts.max()) + 1, 0, None
+    if photo is not None:
+        synthetic = data if scan.is_textured else None  # an untextured scan's renders teach nothing
+        data, chart_offset, appearance_weights = photo_mode_rays(synthetic, photo, n_groups,
+                                                                 config.photos.synthetic_weight)
+        n_groups += chart_offset
     lo, hi = scan.bounds
     normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
     band = tc.band_width * float(np.linalg.norm(hi - lo))
@@ -272,25 +344,52 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     checkpoint = Path(work_dir) / "field.pt" if work_dir is not None else None
     with reporter.stage("training the field") as update:
         gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
-        fitted = fit_field(data, normaliser, field_config, tc, int(charts.max()) + 1, band, device=device,
+        if gains is not None and chart_offset:
+            gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
+        fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
                            seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
-                           initial_gains=gains)
+                           initial_gains=gains, appearance_weights=appearance_weights)
     timings["train"] = time.perf_counter() - t
 
     t = time.perf_counter()
     uc = config.uv
     mode = uc.mode if scan.has_uvs else "unwrap"  # an untextured mesh needs an atlas to hold its texture
     size = config.bake.texture_size or max(output_size(scan, m)[0] for m in range(len(scan.materials)))
+    if photo is not None and not scan.is_textured and not config.bake.texture_size:
+        size = 2048  # photos hold far more detail than the 1024 atlas given to an untextured mesh
     with reporter.stage(f"UV layout ({mode})") as update:
         plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
         update(1, 1)
     timings["uv"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    with reporter.stage("baking the texture") as update:
+    fill = excluded
+    if photo is None:
         taught = taught_faces(tv, scan.n_faces)
-        colour = surface_colour_with_fill(scan, fitted, excluded, taught, charts, device,
-                                          detail=config.bake.detail)
+    else:
+        from scantex.photos.training import taught_by_photos
+
+        seen = taught_by_photos(photo.train, scan.n_faces)
+        taught = seen | (taught_faces(tv, scan.n_faces) if scan.is_textured else False)
+        # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
+        fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
+    colour = surface_colour_with_fill(scan, fitted, fill, taught, charts + chart_offset, device,
+                                      detail=config.bake.detail)
+    bake_seconds = time.perf_counter() - t
+
+    refine_report = None
+    if config.refine.enabled:
+        from scantex.refine.stage import refine_colour
+
+        t = time.perf_counter()
+        with reporter.stage("refining (ViT)") as update:
+            refined = refine_colour(scan, fitted, tv, caster, colour, config.refine, device, update, fill=fill,
+                                    charts=charts + chart_offset, seed=rng_seed)
+            colour, refine_report = refined.colour, refined.report
+        timings["refine"] = time.perf_counter() - t
+
+    t = time.perf_counter() - bake_seconds
+    with reporter.stage("baking the texture") as update:
         target = plan.scan
         images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size,
                       chunk=config.bake.chunk, progress=update)
@@ -307,12 +406,43 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
-        metrics["field"]["untaught_faces"] = int((~taught & ~excluded).sum())
+        metrics["field"]["untaught_faces"] = int((~taught & ~fill).sum())
+        if refine_report is not None:
+            metrics["refine"] = refine_report
+        if photo is not None:
+            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster))
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
     return EnhanceResult(enhanced, metrics, config, tv, input_scan=scan, ground_truth=ground_truth)
+
+
+def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData, rays,
+                  holes: np.ndarray, caster: RayCaster) -> dict:
+    """Photo mode: what the photos gave, and the input and the result scored on the held-out photos
+    (and, when known, against the ground truth rendered through the held-out photos' cameras)."""
+    from scantex.photos.training import score_photos
+
+    P = len(photo.train)
+    rejected = {k: sum(v.rejected[k] for v in photo.train) for k in ("edge", "grazing", "depth_map")}
+    out: dict = {"photos": {
+        "source": str(photo.photos.source), "format": photo.photos.format, "total": len(photo.photos),
+        "train": [int(v.index) for v in photo.train], "held_out": [int(v.index) for v in photo.held_out],
+        "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
+        "photo_rays": int((rays.chart < P).sum()), "synthetic_rays": int((rays.chart >= P).sum()),
+        "rejected_pixels": rejected,
+        "alignment": None if photo.alignment is None else {
+            "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
+            "ratio": round(photo.alignment.ratio, 3), "summary": photo.alignment.summary()},
+    }}
+    if photo.held_out:
+        out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster)
+        if ground_truth is not None:
+            out["held_out_photos_vs_ground_truth"] = score_views(
+                lambda cam: render(ground_truth, cam, caster, supersample=2),
+                {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)
+    return out
 
 
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,

@@ -1,0 +1,139 @@
+"""Photos as training data: the visibility test, the split, colour matching, and photo-mode ``enhance``."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scantex.photos import PhotoSet
+from scantex.photos.training import (VisibilitySettings, colour_match, photo_rays, prepare_photo, resize_depth,
+                                     score_photos, split_photos, taught_by_photos, working_camera)
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.render import render, to_uint8
+from tests.conftest import textured_cube
+from tests.photos.test_alignment import photograph
+
+
+def cube_set(tmp_path, width=96, height=72, depth_error: float | None = None):
+    scan = textured_cube()
+    eyes = [(2.6, -1.8, 1.9), (-1.6, -2.2, 1.4), (2.4, 2.0, 2.2), (-1.5, 2.4, 0.9)]
+    cams = [Camera.look_at(e, (0.5, 0.5, 0.5), fov_deg=50, width=width, height=height) for e in eyes]
+    photos = photograph(scan, cams, tmp_path)
+    if depth_error is not None:  # depth maps at half size, in millimetres, off by depth_error (relative)
+        caster = RayCaster(scan.positions, scan.faces)
+        depths = []
+        for i, cam in enumerate(cams):
+            small = cam.scaled(0.5)
+            g = cast_gbuffer(caster, small, scan.face_normals)
+            mm = np.where(g.mask, g.depth * (1 + depth_error) * 1000, 0).astype(np.uint16)
+            Image.fromarray(mm).save(tmp_path / f"d{i}.png")
+            depths.append(tmp_path / f"d{i}.png")
+        photos = dataclasses.replace(photos, depths=tuple(depths))
+    return scan, photos
+
+
+def test_split_spreads_and_never_takes_all():
+    train, held = split_photos(14, 0.1)
+    assert len(held) == 2 and len(train) == 12 and not set(train) & set(held)
+    assert abs(int(held[1]) - int(held[0])) >= 5  # spread, not neighbours
+    assert len(split_photos(14, 3)[1]) == 3  # a count
+    assert len(split_photos(2, 0.9)[1]) == 1  # never all
+    assert len(split_photos(1, 0.5)[1]) == 0 and len(split_photos(8, 0)[1]) == 0
+    assert np.array_equal(split_photos(20, 0.2, seed=4)[1], split_photos(20, 0.2, seed=4)[1])
+
+
+def test_valid_pixels_see_what_the_photo_shows(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    view = prepare_photo(scan, photos, 0, caster, max_side=96)
+    assert view.image.shape == (72, 96, 3) and view.valid.shape == (72, 96)
+    assert 0.1 < view.valid.mean() < 0.6
+    # a valid pixel's colour is the texture at its face: rendering the scan there gives the photo back
+    again, _ = render(scan, view.camera, caster)
+    assert np.abs(again[view.valid] - view.image[view.valid]).max() < 2 / 255
+    # nothing valid touches the silhouette
+    hit = view.face_id >= 0
+    from scipy import ndimage
+
+    assert not (view.valid & ~ndimage.binary_erosion(hit, iterations=2)).any()
+    assert view.rejected["edge"] > 0
+
+
+def test_photos_are_box_filtered_to_max_side(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    cam = working_camera(photos.cameras[0], 48)
+    assert (cam.width, cam.height) == (48, 36)
+    view = prepare_photo(scan, photos, 0, RayCaster(scan.positions, scan.faces), max_side=48)
+    full = photos.load_image(0).astype(np.float32) / 255
+    assert np.allclose(view.image, full.reshape(36, 2, 48, 2, 3).mean(axis=(1, 3)), atol=1 / 255)
+
+
+def test_grazing_pixels_are_rejected(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    loose = prepare_photo(scan, photos, 0, caster, 96, VisibilitySettings(max_angle_deg=89.9))
+    strict = prepare_photo(scan, photos, 0, caster, 96, VisibilitySettings(max_angle_deg=45))
+    assert strict.valid.sum() < loose.valid.sum() and strict.rejected["grazing"] > 0
+
+
+@pytest.mark.parametrize("error", [0.0, 0.2])
+def test_depth_maps_that_disagree_reject_pixels(tmp_path, error):
+    scan, photos = cube_set(tmp_path, depth_error=error)
+    caster = RayCaster(scan.positions, scan.faces)
+    view = prepare_photo(scan, photos, 0, caster, 96)
+    plain = prepare_photo(scan, dataclasses.replace(photos, depths=(None,) * 4), 0, caster, 96)
+    if error == 0:  # a depth map that agrees (at half size, in mm) rejects (almost) nothing
+        assert view.valid.sum() >= 0.95 * plain.valid.sum()
+    else:
+        assert view.valid.sum() == 0 and view.rejected["depth_map"] > 0
+
+
+def test_resize_depth_is_nearest_and_keeps_nan():
+    d = np.array([[1.0, 2.0], [np.nan, 4.0]], np.float32)
+    r = resize_depth(d, 4, 4)
+    assert r.shape == (4, 4) and set(np.unique(r[np.isfinite(r)])) == {1.0, 2.0, 4.0}
+    assert np.isnan(r[3, 0]) and r[0, 0] == 1.0 and r[3, 3] == 4.0
+
+
+def test_colour_match_recovers_gain_and_offset():
+    rng = np.random.default_rng(0)
+    render_ = rng.uniform(0.1, 0.8, (20, 20, 3)).astype(np.float32)
+    photo = np.clip(render_ * np.array([1.2, 0.9, 1.05]) + np.array([0.02, -0.03, 0.0]), 0, 1)
+    mask = np.ones((20, 20), bool)
+    assert np.abs(colour_match(render_, photo, mask) - photo).max() < 1e-5
+    flat = np.full_like(render_, 0.5)
+    assert np.allclose(colour_match(flat, photo, mask)[mask].mean(axis=0), photo[mask].mean(axis=0), atol=1e-5)
+
+
+def test_rays_and_taught_faces(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = [prepare_photo(scan, photos, i, caster, 96) for i in range(2)]
+    rays = photo_rays(views, [5, 9])
+    assert len(rays) == sum(int(v.valid.sum()) for v in views)
+    assert set(np.unique(rays.chart)) == {5, 9}
+    # each ray hits its surface at its depth: origin + depth * direction lies on the hit face's plane
+    # (pixels across a crease of the cube average two faces' depths: within 1 % of the depth)
+    hit = rays.origins + rays.depth[:, None] * rays.directions
+    fid = np.concatenate([v.face_id[v.valid] for v in views])
+    n = scan.face_normals[fid]
+    p0 = scan.positions[scan.faces[fid, 0]]
+    off = np.abs(np.einsum("ij,ij->i", hit - p0, n))
+    assert np.quantile(off, 0.95) < 1e-3 and (off < 0.01 * rays.depth).all()
+    taught = taught_by_photos(views, scan.n_faces)
+    assert taught.any() and not taught.all()
+
+
+def test_score_photos_prefers_the_true_texture(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = [prepare_photo(scan, photos, i, caster, 96) for i in range(2)]
+    grey = scan.replace(materials=tuple(dataclasses.replace(m, image=np.full_like(m.image, 128))
+                                        for m in scan.materials))
+    s = score_photos({"true": scan, "grey": grey}, views, caster)
+    assert s["true"]["psnr"] > 30 and s["grey"]["psnr"] < 20 and s["true"]["photos"] == 2
+    assert s["grey"]["psnr_matched"] > s["grey"]["psnr"] - 1e-6

@@ -1,0 +1,93 @@
+"""``enhance`` with photos, at toy size: the texture learns from the photos, geometry stays untouched."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from scantex.errors import ScanError
+from scantex.io import save_scan
+from scantex.photos import load_photos
+from scantex.pipeline.enhance import enhance
+from scantex.scan import Scan
+from scantex.synth.photos import PhotoCapture, capture_photos
+from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
+
+CAPTURE = PhotoCapture(n_photos=10, width=128, height=96, distance=2.0)
+
+
+@pytest.fixture(scope="module")
+def toy_photos(toy_demo, tmp_path_factory):
+    return capture_photos(toy_demo, tmp_path_factory.mktemp("photos"), CAPTURE, seed=1)
+
+
+@pytest.fixture(scope="module")
+def photo_result(toy_demo, toy_photos):
+    return enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth, photos=toy_photos)
+
+
+def test_synthetic_capture_writes_a_readable_set(toy_photos):
+    again = load_photos(toy_photos.source)
+    assert len(again) == 10 and again.format == "cameras.json"
+    assert again.load_image(0).shape == (96, 128, 3)
+    folder = toy_photos.source if toy_photos.source.is_dir() else toy_photos.source.parent
+    assert all(p.parent == folder for p in again.images)  # copied beside the file, relative names
+
+
+def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
+    m = photo_result.metrics
+    assert photo_result.scan.positions is toy_demo.scan.positions
+    assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
+    assert m["photos"]["total"] == 10 and len(m["photos"]["held_out"]) == 1 and len(m["photos"]["train"]) == 9
+    assert m["photos"]["photo_rays"] > 0 and m["photos"]["synthetic_rays"] > 0
+    truth = m["held_out_photos_vs_ground_truth"]
+    assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
+    photos = m["held_out_photos"]
+    assert photos["enhanced"]["psnr_matched"] > photos["input"]["psnr_matched"]
+
+
+def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
+    """The photos hold what the degraded atlas lost: with them, the held-out views come out closer to the truth."""
+    mesh_only = enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth)
+    assert (photo_result.metrics["held_out_vs_ground_truth"]["enhanced"]["mse"]
+            < mesh_only.metrics["held_out_vs_ground_truth"]["enhanced"]["mse"])
+
+
+def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
+    bare = Scan(toy_demo.scan.positions, toy_demo.scan.faces)
+    result = enhance(bare, TOY.override(bake__texture_size=128), photos=toy_photos)
+    m = result.metrics
+    assert m["geometry"]["arrays_identical"] and m["uv"]["mode"] == "unwrap"
+    assert m["photos"]["synthetic_rays"] == 0  # an untextured scan's renders teach nothing
+    s = m["held_out_photos"]
+    assert s["enhanced"]["psnr_matched"] > s["input"]["psnr_matched"] + 3
+    image = result.scan.materials[0].image
+    assert image is not None and image.std() > 10  # a real texture, not one flat colour
+
+
+def test_photos_of_another_place_are_refused(toy_demo, toy_photos):
+    away = dataclasses.replace(toy_demo.scan, positions=toy_demo.scan.positions + np.array([1.5, 0.0, 0.8]))
+    with pytest.raises(ScanError, match="not in the cameras' frame"):
+        enhance(away, TOY, photos=toy_photos)
+
+
+def test_cli_photos(tmp_path, toy_demo, toy_photos):
+    save_scan(toy_demo.scan, tmp_path / "scan.obj")
+    (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
+           str(tmp_path / "config.json"), "--holdout", "2", "--photos", str(toy_photos.source), "-o", str(out)]
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "2 held-out photos" in run.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["photos"]["held_out"]) == 2
+    bad = subprocess.run(cmd[:-4] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "nowhere" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out2").exists()
