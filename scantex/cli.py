@@ -47,15 +47,23 @@ def cmd_demo_scan(args) -> int:
     from scantex.io.atomic import atomic_dir
     from scantex.synth import make_room, make_wall, write_demo
 
+    steps = 3 if args.photos else 2
     with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
-        update(0, 2)
+        update(0, steps)
         demo = make_wall(seed=args.seed) if args.variant == "wall" else make_room(seed=args.seed)
-        update(1, 2)
+        update(1, steps)
         with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
             write_demo(demo, tmp)
-        update(2, 2)
+            update(2, steps)
+            if args.photos:
+                from scantex.synth.photos import PhotoCapture, capture_photos
+
+                capture_photos(demo, tmp / "photos", PhotoCapture(n_photos=args.photos), seed=args.seed,
+                               up=(0.0, 0.0, 1.0))
+                update(3, steps)
     _echo(args, f"demo scan ({demo.scan.summary()}) written to {args.output}/scan.obj, "
-                f"ground truth to {args.output}/ground_truth.obj")
+                f"ground truth to {args.output}/ground_truth.obj"
+                + (f", {args.photos} posed photos to {args.output}/photos/cameras.json" if args.photos else ""))
     return 0
 
 
@@ -229,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", choices=["wall", "room"], default="wall",
                    help="a paper-scale brick wall (40k vertices, 79k faces) or a small room (default: wall)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--photos", type=int, default=0, metavar="N",
+                   help="also take N synthetic posed photos of the true scene (own exposure, blur, noise, JPEG, "
+                        "small pose errors) into DIR/photos, for enhance --photos (default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=cmd_demo_scan)
 

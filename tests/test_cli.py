@@ -43,12 +43,17 @@ def test_render_and_view_end_to_end(tmp_path):
 
 
 def test_demo_scan_room_variant(tmp_path):
-    proc = run("demo-scan", "--variant", "room", "-o", str(tmp_path / "demo"), "-q")
+    proc = run("demo-scan", "--variant", "room", "--photos", "3", "-o", str(tmp_path / "demo"), "-q")
     assert proc.returncode == 0, proc.stderr
     scan = load_scan(tmp_path / "demo" / "scan.obj")
     truth = load_scan(tmp_path / "demo" / "ground_truth.obj")
     assert np.array_equal(scan.positions, truth.positions) and np.array_equal(scan.faces, truth.faces)
     assert scan.materials[0].image.shape[0] < truth.materials[0].image.shape[0]
+    from scantex.photos import load_photos, require_alignment
+
+    photos = load_photos(tmp_path / "demo" / "photos")
+    assert len(photos) == 3 and photos.load_image(0).shape == (480, 640, 3)
+    assert require_alignment(scan, photos).ok
 
 
 def test_help_explains_every_command():
