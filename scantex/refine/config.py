@@ -15,7 +15,7 @@ class RefineConfig:
     """ViT patch side in pixels (the paper's 16: 16x16x3 = 768 values per patch)"""
     crop: int = 96
     """side of the square training crops and inference tiles, pixels (a multiple of the patch)"""
-    steps: int = 150
+    steps: int = 100
     """training steps"""
     batch: int = 8
     """crops per training step (pairs of overlapping crops when cross-view consistency is on)"""
@@ -36,7 +36,7 @@ class RefineConfig:
     view_scale: float = 2.0
     """refined views have this many times the pixels per axis of the training views (the super-resolution
     factor: about one pixel per output texel for an atlas twice the input's)"""
-    max_views: int = 12
+    max_views: int = 8
     """most views refined and fused back (picked greedily by the faces they add)"""
     diffusion: bool = False
     """denoise the refined views with a small diffusion model trained on the scan's own views (SDEdit)"""
