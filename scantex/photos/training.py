@@ -207,9 +207,15 @@ def colour_match(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.
 
 
 def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: RayCaster,
-                 supersample: int = 2) -> dict:
+                 supersample: int = 2, images: dict | None = None) -> dict:
     """PSNR / SSIM of each scan rendered through held-out photos' cameras, raw and colour-matched,
-    over the pixels that pass the visibility test (averaged over photos)."""
+    over the pixels that pass the visibility test (averaged over photos).
+
+    Args:
+        images: if given, receives for each scored photo (by its index in the set) one
+            ``(H, W * (1 + len(scans)), 3) float32`` image: the photo, then each scan's render through its
+            camera, side by side (for people to look at).
+    """
     from scantex.metrics.image import psnr, ssim
     from scantex.views.render import render
 
@@ -218,13 +224,17 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         mask = view.valid
         if mask.sum() < 64:
             continue
+        row = [view.image]
         for name, scan in scans.items():
             img, _ = render(scan, view.camera, caster, supersample=supersample)
+            row.append(img)
             matched = colour_match(img, view.image, mask)
             s = scores[name]
             s["psnr"].append(psnr(img, view.image, mask))
             s["ssim"].append(ssim(img, view.image, mask))
             s["psnr_matched"].append(psnr(matched, view.image, mask))
             s["ssim_matched"].append(ssim(matched, view.image, mask))
+        if images is not None:
+            images[view.index] = np.concatenate(row, axis=1)
     return {name: {k: float(np.mean(v)) for k, v in s.items() if v} | {"photos": len(s["psnr"])}
             for name, s in scores.items()}

@@ -69,6 +69,7 @@ class EnhanceResult:
     config: EnhanceConfig
     views: TrainingViews
     comparisons: dict[str, np.ndarray] = field(default_factory=dict)
+    """images for people to look at, by name (photo mode: each held-out photo | the input | the result)"""
     input_scan: Scan | None = None
     """the scan that was enhanced (for the report's before/after)"""
     ground_truth: Scan | None = None
@@ -402,6 +403,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     timings["bake"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    comparisons: dict[str, np.ndarray] = {}
     with reporter.stage("measuring") as update:
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
@@ -410,18 +412,21 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         if refine_report is not None:
             metrics["refine"] = refine_report
         if photo is not None:
-            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster))
+            sheets: dict = {}
+            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster, sheets))
+            comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
-    return EnhanceResult(enhanced, metrics, config, tv, input_scan=scan, ground_truth=ground_truth)
+    return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)
 
 
 def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData, rays,
-                  holes: np.ndarray, caster: RayCaster) -> dict:
+                  holes: np.ndarray, caster: RayCaster, images: dict | None = None) -> dict:
     """Photo mode: what the photos gave, and the input and the result scored on the held-out photos
-    (and, when known, against the ground truth rendered through the held-out photos' cameras)."""
+    (and, when known, against the ground truth rendered through the held-out photos' cameras).
+    ``images`` receives a photo | input | result image per held-out photo."""
     from scantex.photos.training import score_photos
 
     P = len(photo.train)
@@ -437,7 +442,8 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
             "ratio": round(photo.alignment.ratio, 3), "summary": photo.alignment.summary()},
     }}
     if photo.held_out:
-        out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster)
+        out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,
+                                              images=images)
         if ground_truth is not None:
             out["held_out_photos_vs_ground_truth"] = score_views(
                 lambda cam: render(ground_truth, cam, caster, supersample=2),

@@ -18,7 +18,7 @@ def work_dir_for(output: Path) -> Path:
 
 def write_outputs(result, out_dir: str | Path) -> None:
     """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
-    ``report.html``."""
+    ``comparisons/`` (photo mode: held-out photo | input | result), ``report.html``."""
     from scantex.report import write_report
     from scantex.report.html import json_default
 
@@ -29,6 +29,14 @@ def write_outputs(result, out_dir: str | Path) -> None:
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
     save_config(result.config, out_dir / "config.json")
     write_views(result.views.views, out_dir / "renders")
+    if result.comparisons:
+        from PIL import Image
+
+        from scantex.views.render import to_uint8
+
+        (out_dir / "comparisons").mkdir()
+        for name, image in result.comparisons.items():
+            Image.fromarray(to_uint8(image)).save(out_dir / "comparisons" / f"{name}.png")
     write_report(result, out_dir / "report.html", metrics=metrics)
 
 

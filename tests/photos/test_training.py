@@ -134,6 +134,9 @@ def test_score_photos_prefers_the_true_texture(tmp_path):
     views = [prepare_photo(scan, photos, i, caster, 96) for i in range(2)]
     grey = scan.replace(materials=tuple(dataclasses.replace(m, image=np.full_like(m.image, 128))
                                         for m in scan.materials))
-    s = score_photos({"true": scan, "grey": grey}, views, caster)
+    sheets: dict = {}
+    s = score_photos({"true": scan, "grey": grey}, views, caster, images=sheets)
     assert s["true"]["psnr"] > 30 and s["grey"]["psnr"] < 20 and s["true"]["photos"] == 2
+    assert sorted(sheets) == [0, 1] and sheets[0].shape == (72, 3 * 96, 3)
+    assert np.array_equal(sheets[1][:, :96], views[1].image)
     assert s["grey"]["psnr_matched"] > s["grey"]["psnr"] - 1e-6

@@ -87,6 +87,11 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     assert "2 held-out photos" in run.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2
+    sheets = sorted((out / "comparisons").glob("held_out_photo_*.png"))
+    assert len(sheets) == 2
+    from PIL import Image
+
+    assert Image.open(sheets[0]).size == (3 * 128, 96)  # photo | input | result
     bad = subprocess.run(cmd[:-4] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "nowhere" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
