@@ -294,10 +294,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views of the field with a Vision Transformer trained self-supervised on the "
                         "scan's own views (masked completion, cross-view consistency, internal "
-                        "super-resolution) and fuse them back into the atlas (default: the preset's)")
+                        "super-resolution) and fuse them back into the atlas (default: on in every preset)")
     p.add_argument("--diffusion", action="store_true",
                    help="with the refiner: also denoise the refined views with a small diffusion model "
-                        "trained on them (SDEdit-style partial noising)")
+                        "trained on them (SDEdit-style partial noising; off by default: it removes detail "
+                        "along with noise on the demo scans)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=cmd_enhance)

@@ -128,6 +128,8 @@ class PhotosConfig:
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame"""
+    canonical: str = "input"
+    """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 
 
 @dataclass(frozen=True)

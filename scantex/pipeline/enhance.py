@@ -231,20 +231,29 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     return PhotoData(photos, views[:len(train)], views[len(train):], report)
 
 
-def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float):
+def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
+                    canonical: str = "input"):
     """All training rays of photo mode and their appearance groups.
 
     Groups ``0 .. P-1`` are the training photos (one exposure / white balance each), ``P .. P+C-1``
     the input atlas's charts seen in the synthetic views (``synthetic`` may be ``None``: an untextured
     scan has nothing to render). The synthetic rays weigh ``synthetic_weight`` each against a photo
-    ray's 1; only the photos fix the canonical appearance.
+    ray's 1 (in the loss; not in fixing the colour balance).
+
+    ``canonical`` says whose appearance is the one baked: ``"input"``, the input texture's average over
+    its charts (the result keeps the scan's overall colour balance; the photos only add what they see),
+    or ``"photos"``, the photos' average; an untextured scan always takes the photos'. Either is an
+    average of independently exposed images, and so only an estimate of the true colour.
 
     Returns:
         ``(rays, chart_offset, appearance_weights)``: the synthetic rays' groups are their chart + offset.
     """
+    from scantex.errors import ScanError
     from scantex.field.train import RayDataset
     from scantex.photos.training import photo_rays
 
+    if canonical not in ("input", "photos"):
+        raise ScanError(None, f"photos.canonical must be 'input' or 'photos', not '{canonical}'")
     P = len(photo.train)
     parts = [photo_rays(photo.train, range(P))]
     parts[0] = RayDataset(*(getattr(parts[0], k) for k in ("origins", "directions", "depth", "rgb", "chart")),
@@ -253,8 +262,12 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
         parts.append(RayDataset(synthetic.origins, synthetic.directions, synthetic.depth, synthetic.rgb,
                                 synthetic.chart + P, weight=np.full(len(synthetic), synthetic_weight, np.float32)))
     rays = RayDataset.concatenate(parts)
+    counts = np.bincount(rays.chart, minlength=P + n_charts).astype(np.float32)
     weights = np.zeros(P + n_charts, np.float32)
-    weights[:P] = np.bincount(rays.chart[rays.chart < P], minlength=P)
+    if canonical == "input" and counts[P:].sum() > 0:
+        weights[P:] = counts[P:]
+    else:
+        weights[:P] = counts[:P]
     return rays, P, weights
 
 
@@ -331,7 +344,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     if photo is not None:
         synthetic = data if scan.is_textured else None  # an untextured scan's renders teach nothing
         data, chart_offset, appearance_weights = photo_mode_rays(synthetic, photo, n_groups,
-                                                                 config.photos.synthetic_weight)
+                                                                 config.photos.synthetic_weight,
+                                                                 config.photos.canonical)
         n_groups += chart_offset
     lo, hi = scan.bounds
     normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))

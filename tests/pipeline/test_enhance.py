@@ -13,6 +13,7 @@ from scantex.io import load_scan, save_scan
 from scantex.pipeline.config import EnhanceConfig, FieldSettings, TrainConfig, ViewsConfig, load_config, \
     preset, save_config
 from scantex.pipeline.enhance import enhance
+from scantex.refine.config import RefineConfig
 from scantex.scan import triangle_multiset_key
 from scantex.synth import make_wall
 from scantex.synth.degrade import Degradation
@@ -22,6 +23,7 @@ TOY = EnhanceConfig(
     views=ViewsConfig(n_views=8, width=96, height=72, adaptive=False),
     field=FieldSettings(hidden=32, n_layers=2, n_levels=8, log2_table_size=14, max_resolution=256),
     train=TrainConfig(steps=150, batch_rays=4096, checkpoint_every=50),
+    refine=RefineConfig(enabled=False),  # the refiner has its own toy test (tests/refine/test_stage.py)
 )
 
 
