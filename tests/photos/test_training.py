@@ -140,3 +140,30 @@ def test_score_photos_prefers_the_true_texture(tmp_path):
     assert sorted(sheets) == [0, 1] and sheets[0].shape == (72, 3 * 96, 3)
     assert np.array_equal(sheets[1][:, :96], views[1].image)
     assert s["grey"]["psnr_matched"] > s["grey"]["psnr"] - 1e-6
+
+
+@pytest.mark.parametrize("canonical", ["input", "photos"])
+def test_photo_mode_rays_groups_and_colour_balance(tmp_path, canonical):
+    from scantex.field.train import RayDataset
+    from scantex.pipeline.enhance import PhotoData, photo_mode_rays
+
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = [prepare_photo(scan, photos, i, caster, 96) for i in range(3)]
+    data = PhotoData(photos, views, [], None)
+    n = 50
+    synthetic = RayDataset(np.zeros((n, 3), np.float32), np.ones((n, 3), np.float32), np.ones(n, np.float32),
+                           np.zeros((n, 3), np.float32), np.arange(n) % 2)
+    rays, offset, weights = photo_mode_rays(synthetic, data, 2, 0.1, canonical)
+    assert offset == 3 and weights.shape == (5,)
+    assert len(rays) == sum(int(v.valid.sum()) for v in views) + n
+    assert set(np.unique(rays.chart[-n:])) == {3, 4}  # the charts follow the photos
+    assert np.allclose(rays.weight[-n:], 0.1) and np.allclose(rays.weight[:-n], 1.0)
+    if canonical == "input":  # only the input texture's charts fix the colour balance
+        assert (weights[:3] == 0).all() and (weights[3:] == n // 2).all()
+    else:
+        assert (weights[3:] == 0).all() and weights[0] == views[0].valid.sum()
+    only_photos, _, w = photo_mode_rays(None, data, 2, 0.1, "input")  # untextured: the photos' balance
+    assert len(only_photos) == len(rays) - n and (w[:3] > 0).all()
+    with pytest.raises(Exception, match="canonical"):
+        photo_mode_rays(synthetic, data, 2, 0.1, "median")
