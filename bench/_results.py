@@ -36,3 +36,17 @@ def median_time(fn, repeats: int = 5) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
+
+
+def run_worker(code: str, spec: dict) -> dict:
+    """Run ``code`` in a fresh Python process (its peak memory and time its own) with ``spec`` as JSON in
+    ``sys.argv[1]``; return the JSON object it prints last."""
+    import json
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", code, json.dumps(spec)], capture_output=True, text=True,
+                          cwd=RESULTS.parents[1])
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-3000:])
+    return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -11,14 +11,12 @@ Writes the 'enhance' and 'ablations' sections of bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench._results import update_section  # noqa: E402
+from bench._results import run_worker, update_section  # noqa: E402
 
 WORKER = r"""
 import json, resource, sys, time
@@ -42,11 +40,7 @@ MID_WALL = {"grid": (100, 75), "gt_texture_size": 1024, "scan_texture_size": 256
 
 
 def run(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, "-c", WORKER, json.dumps(spec)], capture_output=True, text=True,
-                          cwd=ROOT)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_worker(WORKER, spec)
 
 
 def row(name: str, r: dict) -> str:

@@ -14,7 +14,6 @@ Writes the 'photos' section of bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
@@ -22,7 +21,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench._results import update_section  # noqa: E402
+from bench._results import run_worker, update_section  # noqa: E402
 
 WORKER = r"""
 import json, resource, sys, time
@@ -58,11 +57,7 @@ print(json.dumps({"seconds": seconds, "peak_mb": resource.getrusage(resource.RUS
 
 
 def run(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, "-c", WORKER, json.dumps(spec)], capture_output=True, text=True,
-                          cwd=ROOT)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_worker(WORKER, spec)
 
 
 def take_photos(folder: Path) -> Path:

@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench._results import update_section  # noqa: E402
+from bench._results import run_worker, update_section  # noqa: E402
 
 WORKER = r"""
 import json, sys, time
@@ -85,11 +84,7 @@ SCENES = {
 
 
 def run(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, "-c", WORKER, json.dumps(spec)], capture_output=True, text=True,
-                          cwd=ROOT)
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-3000:])
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_worker(WORKER, spec)
 
 
 def row(scene: str, name: str, r: dict) -> str:
