@@ -393,7 +393,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
-    if config.refine.enabled:
+    if config.refine.enabled and (photo is None or config.refine.with_photos):
         from scantex.refine.stage import refine_colour
 
         t = time.perf_counter()
@@ -486,7 +486,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
         metrics["held_out_vs_ground_truth"] = score_views(
             lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
             test_cams, caster, holes)
-    else:
+    elif scan.is_textured:
         # no truth: how faithfully the result reproduces the input where the input has colour
         metrics["held_out_vs_input"] = score_views(
             lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},

@@ -10,6 +10,9 @@ class RefineConfig:
     enabled: bool = True
     """refine views of the field's colour with a self-supervised ViT and fuse them back into the atlas
     (on in every preset: +0.25 dB on the demo wall for 10 s, neutral on the room; bench/bench_refine.py)"""
+    with_photos: bool = False
+    """also refine in photo mode (off: there it trains on renders of the input texture, which the photos
+    outclass; measured -0.12 dB on the demo wall with photos, bench/bench_photos.py)"""
     model: str = "tiny"
     """ViT size: tiny (CPU), small or base (GPU)"""
     patch: int = 16

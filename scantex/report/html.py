@@ -81,6 +81,10 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
         _section("Held-out views", _renders(before, after, truth, cameras),
                  "Unlit renders at views the field never trained on; PSNR against the ground truth where known."),
     ]
+    if getattr(result, "comparisons", None):
+        sections.append(_section("Held-out photos", _comparisons(result.comparisons),
+                                 "Photos the field never trained on | the input rendered through their cameras "
+                                 "| the result."))
     if before is not None:
         sections.append(_section("Atlas", _atlases(before, after),
                                  "The texture images themselves: whole (scaled to fit) and a detail at full "
@@ -128,6 +132,13 @@ def _headline(m: dict) -> str:
         e = m["held_out_vs_input"]["enhanced"]
         rows.append(("Held-out views vs input renders", f"PSNR {_num(e['psnr'])} dB, SSIM {e['ssim']:.3f} "
                      "(fidelity to the input, not quality: no ground truth was given)", ""))
+    photos = m.get("held_out_photos")
+    if photos:
+        i, e = photos["input"], photos["enhanced"]
+        rows.append((f"Held-out photos ({i.get('photos', 0)})",
+                     f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB (colour-matched {_num(i['psnr_matched'])} → "
+                     f"{_num(e['psnr_matched'])}), SSIM {i['ssim']:.3f} → {e['ssim']:.3f}",
+                     "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
     sv = m.get("seam_visibility")
     if sv:
         rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
@@ -229,6 +240,12 @@ def _atlases(before: Scan, after: Scan) -> str:
     return f'<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
 
 
+def _comparisons(images: dict) -> str:
+    rows = "".join(f"<tr><td>{_img(to_uint8(image), name, 'sheet')}<div class='cap'>{html.escape(name)}</div></td></tr>"
+                   for name, image in images.items())
+    return f'<table class="images">{rows}</table>'
+
+
 def _crop_centre(scan: Scan) -> tuple[float, float, int] | None:
     """UV centre and material of the detail crop: the first hole if the scan has one (where the input
     is at its worst), else the middle of the first seam edge, else none."""
@@ -269,7 +286,9 @@ def _metrics_tables(m: dict) -> str:
                       "random surface points per direction.</p>")
         tables.append(f"<h3>Geometry</h3><table><tr><th></th><th>input</th><th>output</th></tr>{body}</table>{extra}")
     for key, label in (("held_out_vs_ground_truth", "Held-out views vs ground truth"),
-                       ("held_out_vs_input", "Held-out views vs input renders")):
+                       ("held_out_vs_input", "Held-out views vs input renders"),
+                       ("held_out_photos", "Held-out photos"),
+                       ("held_out_photos_vs_ground_truth", "Held-out photos' cameras vs ground truth")):
         scores = m.get(key)
         if not scores:
             continue
@@ -289,6 +308,7 @@ def _metrics_tables(m: dict) -> str:
                        + "</tr>" for k in keys)
         tables.append(f"<h3>Texture</h3><table><tr><th></th>{head}</tr>{body}</table>")
     rest = {k: v for k, v in m.items() if k not in ("geometry", "held_out_vs_ground_truth", "held_out_vs_input",
+                                                    "held_out_photos", "held_out_photos_vs_ground_truth",
                                                     "texture", "timings_s")}
     flat = _flatten(rest)
     body = "".join(f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in flat.items())
@@ -364,7 +384,7 @@ h1 { margin: 20px 0 4px; } h2 { margin-top: 32px; border-bottom: 1px solid #ddd;
 table { border-collapse: collapse; margin: 6px 0; } th, td { padding: 3px 10px; text-align: left; vertical-align: top; }
 th { font-weight: 600; } table tr:nth-child(even) { background: #f6f6f6; }
 table.images tr { background: none; } table.images img { display: block; max-width: 100%; image-rendering: pixelated; }
-img.render { width: 300px; } img.thumb { width: 384px; }
+img.render { width: 300px; } img.thumb { width: 384px; } img.sheet { width: 960px; }
 .headline td.good { color: #176b2c; } .headline td.bad { color: #a31515; font-weight: 600; }
 .note, .cap { color: #666; font-size: 12px; } .row { display: flex; gap: 12px; flex-wrap: wrap; }
 .view3d { flex: 1 1 480px; min-width: 360px; } .plot3d { height: 460px; }

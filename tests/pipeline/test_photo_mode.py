@@ -92,7 +92,18 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     from PIL import Image
 
     assert Image.open(sheets[0]).size == (3 * 128, 96)  # photo | input | result
+    report = (out / "report.html").read_text()
+    assert "Held-out photos" in report and "colour-matched" in report
     bad = subprocess.run(cmd[:-4] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "nowhere" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out2").exists()
+
+
+def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
+    """The refiner learns from renders of the input texture, which the photos outclass (bench_photos)."""
+    cfg = TOY.override(train__steps=30, refine__enabled=True, refine__steps=4, refine__batch=2, refine__max_views=2)
+    skipped = enhance(toy_demo.scan, cfg, photos=toy_photos)
+    assert "refine" not in skipped.metrics and "refine" not in skipped.metrics["timings_s"]
+    asked = enhance(toy_demo.scan, cfg.override(refine__with_photos=True), photos=toy_photos)
+    assert asked.metrics["refine"]["views_refined"] == 2 and asked.metrics["geometry"]["arrays_identical"]
