@@ -255,12 +255,11 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     if canonical not in ("input", "photos"):
         raise ScanError(None, f"photos.canonical must be 'input' or 'photos', not '{canonical}'")
     P = len(photo.train)
-    parts = [photo_rays(photo.train, range(P))]
-    parts[0] = RayDataset(*(getattr(parts[0], k) for k in ("origins", "directions", "depth", "rgb", "chart")),
-                          weight=np.ones(len(parts[0]), np.float32))
+    seen = photo_rays(photo.train, range(P))
+    parts = [dataclasses.replace(seen, weight=np.ones(len(seen), np.float32))]
     if synthetic is not None and len(synthetic) and synthetic_weight > 0:
-        parts.append(RayDataset(synthetic.origins, synthetic.directions, synthetic.depth, synthetic.rgb,
-                                synthetic.chart + P, weight=np.full(len(synthetic), synthetic_weight, np.float32)))
+        parts.append(dataclasses.replace(synthetic, chart=synthetic.chart + P,
+                                         weight=np.full(len(synthetic), synthetic_weight, np.float32)))
     rays = RayDataset.concatenate(parts)
     counts = np.bincount(rays.chart, minlength=P + n_charts).astype(np.float32)
     weights = np.zeros(P + n_charts, np.float32)
