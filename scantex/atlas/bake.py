@@ -40,9 +40,10 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384
 
     The atlas is streamed in strips of rows (:func:`scantex.atlas.texelmap.texel_strips`): texel map,
     surface points and colours exist for one strip and one chunk at a time, so memory beyond the output
-    image is the padding's distance transform (0.5 GB at 8192^2), not the 12 GB the whole atlas's points
-    and colours would take. ``colour`` is called with the same chunks of covered texels, in the same
-    order (row-major), as :func:`bake_reference` calls it, so the result is the same byte for byte.
+    image is the padding's distance transform (0.5 GB at 8192^2), not the ~100 bytes a texel (6-7 GB at
+    8192^2) of the whole atlas's texel map, points, colours and float image. ``colour`` is called with
+    the same chunks of covered texels, in the same order (row-major), as :func:`bake_reference` calls it,
+    so the result is the same byte for byte.
     ``progress`` gets ``(done, total)`` texels; ``total`` is estimated from the UV area until the end.
     """
     tri_uv = scan.triangle_uvs
@@ -92,7 +93,7 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384
 
 def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384) -> tuple[np.ndarray, ...]:
     """Slow, plainly correct twin of :func:`bake`: the whole atlas's texel map, points and colours at
-    once (12 GB at 8192^2; for tests)."""
+    once (~100 bytes a texel: 6-7 GB at 8192^2; for tests)."""
     corners = scan.triangles
     normals = scan.face_normals
     images = []
