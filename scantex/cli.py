@@ -123,6 +123,16 @@ class BarReporter:
             yield update
 
 
+def _check_device(name: str) -> None:
+    """A device that cannot be had is the user's error, said before any work is done."""
+    from scantex.field.train import resolve_device
+
+    try:
+        resolve_device(name)
+    except ValueError as e:
+        raise ScanError(None, str(e)) from None
+
+
 def cmd_enhance(args) -> int:
     from scantex.io import load_scan
     from scantex.pipeline.config import load_config, preset
@@ -137,6 +147,7 @@ def cmd_enhance(args) -> int:
                              refine__diffusion=True if args.diffusion else None)
     if args.output.exists() and not args.overwrite:
         raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
+    _check_device(config.device)
     scan = load_scan(args.mesh)
     truth = load_scan(args.ground_truth) if args.ground_truth else None
     _echo(args, f"{args.mesh}: {scan.summary()}")

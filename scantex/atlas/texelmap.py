@@ -8,6 +8,7 @@ the tests compare against.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,37 @@ def uv_to_pixel(uv: np.ndarray, width: int, height: int) -> np.ndarray:
     return np.stack([uv[..., 0] * width - 0.5, (1.0 - uv[..., 1]) * height - 0.5], axis=-1)
 
 
+def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None, *,
+                 rows: int | None = None) -> Iterator[tuple[int, TexelMap]]:
+    """Rasterise UV triangles into a ``height x width`` atlas, ``rows`` texel rows at a time.
+
+    Yields ``(y0, strip)``: the :class:`TexelMap` of atlas rows ``y0 .. y0 + strip.shape[0]``, top to
+    bottom. Memory is bounded by one strip whatever the atlas size (the whole map of an 8192^2 atlas
+    is 0.8 GB). Arguments as :func:`texel_map`; ``rows`` defaults to :data:`ROWS_PER_STRIP`.
+    """
+    rows = rows or ROWS_PER_STRIP
+    selected = np.arange(len(triangle_uvs)) if faces is None else np.asarray(faces)
+    caster = None
+    if selected.size:
+        pix = uv_to_pixel(triangle_uvs[selected], width, height)  # [f, 3, 2]
+        flat = np.concatenate([pix.reshape(-1, 2), np.zeros((pix.shape[0] * 3, 1))], axis=1)
+        caster = RayCaster(flat, np.arange(flat.shape[0]).reshape(-1, 3))
+    xs = np.arange(width, dtype=np.float64)
+    for y0 in range(0, height, rows):
+        y1 = min(y0 + rows, height)
+        if caster is None:
+            yield y0, TexelMap(np.full((y1 - y0, width), -1, np.int32), np.zeros((y1 - y0, width, 2), np.float32))
+            continue
+        gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
+        origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+        directions = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
+        hits = caster.intersect(origins, directions)
+        hit = hits.face_id >= 0
+        fid = np.full(hits.face_id.shape, -1, dtype=np.int32)
+        fid[hit] = selected[hits.face_id[hit]]
+        yield y0, TexelMap(fid.reshape(y1 - y0, width), hits.bary.reshape(y1 - y0, width, 2).astype(np.float32, copy=False))
+
+
 def texel_map(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None) -> TexelMap:
     """Rasterise UV triangles into a ``height x width`` atlas.
 
@@ -58,29 +90,24 @@ def texel_map(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarr
         faces: indices of the faces to rasterise (e.g. one material's); default all.
 
     Where triangles overlap in UV space, one of them wins (the texel then shows one of the surface
-    points mapped there, as any renderer of that atlas would).
+    points mapped there, as any renderer of that atlas would). The whole map is ``12 * width *
+    height`` bytes: large atlases are better streamed with :func:`texel_strips`.
     """
-    selected = np.arange(len(triangle_uvs)) if faces is None else np.asarray(faces)
     face_id = np.full((height, width), -1, dtype=np.int32)
     bary = np.zeros((height, width, 2), dtype=np.float32)
-    if selected.size == 0:
-        return TexelMap(face_id, bary)
-    pix = uv_to_pixel(triangle_uvs[selected], width, height)  # [f, 3, 2]
-    flat = np.concatenate([pix.reshape(-1, 2), np.zeros((pix.shape[0] * 3, 1))], axis=1)
-    caster = RayCaster(flat, np.arange(flat.shape[0]).reshape(-1, 3))
-    xs = np.arange(width, dtype=np.float64)
-    for y0 in range(0, height, ROWS_PER_STRIP):
-        y1 = min(y0 + ROWS_PER_STRIP, height)
-        gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
-        origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
-        directions = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
-        hits = caster.intersect(origins, directions)
-        hit = hits.face_id >= 0
-        fid = np.full(hits.face_id.shape, -1, dtype=np.int32)
-        fid[hit] = selected[hits.face_id[hit]]
-        face_id[y0:y1] = fid.reshape(y1 - y0, width)
-        bary[y0:y1] = hits.bary.reshape(y1 - y0, width, 2)
+    for y0, strip in texel_strips(triangle_uvs, width, height, faces):
+        y1 = y0 + strip.shape[0]
+        face_id[y0:y1] = strip.face_id
+        bary[y0:y1] = strip.bary
     return TexelMap(face_id, bary)
+
+
+def covered_texels(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None) -> np.ndarray:
+    """``(H, W) bool``: the texels some triangle covers (:func:`texel_map`'s mask, streamed: 1 byte a texel)."""
+    mask = np.zeros((height, width), dtype=bool)
+    for y0, strip in texel_strips(triangle_uvs, width, height, faces):
+        mask[y0:y0 + strip.shape[0]] = strip.mask
+    return mask
 
 
 def texel_map_reference(triangle_uvs: np.ndarray, width: int, height: int) -> TexelMap:

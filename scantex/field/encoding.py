@@ -241,8 +241,8 @@ class HashGridEncoding(nn.Module):
 
     def set_active_levels(self, n: float) -> None:
         """Use only the ``n`` coarsest levels (fractional ``n`` fades the next one in)."""
-        weights = torch.clamp(n - torch.arange(self.layout.n_levels, dtype=torch.float32), 0.0, 1.0)
-        self.level_mask.copy_(weights.repeat_interleave(self.features_per_level).to(self.level_mask.device))
+        levels = torch.arange(self.layout.n_levels, dtype=torch.float32, device=self.level_mask.device)
+        self.level_mask.copy_(torch.clamp(n - levels, 0.0, 1.0).repeat_interleave(self.features_per_level))
 
     @property
     def out_dim(self) -> int:

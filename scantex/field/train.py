@@ -97,9 +97,14 @@ Progress = Callable[[int, int], None]
 
 
 def resolve_device(name: str) -> torch.device:
+    """``auto`` (CUDA when present, else the CPU), ``cpu`` or ``cuda``; asking for CUDA without it is an error."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} asked for, but this torch build sees no CUDA GPU "
+                         f"(torch {torch.__version__}); use --device cpu or auto")
+    return device
 
 
 def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldConfig, train,
@@ -119,12 +124,16 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     """
     torch.manual_seed(seed)
     gen = torch.Generator(device="cpu").manual_seed(seed)
-    field = RadianceField(field_config).to(device)
-    counts = torch.bincount(torch.as_tensor(data.chart), minlength=n_charts)
-    if appearance_weights is not None:
-        counts = torch.as_tensor(appearance_weights, dtype=torch.float32)
-    gains0 = torch.as_tensor(initial_gains) if initial_gains is not None else None
-    appearance = ChartAppearance(n_charts, counts, gains0).to(device) if train.appearance else None
+    # built on the CPU (the same starting weights whatever the device), then moved
+    with torch.device("cpu"):
+        field = RadianceField(field_config)
+        counts = torch.bincount(torch.as_tensor(data.chart), minlength=n_charts)
+        if appearance_weights is not None:
+            counts = torch.as_tensor(appearance_weights, dtype=torch.float32)
+        gains0 = torch.as_tensor(initial_gains) if initial_gains is not None else None
+        appearance = ChartAppearance(n_charts, counts, gains0) if train.appearance else None
+    field = field.to(device)
+    appearance = appearance.to(device) if appearance is not None else None
     groups = [{"params": field.parameters(), "lr": train.lr}]
     if appearance is not None:
         groups.append({"params": appearance.parameters(), "lr": train.appearance_lr})
@@ -155,8 +164,8 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     # little weight (photo mode: a few photo rays among many synthetic ones)
     cdf = None
     if data.weight is not None:
-        cdf = torch.cumsum(torch.as_tensor(data.weight, dtype=torch.float64), 0)
-        cdf = (cdf / cdf[-1]).to(device)
+        cdf = torch.cumsum(torch.as_tensor(data.weight, dtype=torch.float64, device=device), 0)
+        cdf = cdf / cdf[-1]
     R = len(data)
     t0 = time.perf_counter()
     coarse_steps = int(train.coarse_to_fine * train.steps)
@@ -168,9 +177,10 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
             # exposure jump at a seam; fine levels arrive once the transforms have taken it
             levels(train.start_levels + (n_levels - train.start_levels) * min(1.0, step / coarse_steps))
         if cdf is None:
-            idx = torch.randint(0, R, (min(train.batch_rays, R),), generator=gen).to(device)
+            # drawn from the CPU generator (the same batches on any device), then moved
+            idx = torch.randint(0, R, (min(train.batch_rays, R),), generator=gen, device="cpu").to(device)
         else:
-            u = torch.rand(min(train.batch_rays, R), generator=gen, dtype=torch.float64).to(device)
+            u = torch.rand(min(train.batch_rays, R), generator=gen, dtype=torch.float64, device="cpu").to(device)
             idx = torch.searchsorted(cdf, u).clamp_max(R - 1)
         rgb, _ = render_rays(field, origins[idx], directions[idx], depth[idx], train.n_samples, band,
                              normaliser, stratified=True)
@@ -197,7 +207,7 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
 
 def _save(path: Path, field, appearance, optim, sched, gen, step: int, losses: list[float]) -> None:
     state = {"field": field.state_dict(), "optim": optim.state_dict(), "sched": sched.state_dict(),
-             "rng": gen.get_state(), "step": step, "losses": torch.tensor(losses)}
+             "rng": gen.get_state(), "step": step, "losses": torch.tensor(losses, device="cpu")}
     if appearance is not None:
         state["appearance"] = appearance.state_dict()
     tmp = path.with_suffix(".tmp")

@@ -142,8 +142,8 @@ def volume_render_reference(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Slow twin of :func:`volume_render`: a loop over rays and samples with ``T *= 1 - alpha``."""
     R, S = sigma.shape
-    colour = torch.zeros(R, 3, dtype=rgb.dtype)
-    weights = torch.zeros(R, S, dtype=sigma.dtype)
+    colour = torch.zeros(R, 3, dtype=rgb.dtype, device=rgb.device)
+    weights = torch.zeros(R, S, dtype=sigma.dtype, device=sigma.device)
     for r in range(R):
         transmittance = 1.0
         for i in range(S):
@@ -158,7 +158,7 @@ def volume_render_reference(
             colour[r] += weights[r, i] * rgb[r, i]
             transmittance *= 1.0 - alpha
         if background is not None and S > 1:
-            bg = torch.as_tensor(background, dtype=rgb.dtype)
+            bg = torch.as_tensor(background, dtype=rgb.dtype, device=rgb.device)
             colour[r] += (1.0 - weights[r].sum()) * (bg if bg.ndim == 1 else bg[r])
     return colour, weights, weights.sum(dim=1)
 

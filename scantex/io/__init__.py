@@ -88,11 +88,12 @@ def _warn_defects(scan: Scan) -> None:
                     scan.source, degenerate, non_manifold)
 
 
-def save_scan(scan: Scan, path: str | Path) -> list[Path]:
+def save_scan(scan: Scan, path: str | Path, *, png_cache: dict | None = None) -> list[Path]:
     """Write ``scan`` to ``path`` (``.obj`` with MTL and PNG textures beside it, or ``.glb``).
 
     All files appear at once (written to temporary names, then renamed); the scan's own source files
-    are never overwritten.
+    are never overwritten. Passing the same ``png_cache`` (a dict) to several saves of one scan
+    encodes each texture once (see :func:`scantex.io.images.png_bytes`).
 
     Returns:
         the files written.
@@ -107,9 +108,9 @@ def save_scan(scan: Scan, path: str | Path) -> list[Path]:
         if suffix == ".obj":
             from scantex.io.obj import write_obj
 
-            write_obj(scan, path, files)
+            write_obj(scan, path, files, png_cache)
         else:
             from scantex.io.trimesh_formats import write_glb
 
-            write_glb(scan, path, files)
+            write_glb(scan, path, files, png_cache)
     return [final for _, final in files._pending]

@@ -243,11 +243,12 @@ def texture_names(scan: Scan, stem: str) -> list[str | None]:
     return names
 
 
-def write_obj(scan: Scan, obj_path: Path, files) -> None:
+def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) -> None:
     """Write ``scan`` as OBJ + MTL + PNG textures next to ``obj_path``.
 
     Args:
         files: an :class:`~scantex.io.atomic.AtomicFiles` that hands out temporary paths.
+        png_cache: see :func:`scantex.io.images.png_bytes`.
     """
     stem = obj_path.stem
     mtl_path = obj_path.with_suffix(".mtl")
@@ -260,7 +261,7 @@ def write_obj(scan: Scan, obj_path: Path, files) -> None:
         mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")
         if tex:
             mtl.append(f"map_Kd {tex}\n")
-            write_png(files.path(obj_path.parent / tex), m.image)
+            write_png(files.path(obj_path.parent / tex), m.image, png_cache)
         mtl.append("\n")
     mtl_tmp = files.path(mtl_path)
     mtl_tmp.write_text("".join(mtl), encoding="utf-8")

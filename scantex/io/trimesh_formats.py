@@ -130,10 +130,29 @@ def _split_for_gltf(scan: Scan, faces_sel: np.ndarray):
     return scan.positions[keys_pos], inverse.reshape(-1, 3), uv, colors
 
 
-def write_glb(scan: Scan, path: Path, files) -> None:
-    """Write ``scan`` as a binary glTF, one mesh per material, textures embedded as PNG."""
-    import trimesh
+def _encoded_png(image: np.ndarray, cache: dict | None):
+    """A PIL image of ``image`` that trimesh's glTF export embeds as our PNG bytes: trimesh would encode
+    it again at zlib's default level (several times slower on a large atlas, and a second encoding when
+    the OBJ's PNG is already made)."""
+    import io
+
     from PIL import Image
+
+    from scantex.io.images import png_bytes
+
+    data = png_bytes(image, cache)
+    pil = Image.open(io.BytesIO(data))  # reads the header only
+    pil.save = lambda fp, format=None, **params: fp.write(data)  # noqa: A002 (PIL's own argument name)
+    return pil
+
+
+def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:
+    """Write ``scan`` as a binary glTF, one mesh per material, textures embedded as PNG.
+
+    Args:
+        png_cache: see :func:`scantex.io.images.png_bytes`.
+    """
+    import trimesh
 
     f32 = scan.positions.astype(np.float32)
     if not np.array_equal(f32.astype(np.float64), scan.positions):
@@ -147,7 +166,7 @@ def write_glb(scan: Scan, path: Path, files) -> None:
         pos, faces, uv, colors = _split_for_gltf(scan, sel)
         if uv is not None and material.image is not None:
             pbr = trimesh.visual.material.PBRMaterial(
-                name=material.name, baseColorTexture=Image.fromarray(material.image),
+                name=material.name, baseColorTexture=_encoded_png(material.image, png_cache),
                 baseColorFactor=[float(c) for c in material.diffuse], metallicFactor=0.0,
                 roughnessFactor=1.0, doubleSided=True)
             visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr)

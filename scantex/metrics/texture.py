@@ -14,7 +14,7 @@ import numpy as np
 
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
-from scantex.atlas.texelmap import texel_map
+from scantex.atlas.texelmap import covered_texels
 from scantex.metrics.image import mse, psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -52,7 +52,7 @@ def atlas_scores(test: Scan, reference: Scan) -> dict:
         if mt.image is None or mr.image is None or faces.size == 0:
             continue
         H, W = mr.image.shape[:2]
-        covered = texel_map(tri_uv, W, H, faces).mask
+        covered = covered_texels(tri_uv, W, H, faces)
         ref = mr.image[..., :3].astype(np.float32) / 255.0
         if mt.image.shape[:2] == (H, W):
             img = mt.image[..., :3].astype(np.float32) / 255.0

@@ -23,8 +23,9 @@ def write_outputs(result, out_dir: str | Path) -> None:
     from scantex.report.html import json_default
 
     out_dir = Path(out_dir)
-    save_scan(result.scan, out_dir / "enhanced.obj")
-    save_scan(result.scan, out_dir / "enhanced.glb")
+    png_cache: dict = {}  # the OBJ's PNG and the GLB's embedded one are the same bytes: encode once
+    save_scan(result.scan, out_dir / "enhanced.obj", png_cache=png_cache)
+    save_scan(result.scan, out_dir / "enhanced.glb", png_cache=png_cache)
     metrics = completed_metrics(result)
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
     save_config(result.config, out_dir / "config.json")

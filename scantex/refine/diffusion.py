@@ -192,7 +192,9 @@ class Denoiser(nn.Module):
     def load(cls, path: str | Path, device: torch.device | str = "cpu") -> Denoiser:
         """A denoiser saved with :meth:`save` (loaded with ``weights_only``: nothing executable)."""
         saved = torch.load(path, map_location=device, weights_only=True)
-        denoiser = cls(DiffusionConfig(**saved["config"])).to(device)
+        with torch.device("cpu"):
+            denoiser = cls(DiffusionConfig(**saved["config"]))
+        denoiser = denoiser.to(device)
         denoiser.load_state_dict(saved["state"])
         return denoiser.eval()
 
@@ -221,12 +223,12 @@ class Denoiser(nn.Module):
             log.warning("denoising from strength %.2f, above the %.2f the model was trained up to",
                         strength, self.config.train_strength)
         # t0 -> 0 in sample_steps deterministic jumps (fewer if t0 has fewer integer steps)
-        ts = torch.linspace(t0, 0, self.config.sample_steps + 1).round().long().unique_consecutive().tolist()
+        ts = torch.linspace(t0, 0, self.config.sample_steps + 1, device="cpu").round().long().unique_consecutive().tolist()
         gen = torch.Generator(device="cpu").manual_seed(seed)
         out = torch.empty_like(images)
         for i in range(len(images)):  # one image at a time bounds memory
             x0 = images[i:i + 1].to(self.device, torch.float32) * 2 - 1
-            eps = torch.randn(x0.shape, generator=gen).to(self.device)
+            eps = torch.randn(x0.shape, generator=gen, device="cpu").to(self.device)
             x = noise_to(x0, self.alphas_cumprod[t0], eps)
             for t, t_next in zip(ts[:-1], ts[1:]):
                 x = self._ddim_step(x, t, t_next)
@@ -324,7 +326,7 @@ def fit_denoiser(images: torch.Tensor, masks: torch.Tensor | None, config: Diffu
     if H < p or W < p:
         raise ValueError(f"images of {H}x{W} pixels are smaller than the {p}-pixel training patch")
     if masks is None:
-        masks = torch.ones(N, 1, H, W, dtype=torch.bool)
+        masks = torch.ones(N, 1, H, W, dtype=torch.bool, device=images.device)
     elif masks.shape != (N, 1, H, W):
         raise ValueError(f"masks must be (N, 1, H, W) = {(N, 1, H, W)}, got {tuple(masks.shape)}")
     corners = patch_corners(masks.bool().cpu(), p, config.min_usable)
@@ -336,7 +338,9 @@ def fit_denoiser(images: torch.Tensor, masks: torch.Tensor | None, config: Diffu
     device = torch.device(device)
     torch.manual_seed(seed)
     gen = torch.Generator(device="cpu").manual_seed(seed)
-    denoiser = Denoiser(config).to(device)
+    with torch.device("cpu"):  # initialised on the CPU: the same starting weights whatever the device
+        denoiser = Denoiser(config)
+    denoiser = denoiser.to(device)
     unet = denoiser.unet.train()
     optim = torch.optim.Adam(unet.parameters(), lr=config.lr, fused=device.type in ("cpu", "cuda"))  # fused: fewer tiny kernels a step
     warmup = max(1, config.steps // 20)
@@ -349,19 +353,20 @@ def fit_denoiser(images: torch.Tensor, masks: torch.Tensor | None, config: Diffu
     losses = []
     start = time.perf_counter()
     for step in range(config.steps):
-        pick = corners[torch.randint(0, len(corners), (config.batch,), generator=gen)].to(device)
+        # the draws are made on the CPU generator (the same on any device) and moved
+        pick = corners[torch.randint(0, len(corners), (config.batch,), generator=gen, device="cpu")].to(device)
         rows = (pick[:, 1:2] + offsets)[:, :, None]  # [B, p, 1]
         cols = (pick[:, 2:3] + offsets)[:, None, :]  # [B, 1, p]
         x0 = data[pick[:, 0, None, None], :, rows, cols].permute(0, 3, 1, 2)  # [B, 3, p, p]
         weight = usable[pick[:, 0, None, None], :, rows, cols].permute(0, 3, 1, 2)  # [B, 1, p, p]
         if config.flips:
-            flip = torch.rand(2, config.batch, generator=gen).to(device) < 0.5
+            flip = torch.rand(2, config.batch, generator=gen, device="cpu").to(device) < 0.5
             x0 = torch.where(flip[0, :, None, None, None], x0.flip(-1), x0)
             weight = torch.where(flip[0, :, None, None, None], weight.flip(-1), weight)
             x0 = torch.where(flip[1, :, None, None, None], x0.flip(-2), x0)
             weight = torch.where(flip[1, :, None, None, None], weight.flip(-2), weight)
-        t = torch.randint(1, t_max + 1, (config.batch,), generator=gen).to(device)
-        eps = torch.randn(x0.shape, generator=gen).to(device)
+        t = torch.randint(1, t_max + 1, (config.batch,), generator=gen, device="cpu").to(device)
+        eps = torch.randn(x0.shape, generator=gen, device="cpu").to(device)
         x_t = noise_to(x0, denoiser.alphas_cumprod[t][:, None, None, None], eps)
         loss = ((unet(x_t, t.float()) - eps) ** 2 * weight).sum() / (3 * weight.sum()).clamp(min=1)
         optim.zero_grad(set_to_none=True)

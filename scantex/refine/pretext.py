@@ -3,7 +3,8 @@ blur + compression to undo (internal super-resolution), plus the smooth fill tha
 missing pixels.
 
 All functions take and return ``(B, C, H, W)`` float tensors in [0, 1] and draw from an explicit
-``torch.Generator``.
+``torch.Generator``; random draws are made on the generator's device (the CPU in training, so a
+seed gives the same corruption on any device) and moved to the images'.
 """
 
 from __future__ import annotations
@@ -22,10 +23,10 @@ def random_masks(batch: int, height: int, width: int, share: float, patch: int,
     look like the holes and occlusions the refiner has to fill in a real scan.
     """
     rows, cols = max(1, height // patch), max(1, width // patch)
-    patches = torch.rand(batch, 1, rows, cols, generator=generator) < share / 2
+    patches = torch.rand(batch, 1, rows, cols, generator=generator, device=generator.device) < share / 2
     patches = F.interpolate(patches.float(), size=(height, width), mode="nearest") > 0.5
     coarse = torch.rand(batch, 1, max(2, height // (2 * patch)) + 1, max(2, width // (2 * patch)) + 1,
-                        generator=generator)
+                        generator=generator, device=generator.device)
     field = F.interpolate(coarse, size=(height, width), mode="bicubic", align_corners=True)
     level = torch.quantile(field.flatten(1), 1 - share / 2, dim=1).reshape(batch, 1, 1, 1)
     return patches | (field > level)
@@ -61,8 +62,8 @@ def smooth_fill(x: torch.Tensor, known: torch.Tensor, levels: int = 6) -> torch.
     return torch.where(known, x, fill)
 
 
-def _dct_matrix(n: int = 8) -> torch.Tensor:
-    k = torch.arange(n, dtype=torch.float32)
+def _dct_matrix(n: int = 8, device: torch.device | str = "cpu") -> torch.Tensor:
+    k = torch.arange(n, dtype=torch.float32, device=device)
     m = torch.cos(math.pi * (2 * k[None, :] + 1) * k[:, None] / (2 * n)) * math.sqrt(2 / n)
     m[0] /= math.sqrt(2)
     return m
@@ -93,7 +94,7 @@ def jpeg_like(x: torch.Tensor, quality: torch.Tensor) -> torch.Tensor:
                        0.5 * r - 0.418688 * g - 0.081312 * b], dim=1)
     Hp, Wp = H + ph, W + pw
     blocks = ycc.reshape(B, 3, Hp // 8, 8, Wp // 8, 8).permute(0, 1, 2, 4, 3, 5)  # [B, 3, h, w, 8, 8]
-    D = _dct_matrix().to(x.device, x.dtype)
+    D = _dct_matrix(device=x.device).to(x.dtype)
     q = quality.to(x.dtype).clamp(1, 100).reshape(B, 1, 1, 1, 1, 1)
     scale = torch.where(q < 50, 5000 / q, 200 - 2 * q) / 100
     tables = torch.stack([_LUMA, _CHROMA, _CHROMA]).to(x.device, x.dtype).reshape(1, 3, 1, 1, 8, 8)
@@ -128,9 +129,9 @@ def downscale_blur_compress(x: torch.Tensor, factor: float, generator: torch.Gen
     views rendered ``factor`` times finer than the ones it learned on (internal super-resolution).
     """
     B, C, H, W = x.shape
-    sigma = (0.3 + 0.9 * torch.rand(B, generator=generator)) * factor
+    sigma = (0.3 + 0.9 * torch.rand(B, generator=generator, device=generator.device)) * factor
     small = F.interpolate(gaussian_blur(x, sigma.to(x.device)), size=(max(1, round(H / factor)), max(1, round(W / factor))),
                           mode="area")
-    quality = 30 + 60 * torch.rand(B, generator=generator)
+    quality = 30 + 60 * torch.rand(B, generator=generator, device=generator.device)
     small = jpeg_like(small, quality.to(x.device))
     return F.interpolate(small, size=(H, W), mode="bilinear", align_corners=False)

@@ -66,8 +66,8 @@ def canonical_targets(tv, fitted, charts: np.ndarray, device, canonical: bool = 
             pixels, mask = correspond(tv.views.cameras[train[a]], tv.depth[train[a]], valid[a],
                                       tv.views.cameras[train[b]], tv.depth[train[b]], valid[b])
             pairs.append(Correspondence(a, int(b), pixels, mask))
-    return RefinerData(torch.as_tensor(images).permute(0, 3, 1, 2).contiguous(),
-                       torch.as_tensor(valid)[:, None], tuple(pairs))
+    return RefinerData(torch.as_tensor(images, device=device).permute(0, 3, 1, 2).contiguous(),
+                       torch.as_tensor(valid, device=device)[:, None], tuple(pairs))
 
 
 def pick_views(face_id: np.ndarray, valid: np.ndarray, max_views: int) -> list[int]:
@@ -185,8 +185,9 @@ def _denoise(residuals: list[np.ndarray], bases: list[np.ndarray], usable: list[
 
     from scantex.refine.diffusion import DiffusionConfig, fit_denoiser
 
-    refined = torch.as_tensor(np.stack([b + r for b, r in zip(bases, residuals)])).permute(0, 3, 1, 2).clamp(0, 1)
-    masks = torch.as_tensor(np.stack(usable))[:, None]
+    refined = torch.as_tensor(np.stack([b + r for b, r in zip(bases, residuals)]),
+                              device=device).permute(0, 3, 1, 2).clamp(0, 1)
+    masks = torch.as_tensor(np.stack(usable), device=device)[:, None]
     dc = dataclasses.replace(DiffusionConfig(), steps=config.diffusion_steps, strength=config.diffusion_strength)
     denoiser = fit_denoiser(refined, masks, dc, device=device, seed=seed)
     out = denoiser.denoise(refined, config.diffusion_strength, seed=seed)

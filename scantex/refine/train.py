@@ -80,7 +80,7 @@ def corrupt(target: torch.Tensor, known: torch.Tensor, config: RefineConfig, gen
         x = downscale_blur_compress(smooth_fill(x, known), config.view_scale, generator)
     fill = ~known
     if config.masked:
-        fill = fill | random_masks(B, h, w, config.mask_share, config.patch, generator)
+        fill = fill | random_masks(B, h, w, config.mask_share, config.patch, generator).to(fill.device)
     x = smooth_fill(x, ~fill)
     return torch.cat([x, fill.to(x.dtype)], dim=1), fill
 
@@ -92,11 +92,13 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
     if N == 0:
         raise ValueError("no views to train the refiner on")
     torch.manual_seed(seed)
-    gen = torch.Generator().manual_seed(seed)
+    gen = torch.Generator(device="cpu").manual_seed(seed)  # draws on the CPU, moved: the same on any device
     rng = np.random.default_rng(seed)
     c = crop_size(config, H, W)
-    model = ViTRefiner.preset(config.model, patch=config.patch, in_channels=4,
-                              grid=(c // config.patch, c // config.patch)).to(device)
+    with torch.device("cpu"):  # initialised on the CPU: the same starting weights whatever the device
+        model = ViTRefiner.preset(config.model, patch=config.patch, in_channels=4,
+                                  grid=(c // config.patch, c // config.patch))
+    model = model.to(device)
     optim = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
     # linear warm-up (the zero head's first moves would otherwise throw the output far off), then
     # cosine decay to 10 %
@@ -131,7 +133,8 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
             m = pair.mask[ya:ya + c, xa:xa + c]
             pb = pair.pixels[ya:ya + c, xa:xa + c] - np.array([xb, yb], np.float32)
             m = m & (pb[..., 0] >= 0) & (pb[..., 0] <= c - 1) & (pb[..., 1] >= 0) & (pb[..., 1] <= c - 1)
-            pair_terms.append((len(crops), len(crops) + 1, torch.as_tensor(m), torch.as_tensor(pb)))
+            pair_terms.append((len(crops), len(crops) + 1, torch.as_tensor(m, device=device),
+                               torch.as_tensor(pb, device=device)))
             crops += [(pair.a, ya, xa), (pair.b, yb, xb)]
         while len(crops) < config.batch:
             i = views_with_target[int(rng.integers(len(views_with_target)))]
@@ -161,10 +164,10 @@ def cross_view_loss(out: torch.Tensor, pair_terms: list, crop: int) -> torch.Ten
     for ia, ib, mask, pixels in pair_terms:
         if not mask.any():
             continue
-        pb = pixels[mask].to(out.device)  # [n, 2] (x, y) in B's crop
+        pb = pixels[mask]  # [n, 2] (x, y) in B's crop
         grid = (2 * (pb + 0.5) / crop - 1).reshape(1, 1, -1, 2)
         yb = F.grid_sample(out[ib:ib + 1], grid, mode="bilinear", align_corners=False)[0, :, 0]  # [3, n]
-        ya = out[ia][:, mask.to(out.device)]  # [3, n]
+        ya = out[ia][:, mask]  # [3, n]
         total = total + (ya - yb).abs().sum()
         count += 3 * ya.shape[1]
     return total / max(count, 1)

@@ -52,9 +52,9 @@ class EncoderBlock(nn.Module):
         return x + self.mlp(self.norm2(x))
 
 
-def hann_window(size: int) -> torch.Tensor:
+def hann_window(size: int, device: torch.device | str = "cpu") -> torch.Tensor:
     """``(size, size)`` separable sin² window; shifted by ``size / 2`` its copies sum to 1."""
-    w = torch.sin(math.pi * (torch.arange(size, dtype=torch.float32) + 0.5) / size) ** 2
+    w = torch.sin(math.pi * (torch.arange(size, dtype=torch.float32, device=device) + 0.5) / size) ** 2
     return w[:, None] * w[None, :]
 
 
@@ -156,7 +156,7 @@ def refine_tiled(model: ViTRefiner, x: torch.Tensor, tile: int, batch: int = 64)
     T = tiles.shape[-1]
     tiles = tiles.transpose(1, 2).reshape(B * T, C, tile, tile)
     out = torch.cat([model(tiles[s:s + batch]) for s in range(0, B * T, batch)])  # [B * T, 3, tile, tile]
-    window = hann_window(tile).to(x.device, x.dtype)
+    window = hann_window(tile, device=x.device).to(x.dtype)
     out = (out * window).reshape(B, T, 3 * tile * tile).transpose(1, 2)
     fold = dict(output_size=(Hp, Wp), kernel_size=tile, stride=step)
     weight = F.fold(window.reshape(1, -1, 1).expand(1, -1, T), **fold)

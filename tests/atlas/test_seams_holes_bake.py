@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
-from scantex.atlas.bake import bake
+from scantex.atlas.bake import bake, bake_reference
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
 from scantex.atlas.padding import pad_gutters
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.atlas.texelmap import covered_texels, texel_map, texel_map_reference
 from scantex.scan import Material, Scan
 from scantex.views.render import sample_texture
 from tests.conftest import checker, grid_wall
@@ -156,3 +158,56 @@ def test_chart_gains_recover_an_exposure_step():
     gains = chart_gains(scan.replace(materials=(Material("c", img),)), charts)
     assert np.allclose(gains[1] / gains[0], 1.2, atol=0.03)
     assert np.allclose(np.log(gains).mean(axis=0), 0, atol=1e-6)
+
+
+@pytest.mark.parametrize("rows, chunk", [(3, 37), (7, 5000), (512, 16384)])
+def test_streamed_bake_is_the_untiled_bake(rows, chunk, cube, wall, monkeypatch):
+    """Strips of a few rows and chunks that straddle them: the same images byte for byte, and the colour
+    function called with the same chunks as the whole-atlas twin."""
+    import scantex.atlas.padding
+    import scantex.atlas.texelmap
+
+    monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", rows)
+    monkeypatch.setattr(scantex.atlas.padding, "ROWS_PER_STRIP", rows)
+    for scan, size in ((cube, 48), (wall, 64), (cylinder_with_one_seam(), 40)):
+        calls = {"tiled": [], "untiled": []}
+
+        def recorder(name):
+            def colour(points, normals, faces, bary):
+                calls[name].append((len(points), int(faces[0])))
+                return np.clip(np.abs(np.sin(3 * points + normals)) * (0.5 + 0.5 * bary[:, :1]), 0, 1)
+            return colour
+
+        progress = []
+        tiled = bake(scan, recorder("tiled"), size=size, chunk=chunk, progress=lambda d, t: progress.append((d, t)))
+        untiled = bake_reference(scan, recorder("untiled"), size=size, chunk=chunk)
+        assert len(tiled) == len(untiled)
+        for a, b in zip(tiled, untiled):
+            assert a.dtype == np.uint8 and np.array_equal(a, b)
+        assert calls["tiled"] == calls["untiled"]
+        assert progress[-1][0] == progress[-1][1] == sum(n for n, _ in calls["tiled"])
+        assert all(d2 >= d1 for (d1, _), (d2, _) in zip(progress, progress[1:]))
+
+
+def test_streamed_texel_map_and_mask_match_the_reference(wall, monkeypatch):
+    import scantex.atlas.texelmap
+
+    monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", 5)
+    ref = texel_map_reference(wall.triangle_uvs, 50, 37)
+    tmap = texel_map(wall.triangle_uvs, 50, 37)
+    assert (tmap.face_id == ref.face_id).mean() > 0.999  # ties on shared edges may go either way
+    assert np.array_equal(covered_texels(wall.triangle_uvs, 50, 37), tmap.mask)
+
+
+def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
+    import scantex.atlas.padding
+
+    monkeypatch.setattr(scantex.atlas.padding, "ROWS_PER_STRIP", 4)
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 255, (23, 17, 3)).astype(np.uint8)
+    covered = rng.random((23, 17)) < 0.2
+    padded = pad_gutters(image, covered)
+    from scipy.ndimage import distance_transform_edt
+
+    _, (iy, ix) = distance_transform_edt(~covered, return_indices=True)
+    assert np.array_equal(padded, image[iy, ix]) and padded is not image

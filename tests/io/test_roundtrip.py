@@ -76,6 +76,31 @@ def test_glb_texture_survives(tmp_path, cube):
     assert np.array_equal(back.materials[0].image, cube.materials[0].image)
 
 
+def test_obj_and_glb_of_one_output_share_one_png_encoding(tmp_path, cube):
+    """write_outputs encodes each atlas once: the GLB embeds the OBJ's PNG files byte for byte."""
+    import json
+    import struct
+
+    cache: dict = {}
+    save_scan(cube, tmp_path / "c.obj", png_cache=cache)
+    save_scan(cube, tmp_path / "c.glb", png_cache=cache)
+    assert len(cache) == 2
+    pngs = sorted((tmp_path / name).read_bytes() for name in ("tex0.png", "tex1.png"))
+    blob = (tmp_path / "c.glb").read_bytes()
+    json_len = struct.unpack("<I", blob[12:16])[0]
+    doc = json.loads(blob[20:20 + json_len])
+    binary = blob[20 + json_len + 8:]
+    embedded = []
+    for image in doc["images"]:
+        view = doc["bufferViews"][image["bufferView"]]
+        start = view.get("byteOffset", 0)
+        embedded.append(binary[start:start + view["byteLength"]])
+    embedded = sorted(e.rstrip(b"\0") for e in embedded)  # views are padded to 4 bytes; a PNG ends in IEND's CRC
+    assert embedded == [p.rstrip(b"\0") for p in pngs] and all(i["mimeType"] == "image/png" for i in doc["images"])
+    back = load_scan(tmp_path / "c.glb")
+    assert sorted(m.image.tobytes() for m in back.materials) == sorted(m.image.tobytes() for m in cube.materials)
+
+
 def test_ply_with_vertex_colours_roundtrip(tmp_path):
     mesh = trimesh.creation.icosphere(subdivisions=2)
     colors = np.random.default_rng(0).integers(0, 255, (len(mesh.vertices), 4), dtype=np.uint8)
