@@ -156,6 +156,8 @@ def cmd_enhance(args) -> int:
         result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap), ground_truth=truth,
                                runner=executor(args.ray, args.workers), reporter=BarReporter(args.quiet))
     else:
+        if args.ray or args.workers:
+            log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
         result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
                          reporter=BarReporter(args.quiet))
     with atomic_dir(args.output, overwrite=args.overwrite) as tmp:

@@ -79,6 +79,9 @@ def batch(inputs: Sequence[str | Path], out_dir: str | Path, config: EnhanceConf
         overwrite: redo finished scans (and accept a config other than the folder's first one).
         progress: called with ``(finished scans, all scans)``.
 
+    The local pool spawns its workers, which import the calling script's main module again: call this from
+    a script under ``if __name__ == "__main__":`` (as with any :mod:`multiprocessing` code).
+
     Raises:
         ScanError: an input that does not exist, an unreadable manifest, an output folder made with
             another config (without ``overwrite``), Ray asked for but not installed. A scan that fails

@@ -161,11 +161,20 @@ class RayCluster:
 
     def run(self, jobs: Sequence[Job]) -> Iterator[tuple[Job, object]]:
         ray = self._connect()
+        # a task asking for more than any node has would wait forever: ask for at most the largest node's
+        nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+        most_memory = max((n.get("memory", 0) for n in nodes), default=0)
+        most_cpus = max((n.get("CPU", 0) for n in nodes), default=0)
         refs = {}
         for job in jobs:
+            memory = min(job.memory, int(most_memory)) if most_memory else job.memory
+            cpus = min(job.cpus, most_cpus) if most_cpus else job.cpus
+            if memory < job.memory:
+                log.warning("%s: estimated to need %.1f GiB, more than any Ray node has (%.1f GiB); asking for that",
+                            job.key, job.memory / GiB, memory / GiB)
             # max_calls=1: a fresh worker process per job, so its peak memory is the job's and nothing leaks
             task = ray.remote(max_calls=1, max_retries=0)(job.fn).options(
-                num_cpus=job.cpus, num_gpus=job.gpus, memory=job.memory, name=f"scantex:{job.key}")
+                num_cpus=cpus, num_gpus=job.gpus, memory=memory, name=f"scantex:{job.key}")
             refs[task.remote(*job.args)] = job
         remaining = list(refs)
         while remaining:

@@ -122,3 +122,19 @@ def test_tiles_refuse_what_they_cannot_fuse(wall):
         enhance_tiled(wall.scan, TINY.override(uv__mode="unwrap"), TilingConfig(tiles=2))
     with pytest.raises(ScanError, match="textured scan"):
         enhance_tiled(wall.scan.replace(uvs=None, face_uvs=None), TINY, TilingConfig(tiles=2))
+
+
+def test_cli_refuses_tiles_it_cannot_fuse(tmp_path, wall):
+    import subprocess
+    import sys
+
+    from scantex.io import save_scan
+
+    save_scan(wall.scan, tmp_path / "scan.obj")
+    proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "-o",
+                           str(tmp_path / "out"), "--tiles", "2", "--uv", "unwrap"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().endswith("scan.obj: --tiles is not supported with --uv unwrap (tiles share the input's "
+                                        "UV layout)")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
