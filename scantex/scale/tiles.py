@@ -8,7 +8,8 @@ tasks. The tiles' atlases are then fused texel by texel in that shared layout: a
 tile is a smoothstep ramp of its 3D surface point's position across each overlap (the weights of the
 tiles sum to 1 everywhere, and each falls to 0, with zero slope, at its tile's edge), so there is no
 line where one tile ends. Before fusing, each tile's overall colour can be levelled (a per-channel gain
-fitted on the overlaps: each tile's field chose its own canonical exposure, the mean over its charts).
+fitted on the overlaps: each tile's field chose its own canonical exposure, the mean over its charts); off by
+default, as it measured no better.
 
 The output is the input's geometry, bit for bit, and its UV layout, with the fused atlas.
 """
@@ -42,8 +43,9 @@ class TilingConfig:
     """automatic tiling: the most faces one tile should hold"""
     overlap: float = 0.15
     """overlap of neighbouring tiles on each side of their border, as a share of a tile's size"""
-    harmonize: bool = True
-    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing"""
+    harmonize: bool = False
+    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
+    cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
 
     def count(self, n_faces: int) -> int:
         """The number of tiles for a scan of ``n_faces`` faces."""
@@ -231,7 +233,7 @@ def tile_gains(plan: TilePlan, colours: list[np.ndarray], weights: list[np.ndarr
     return np.exp(x)
 
 
-def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: bool = True
+def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: bool = False
                ) -> tuple[tuple[np.ndarray | None, ...], dict]:
     """Fuse the tiles' atlases into one per material (see the module docstring).
 
