@@ -157,10 +157,21 @@ def cmd_enhance(args) -> int:
 
         photos = load_photos(args.photos)
         _echo(args, f"{args.photos}: {len(photos)} photos ({photos.format})")
+    tiles = tile_count(args, scan, photos)
     work = work_dir_for(args.output)
     work.mkdir(parents=True, exist_ok=True)
-    result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
-                     reporter=BarReporter(args.quiet))
+    if tiles > 1:
+        from scantex.scale.executors import executor
+        from scantex.scale.tiles import TilingConfig, enhance_tiled
+
+        _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
+        result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap), ground_truth=truth,
+                               runner=executor(args.ray, args.workers), reporter=BarReporter(args.quiet))
+    else:
+        if args.ray or args.workers:
+            log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
+        result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
+                         reporter=BarReporter(args.quiet))
     with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
         write_outputs(result, tmp)
     import shutil
@@ -170,6 +181,47 @@ def cmd_enhance(args) -> int:
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb, "
                 f"metrics.json, config.json, report.html)")
     return 0
+
+
+def tile_count(args, scan, photos) -> int:
+    """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans
+    in the kept UV layout, without photos; others run whole)."""
+    from scantex.scale.tiles import TilingConfig
+
+    auto = args.tiles == "auto"
+    n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
+    if n <= 1:
+        return 1
+    why = ("photo mode" if photos is not None else "an untextured scan" if not scan.is_textured
+           else f"--uv {args.uv}" if args.uv not in (None, "keep") else None)
+    if why is None:
+        return n
+    if auto:
+        log.warning("%s: %d faces, but %s cannot be tiled: enhancing it whole", args.mesh, scan.n_faces, why)
+        return 1
+    raise ScanError(args.mesh, f"--tiles is not supported with {why} (tiles share the input's UV layout)")
+
+
+def cmd_batch(args) -> int:
+    from scantex.pipeline.config import load_config, preset
+    from scantex.scale.batch import batch
+    from scantex.scale.inputs import collect_inputs
+
+    collect_inputs(args.inputs, exclude=args.output)  # a missing input is reported before any progress bar
+    config = load_config(args.config) if args.config else preset(args.preset)
+    config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
+                             train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine)
+    with progress_bar("enhancing scans", args.quiet) as update:
+        result = batch(args.inputs, args.output, config, ray=args.ray, workers=args.workers,
+                       cpus_per_scan=args.cpus_per_scan, gpus_per_scan=args.gpus_per_scan, overwrite=args.overwrite,
+                       progress=update)
+    reused = sum(bool(r.get("reused")) for r in result.records)
+    _echo(args, f"{len(result.records)} scans: {len(result.done)} done ({reused} from an earlier run), "
+                f"{len(result.failed)} failed, in {result.seconds:.0f} s ({result.executor})")
+    for r in result.failed:
+        print(f"scantex: {r['name']}: {r['error']}", file=sys.stderr)
+    _echo(args, f"summary: {result.index} (+ summary.json, summary.csv)")
+    return 1 if result.failed else 0
 
 
 def enhance_summary(m: dict) -> str:
@@ -228,6 +280,34 @@ def cmd_info(args) -> int:
     print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
     print(f"surface area: {scan.face_areas.sum():.4g}")
     return 0
+
+
+def tiles_arg(text: str):
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of tiles or 'auto', got '{text}'")
+    return n
+
+
+def add_executor_options(p, job: str) -> None:
+    p.add_argument("--ray", metavar="auto|ADDRESS",
+                   help=f"run each {job} as a Ray task declaring its CPUs, GPUs and memory: auto (this machine's "
+                        "cluster, started with 'ray start', or else a new local one) or a cluster address "
+                        "(needs pip install 'scantex[ray]'; default: a local process pool)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help=f"local pool: {job}s at once (default: the cores, fewer when their estimated memory "
+                        "does not fit)")
+    if job == "scan":
+        p.add_argument("--cpus-per-scan", type=int, metavar="N",
+                       help="torch threads per scan, and the CPUs a Ray task declares (default: local, the cores "
+                            "shared among the scans running at once; Ray, 1)")
+        p.add_argument("--gpus-per-scan", type=float, metavar="N",
+                       help="GPUs a Ray task declares (default: 1 with --device cuda, else 0)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -315,8 +395,46 @@ def build_parser() -> argparse.ArgumentParser:
                         "trained on them (SDEdit-style partial noising; off by default: it removes detail "
                         "along with noise on the demo scans)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
+                   help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
+                        "or Ray tasks with --ray) and fuse them with smooth weights; auto: one tile per "
+                        "--tile-faces faces (default: auto)")
+    p.add_argument("--tile-faces", type=int, default=1_000_000, metavar="F",
+                   help="--tiles auto: the most faces one tile holds (default: 1000000)")
+    p.add_argument("--tile-overlap", type=float, default=0.15, metavar="X",
+                   help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
+    add_executor_options(p, "tile")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=cmd_enhance)
+
+    p = sub.add_parser("batch", parents=[common], help="enhance many scans: a local process pool or a Ray cluster",
+                       description="Enhance every scan of INPUTS with one config into OUTDIR/<name>/ (the files of "
+                                   "'scantex enhance'). One scan's failure is recorded and never stops the others; "
+                                   "a rerun skips the scans already finished and retries the rest. OUTDIR/index.html, "
+                                   "summary.json and summary.csv list every scan with its status, held-out scores, "
+                                   "time, peak memory and a link to its report. Exit status 1 if a scan failed.",
+                       epilog="Manifests: .json ([{\"mesh\": ..., \"photos\": ..., \"ground_truth\": ..., \"name\": ...}]), "
+                              ".csv (a header row with those columns) or .txt (one 'mesh [photos]' per line); paths "
+                              "relative to the manifest. In a folder, every mesh file below it is a scan, and one named "
+                              "ground_truth.* is the ground truth of the scans beside it. With --ray, every node must "
+                              "see INPUTS and OUTDIR at the same paths (a shared filesystem) and have scantex installed.")
+    p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
+                   help="mesh files, folders of them, or manifests (.json, .csv, .txt) listing scans and their photos")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR", help="the batch's output folder")
+    p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
+                   help="speed/quality preset for every scan (default: default)")
+    p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
+    p.add_argument("--texture-size", type=int, help="output atlas size (default: 2x the input, at most 8192)")
+    p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
+    p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
+    p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="the ViT refinement stage (default: on in every preset)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
+    p.add_argument("--seed", type=int, help="random seed (default: 0)")
+    add_executor_options(p, "scan")
+    p.add_argument("--overwrite", action="store_true",
+                   help="redo the scans finished by an earlier run (and accept a config other than OUTDIR's first)")
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("view", parents=[common], help="write an interactive 3D view (self-contained HTML)",
                        description="An offline Plotly 3D view of the mesh, coloured from its texture.")

@@ -1,0 +1,134 @@
+"""``scantex batch`` on the local process pool: failures recorded, reruns resumable, summary written."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from scantex.errors import ScanError
+from scantex.io import load_scan
+from scantex.scale import batch
+from scantex.scale.executors import GiB, Job, LocalPool, WorkerLost
+from scantex.scale.inputs import collect_inputs, read_manifest
+from scantex.scale.resources import footprint
+
+from tests.scale.conftest import TINY
+
+
+def check_batch(out, scans_root, result):
+    """Two scans done, the corrupt one failed with its one-line error, the summary lists all three."""
+    by_name = {r["name"]: r for r in result.records}
+    assert set(by_name) == {"wall0__scan", "wall1__scan", "corrupt__scan"}
+    assert by_name["corrupt__scan"]["status"] == "failed"
+    assert "corrupt/scan.obj" in by_name["corrupt__scan"]["error"] and "\n" not in by_name["corrupt__scan"]["error"]
+    for name in ("wall0__scan", "wall1__scan"):
+        r = by_name[name]
+        assert r["status"] == "done", r.get("error")
+        assert r["scores"]["kind"] == "held-out views vs ground truth"  # ground_truth.obj beside it was used
+        assert r["peak_memory_gib"] > 0.1 and r["seconds"] > 0
+        before = load_scan(scans_root / name.split("__")[0] / "scan.obj")
+        after = load_scan(out / name / "enhanced.obj")
+        assert np.array_equal(before.positions, after.positions) and np.array_equal(before.faces, after.faces)
+        assert (out / r["report"]).exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["scans"], summary["done"], summary["failed"]) == (3, 2, 1)
+    rows = list(csv.DictReader((out / "summary.csv").read_text().splitlines()))
+    assert {r["name"]: r["status"] for r in rows} == {n: r["status"] for n, r in by_name.items()}
+    index = (out / "index.html").read_text()
+    assert 'href="wall0__scan/report.html"' in index and "face 1 refers to vertex 9" in index
+    assert not (out / "corrupt__scan").exists()  # nothing half-written for the failed scan
+
+
+def test_local_pool_batch_then_rerun(tmp_path, three_scans):
+    out = tmp_path / "batch"
+    result = batch([three_scans], out, TINY, workers=2)
+    check_batch(out, three_scans, result)
+    stamps = {n: os.stat(out / n / "batch.json").st_mtime_ns for n in ("wall0__scan", "wall1__scan")}
+
+    again = batch([three_scans], out, TINY, workers=2)
+    by_name = {r["name"]: r for r in again.records}
+    for name, stamp in stamps.items():
+        assert by_name[name]["reused"] and by_name[name]["status"] == "done"
+        assert os.stat(out / name / "batch.json").st_mtime_ns == stamp  # not redone
+    assert by_name["corrupt__scan"]["status"] == "failed"  # retried, fails again
+    check_batch(out, three_scans, again)
+
+    with pytest.raises(ScanError, match="another config"):
+        batch([three_scans], out, TINY.override(seed=5))
+
+
+def test_cli_batch_reports_failures(tmp_path, three_scans):
+    out = tmp_path / "cli"
+    proc = subprocess.run([sys.executable, "-m", "scantex", "batch", str(three_scans / "corrupt"), "-o", str(out),
+                           "-q"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    assert "corrupt__scan" not in proc.stdout and "scan: " in proc.stderr and "refers to vertex 9" in proc.stderr
+    assert json.loads((out / "summary.json").read_text())["failed"] == 1
+    proc = subprocess.run([sys.executable, "-m", "scantex", "batch", str(tmp_path / "missing"), "-o", str(out)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.strip().endswith("missing: no such file or folder")
+
+
+def test_inputs_folders_manifests_and_names(tmp_path, three_scans):
+    scans = collect_inputs([three_scans])
+    assert [s.name for s in scans] == ["corrupt__scan", "wall0__scan", "wall1__scan"]
+    assert scans[1].ground_truth == three_scans / "wall0" / "ground_truth.obj"
+    (tmp_path / "m.json").write_text(json.dumps({"scans": [
+        {"mesh": str(three_scans / "wall0" / "scan.obj"), "photos": "caps/a", "name": "room A"},
+        str(three_scans / "wall1" / "scan.obj")]}))
+    a, b = collect_inputs([tmp_path / "m.json"])
+    assert (a.name, a.photos, b.name) == ("room_A", tmp_path / "caps" / "a", "scan")
+    (tmp_path / "m.csv").write_text("mesh,ground_truth\nx/scan.obj,x/gt.obj\ny/scan.obj,\n")
+    rows = read_manifest(tmp_path / "m.csv")
+    assert rows[0].ground_truth == tmp_path / "x" / "gt.obj" and rows[1].ground_truth is None
+    (tmp_path / "m.txt").write_text("# rooms\nr1/scan.obj photos1/\nr2/scan.obj\n")
+    named = collect_inputs([tmp_path / "m.txt"])
+    assert [s.name for s in named] == ["r1__scan", "r2__scan"] and named[0].photos == tmp_path / "photos1"
+    (tmp_path / "bad.json").write_text(json.dumps([{"mesh": "a.obj", "colour": 1}]))
+    with pytest.raises(ScanError, match="scan 1 of the manifest: unknown key 'colour'"):
+        collect_inputs([tmp_path / "bad.json"])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ScanError, match="no mesh files"):
+        collect_inputs([tmp_path / "empty"])
+
+
+def test_footprint_reads_faces_and_atlas_from_headers(three_scans):
+    scan = load_scan(three_scans / "wall0" / "scan.obj")
+    fp = footprint(three_scans / "wall0" / "scan.obj")
+    assert fp.faces == scan.n_faces
+    assert fp.atlas_texels == scan.materials[0].image.shape[0] * scan.materials[0].image.shape[1]
+    assert fp.output_texels() == 4 * fp.atlas_texels
+    assert footprint(three_scans / "nothing.obj").faces >= 1  # never raises
+
+
+def test_memory_gate_keeps_big_jobs_apart():
+    big = [Job(f"big{i}", print, memory=6 * GiB) for i in range(2)]
+    small = Job("small", print, memory=1 * GiB)
+    running = {object(): big[0]}
+    # 8 GiB budget: the second big job must wait, the small one fits beside the first
+    assert LocalPool._next([big[1], small], running, workers=4, budget=8 * GiB, alone=set()) is small
+    assert LocalPool._next([big[1]], running, workers=4, budget=8 * GiB, alone=set()) is None
+    # a job bigger than the whole budget still runs, alone
+    assert LocalPool._next([big[1]], {}, workers=4, budget=4 * GiB, alone=set()) is big[1]
+    assert LocalPool._next([small], running, workers=1, budget=64 * GiB, alone=set()) is None
+
+
+def square(x):
+    return x * x
+
+
+def die(code):
+    os._exit(code)
+
+
+def test_pool_blames_only_the_job_whose_worker_died():
+    jobs = [Job("dies", die, (3,)), Job("a", square, (3,)), Job("b", square, (4,))]
+    results = {job.key: out for job, out in LocalPool(workers=2).run(jobs)}
+    assert isinstance(results["dies"], WorkerLost)
+    assert results["a"] == 9 and results["b"] == 16

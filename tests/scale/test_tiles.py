@@ -1,0 +1,140 @@
+"""Tiled enhancement: the tiling, the fusion weights and the colour levelling, and a toy run end to end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scantex.errors import ScanError
+from scantex.scale.executors import LocalPool
+from scantex.scale.tiles import (TilingConfig, enhance_tiled, fuse_tiles, grid_shape, plan_tiles, smoothstep,
+                                 tile_gains, tile_scan)
+
+from tests.scale.conftest import TINY, tiny_wall
+
+
+@pytest.fixture(scope="module")
+def wall():
+    return tiny_wall(7)
+
+
+def test_grid_shape_prefers_square_cells():
+    assert grid_shape(4, (4.0, 3.0)) == (2, 2)
+    assert grid_shape(4, (40.0, 3.0)) == (4, 1)
+    assert grid_shape(6, (3.0, 2.0)) == (3, 2)
+    assert grid_shape(5, (1.0, 1.0)) in ((5, 1), (1, 5))
+
+
+def test_smoothstep_is_a_partition_of_unity():
+    x = np.linspace(-0.5, 1.5, 101)
+    assert np.allclose(smoothstep(x) + smoothstep(1 - x), 1.0)
+
+
+def test_tiles_cover_every_face_and_weights_sum_to_one(wall):
+    scan = wall.scan
+    plan = plan_tiles(scan, 4, overlap=0.2)
+    assert plan.grid == (2, 2) and len(plan) == 4
+    held = np.zeros(scan.n_faces, int)
+    for k, faces in enumerate(plan.faces):
+        held[faces] += 1
+        assert np.isin(np.flatnonzero(plan.home == k), faces).all()  # a tile holds its own cell's faces
+    assert (held >= 1).all() and (held > 1).any()  # every face is somewhere; the overlaps are shared
+    assert abs(max(len(f) for f in plan.faces) / min(len(f) for f in plan.faces) - 1) < 0.3  # balanced
+    rng = np.random.default_rng(0)
+    lo, hi = scan.bounds
+    points = lo + rng.random((2000, 3)) * (hi - lo)
+    st = plan.coords(points)
+    total = sum(plan.weights(k, st) for k in range(4))
+    assert np.allclose(total, 1.0)
+    # a tile's weight is zero outside its grown cell, where it holds no faces
+    centroids = plan.coords(scan.triangles.mean(axis=1))
+    for k, faces in enumerate(plan.faces):
+        outside = np.setdiff1d(np.arange(scan.n_faces), faces)
+        assert np.all(plan.weights(k, centroids[outside]) == 0)
+
+
+def test_tile_scan_keeps_the_uv_layout(wall):
+    scan = wall.scan
+    faces = plan_tiles(scan, 4).faces[1]
+    sub = tile_scan(scan, faces)
+    assert np.array_equal(sub.positions[sub.faces], scan.positions[scan.faces[faces]])
+    assert np.array_equal(sub.triangle_uvs, scan.triangle_uvs[faces])
+    assert sub.materials is scan.materials
+
+
+def test_fusing_identical_tiles_gives_that_image_back(wall):
+    scan = wall.scan
+    plan = plan_tiles(scan, 4)
+    rng = np.random.default_rng(1)
+    image = rng.integers(30, 220, (64, 64, 3), dtype=np.uint8)
+    fused, report = fuse_tiles(scan, plan, [(image,)] * 4)
+    from scantex.atlas.texelmap import texel_map
+
+    covered = texel_map(scan.triangle_uvs, 64, 64).mask
+    assert np.abs(fused[0][covered].astype(int) - image[covered]).max() <= 1
+    assert np.allclose(report["gains"][0], 1.0, atol=1e-3)
+
+
+def test_levelling_undoes_a_tile_exposure(wall):
+    scan = wall.scan
+    plan = plan_tiles(scan, 4)
+    image = np.full((64, 64, 3), 120, np.uint8)
+    exposures = [1.0, 1.2, 0.9, 1.0]
+    tiles = [(np.clip(image * e, 0, 255).astype(np.uint8),) for e in exposures]
+    levelled, report = fuse_tiles(scan, plan, tiles, harmonize=True)
+    raw, _ = fuse_tiles(scan, plan, tiles, harmonize=False)
+    from scantex.atlas.texelmap import texel_map
+
+    covered = texel_map(scan.triangle_uvs, 64, 64).mask
+    gains = np.array(report["gains"][0])[:, 0]
+    assert np.allclose(gains * np.array(exposures), (gains * np.array(exposures)).mean(), rtol=0.02)
+    assert levelled[0][covered].std() < 0.25 * raw[0][covered].std()
+
+
+def test_tile_gains_with_no_shared_texels_are_one():
+    colours = [np.full((10, 3), 0.5), np.full((10, 3), 0.7)]
+    weights = [np.r_[np.ones(5), np.zeros(5)], np.r_[np.zeros(5), np.ones(5)]]
+    holds = [w > 0 for w in weights]
+    assert np.array_equal(tile_gains(None, colours, weights, holds), np.ones((2, 3)))
+
+
+def test_tiled_enhance_end_to_end(tmp_path, wall):
+    from scantex.pipeline.outputs import write_outputs
+
+    result = enhance_tiled(wall.scan, TINY, TilingConfig(tiles=4), ground_truth=wall.ground_truth,
+                           runner=LocalPool(workers=2))
+    out = result.scan
+    assert out.positions is wall.scan.positions and out.faces is wall.scan.faces
+    assert np.array_equal(out.uvs, wall.scan.uvs) and np.array_equal(out.face_uvs, wall.scan.face_uvs)
+    assert result.metrics["geometry"]["arrays_identical"]
+    tiles = result.metrics["tiles"]
+    assert tiles["count"] == 4 and len(tiles["per_tile"]) == 4 and tiles["executor"] == "local pool"
+    scores = result.metrics["held_out_vs_ground_truth"]
+    assert np.isfinite(scores["enhanced"]["psnr"])
+    assert out.materials[0].image.shape[:2] == (64, 64)  # twice the input atlas, as enhance bakes
+    assert not np.array_equal(out.materials[0].image, np.kron(wall.scan.materials[0].image, np.ones((2, 2, 1))))
+    write_outputs(result, tmp_path)
+    assert (tmp_path / "report.html").exists() and (tmp_path / "enhanced.obj").exists()
+
+
+def test_tiles_refuse_what_they_cannot_fuse(wall):
+    with pytest.raises(ScanError, match="uv.mode 'unwrap'"):
+        enhance_tiled(wall.scan, TINY.override(uv__mode="unwrap"), TilingConfig(tiles=2))
+    with pytest.raises(ScanError, match="textured scan"):
+        enhance_tiled(wall.scan.replace(uvs=None, face_uvs=None), TINY, TilingConfig(tiles=2))
+
+
+def test_cli_refuses_tiles_it_cannot_fuse(tmp_path, wall):
+    import subprocess
+    import sys
+
+    from scantex.io import save_scan
+
+    save_scan(wall.scan, tmp_path / "scan.obj")
+    proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "-o",
+                           str(tmp_path / "out"), "--tiles", "2", "--uv", "unwrap"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().endswith("scan.obj: --tiles is not supported with --uv unwrap (tiles share the input's "
+                                        "UV layout)")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
