@@ -101,9 +101,11 @@ def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
 
 
 def cmd_view(args) -> int:
+    from scantex.deps import require
     from scantex.inspect.plotly_view import view_html
     from scantex.io import load_scan
 
+    require("plotly", "scantex view")  # before the (possibly long) load
     scan = load_scan(args.mesh)
     out = view_html(scan, args.output, max_faces=args.max_faces)
     _echo(args, f"interactive view of {args.mesh} written to {out}")
@@ -349,6 +351,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("scantex: interrupted", file=sys.stderr)
         return 130
+    except ImportError as e:
+        from scantex.deps import MissingDependency
+
+        if args.debug or not isinstance(e, MissingDependency):
+            raise
+        print(f"scantex: error: {e}", file=sys.stderr)  # names the pip install that provides it
+        return 1
     except Exception as e:  # anything else is a bug: one line, the traceback with --debug
         if args.debug:
             raise

@@ -19,6 +19,11 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
 
     Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
     one of ``hole_faces`` (what the input left black).
+
+    Returns:
+        ``{name: {"psnr", "ssim", "mse", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...]}}}``:
+        means over the views, and each view's own PSNR and SSIM in the order of ``cameras`` (the report
+        shows them next to each view).
     """
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "hole_psnr": []} for name in scans}
     hole_pixels = {name: [] for name in scans}
@@ -37,6 +42,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     result = {}
     for name in scans:
         r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
+        r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())
             r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")
