@@ -134,3 +134,15 @@ def test_enhance_outputs_include_report_and_zero_distances(tmp_path):
     page = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert len(figures(page)) == 2 and "Held-out views vs ground truth" in page
     assert np.isfinite(metrics["held_out_vs_ground_truth"]["enhanced"]["psnr"])
+
+
+def test_scores_are_measured_when_the_metrics_lack_per_view_scores(page, result):
+    """Metrics from before per-view scores existed: the report measures each view itself, the same way."""
+    import copy
+
+    old = copy.deepcopy(result.metrics)
+    for scores in old["held_out_vs_ground_truth"].values():
+        del scores["per_view"]
+    measured = build_report(result, metrics=old)
+    tables = lambda p: re.findall(r"<table class='cmp-scores'><caption>view .*?</table>", p, re.S)  # noqa: E731
+    assert tables(measured) == tables(page)
