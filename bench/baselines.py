@@ -67,7 +67,10 @@ def inpaint_holes(scan: Scan) -> Scan:
     chart's border is filled from the chart, not from the black around it.
     """
     from scipy.ndimage import binary_dilation
-    from skimage.restoration import inpaint_biharmonic
+
+    from scantex.deps import require
+
+    inpaint_biharmonic = require("skimage.restoration", "the inpainting baseline").inpaint_biharmonic
 
     holes = untextured_faces(scan)
     images = []

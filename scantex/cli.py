@@ -102,9 +102,11 @@ def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
 
 
 def cmd_view(args) -> int:
+    from scantex.deps import require
     from scantex.inspect.plotly_view import view_html
     from scantex.io import load_scan
 
+    require("plotly", "scantex view")  # before the (possibly long) load
     scan = load_scan(args.mesh)
     out = view_html(scan, args.output, max_faces=args.max_faces)
     _echo(args, f"interactive view of {args.mesh} written to {out}")
@@ -134,11 +136,8 @@ def _check_device(name: str) -> None:
 
 
 def cmd_enhance(args) -> int:
-    from scantex.io import load_scan
+    from scantex.io.discover import find_capture
     from scantex.pipeline.config import load_config, preset
-    from scantex.pipeline.enhance import enhance
-    from scantex.pipeline.outputs import write_outputs, work_dir_for
-    from scantex.io.atomic import atomic_dir
 
     config = load_config(args.config) if args.config else preset(args.preset)
     config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
@@ -148,15 +147,28 @@ def cmd_enhance(args) -> int:
     if args.output.exists() and not args.overwrite:
         raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
     _check_device(config.device)
-    scan = load_scan(args.mesh)
+    with find_capture(args.mesh, photos=not args.no_photos and not args.photos) as capture:
+        return _enhance_capture(args, config, capture)
+
+
+def _enhance_capture(args, config, capture) -> int:
+    from scantex.io import load_scan
+    from scantex.pipeline.enhance import enhance
+    from scantex.pipeline.outputs import write_outputs, work_dir_for
+    from scantex.io.atomic import atomic_dir
+
+    if capture.kind != "file" or capture.photos is not None:
+        _echo(args, capture.describe())
+    scan = load_scan(capture.mesh)
     truth = load_scan(args.ground_truth) if args.ground_truth else None
-    _echo(args, f"{args.mesh}: {scan.summary()}")
+    _echo(args, f"{capture.mesh}: {scan.summary()}")
     photos = None
-    if args.photos:
+    photos_path = args.photos or capture.photos
+    if photos_path:
         from scantex.photos import load_photos
 
-        photos = load_photos(args.photos)
-        _echo(args, f"{args.photos}: {len(photos)} photos ({photos.format})")
+        photos = load_photos(photos_path)
+        _echo(args, f"{photos_path}: {len(photos)} photos ({photos.format})")
     tiles = tile_count(args, scan, photos)
     work = work_dir_for(args.output)
     work.mkdir(parents=True, exist_ok=True)
@@ -365,7 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(per-chart appearance absorbs exposure seams), bake it back into the "
                                    "scan's own UV layout at higher resolution, and measure. Vertex "
                                    "positions and faces are written back unchanged.")
-    p.add_argument("mesh", type=Path, help="the scan (OBJ, GLB/GLTF, PLY with UVs, ...)")
+    p.add_argument("mesh", type=Path, metavar="PATH",
+                   help="the scan: a mesh file (OBJ, GLB/GLTF, PLY with UVs, ...), or a capture app's export "
+                        "as written (a 3D Scanner App folder, a Polycam zip, ...): its mesh is found, and its "
+                        "posed photos are used when it holds them")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset (default: default; ~3 min on a 2-core CPU for an 80k-face scan)")
@@ -383,7 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--photos", type=Path, metavar="PATH",
                    help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
                         "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
-                        "the texture is then learnt from them")
+                        "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
+    p.add_argument("--no-photos", action="store_true",
+                   help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
     p.add_argument("--holdout", type=float, metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
@@ -482,6 +499,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("scantex: interrupted", file=sys.stderr)
         return 130
+    except ImportError as e:
+        from scantex.deps import MissingDependency
+
+        if args.debug or not isinstance(e, MissingDependency):
+            raise
+        print(f"scantex: error: {e}", file=sys.stderr)  # names the pip install that provides it
+        return 1
     except Exception as e:  # anything else is a bug: one line, the traceback with --debug
         if args.debug:
             raise

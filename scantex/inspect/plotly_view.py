@@ -104,12 +104,10 @@ def mesh_trace(scan: Scan, *, max_faces: int = 200_000, seed: int = 0):
 
 
 def _plotly_io():
-    try:
-        import plotly.graph_objects  # noqa: F401
-        import plotly.io as pio
-    except ImportError as error:
-        raise ImportError(f"{error}; the 3D view needs plotly: pip install plotly") from error
-    return pio
+    from scantex.deps import require
+
+    require("plotly.graph_objects", "the 3D view")
+    return require("plotly.io", "the 3D view")
 
 
 def face_display_colors(scan: Scan, faces: np.ndarray) -> np.ndarray:

@@ -201,8 +201,11 @@ def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.nd
         image = None
         tex = spec["map_Kd"]
         if tex is not None:
-            if not tex.is_file():
-                raise ScanError(tex, f"texture named by material '{name}' not found")
+            if not tex.is_file():  # apps' exports lose textures (a partial copy): keep the mesh, say so
+                log.warning("%s: texture named by material '%s' not found: the material is read untextured",
+                            tex, name)
+                materials.append(Material(name, None, tuple(spec["diffuse"])))
+                continue
             if tex not in images:
                 images[tex] = read_image(tex)
             image = images[tex]

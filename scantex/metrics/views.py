@@ -20,6 +20,11 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
     one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
     has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
+
+    Returns:
+        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...]}}}``:
+        means over the views, and each view's own PSNR and SSIM in the order of ``cameras`` (the report
+        shows them next to each view).
     """
     from scantex.metrics.patches import patch_score
 
@@ -42,6 +47,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     result = {}
     for name in scans:
         r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
+        r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())
             r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")

@@ -1,10 +1,13 @@
 """``report.html``: one self-contained page per enhance run.
 
 What is in it: the headline numbers, an interactive 3D view of the scan before and after (the two
-cameras move together), unlit renders of the held-out views (input, enhanced, ground truth when known),
-the atlases before and after with a detail crop at full resolution, every metric, the per-stage
-timings and the resolved config. Images are inline base64 PNGs and plotly.js is embedded once for both
-3D views, so the file opens offline and can be mailed as it is.
+cameras move together; it shows the geometry, each face in its mean colour), a wipe comparison of the
+held-out views (input | enhanced | ground truth when known, rendered at a finer resolution than the
+metric's, with each view's PSNR/SSIM from ``metrics.json`` beside it), the atlases before and after,
+whole and as a wipe comparison of one region at 1:1, every metric, the per-stage timings and the
+resolved config. The wipe viewers (split slider, zoom by wheel or buttons, pan by dragging) are a few
+lines of plain JavaScript in :data:`COMPARE_SCRIPT`. Images are inline base64 PNGs and plotly.js is
+embedded once for both 3D views, so the file opens offline and can be mailed as it is.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import base64
 import html
 import io
 import json
+import logging
 import math
 import time
 from pathlib import Path
@@ -22,11 +26,13 @@ import numpy as np
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges
 from scantex.io.atomic import atomic_files
-from scantex.metrics.image import psnr
+from scantex.metrics.image import psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
 from scantex.views.render import render, to_uint8
+
+log = logging.getLogger(__name__)
 
 #: faces per 3D view at most (a random subset above; display only)
 MAX_FACES = 100_000
@@ -34,9 +40,14 @@ MAX_FACES = 100_000
 MAX_VIEWS = 4
 #: longest side of the whole-atlas thumbnails, pixels
 THUMBNAIL = 512
-#: the detail crop: this many input texels across, shown at CROP_DISPLAY pixels
-CROP_TEXELS = 96
-CROP_DISPLAY = 384
+#: the atlas comparison: this many input texels across (the output's atlas shows the same UV square at
+#: its own resolution)
+CROP_TEXELS = 256
+#: held-out views are rendered for display at least this many pixels on their longer side (the metrics
+#: are computed at the views' own size; a finer render shows the texels)
+RENDER_DISPLAY = 720
+#: the wipe viewer's largest size on the page, CSS pixels
+VIEWER_SIZE = (720, 540)
 
 
 def write_report(result, path: str | Path, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
@@ -63,8 +74,9 @@ def write_report(result, path: str | Path, *, input_scan: Scan | None = None, gr
 
 def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
                  metrics: dict | None = None, max_faces: int = MAX_FACES) -> str:
-    """The report's HTML as a string (see :func:`write_report`)."""
-    from plotly.offline import get_plotlyjs
+    """The report's HTML as a string (see :func:`write_report`). Without plotly (the ``view`` extra)
+    the 3D section says how to get it and the rest of the page is as usual."""
+    from scantex.deps import has_module, missing_message
 
     before = input_scan if input_scan is not None else getattr(result, "input_scan", None)
     truth = ground_truth if ground_truth is not None else getattr(result, "ground_truth", None)
@@ -74,12 +86,25 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
     cameras = [views.cameras[i] for i in views.test[:MAX_VIEWS]] or list(views.cameras[:MAX_VIEWS])
 
     name = (before.source.name if before is not None and before.source is not None else "scan")
+    plotly = has_module("plotly")
+    if not plotly:
+        log.warning(missing_message("plotly", "the report's 3D view") + "; the report is written without it")
+    plotlyjs = ""
+    if plotly:
+        from plotly.offline import get_plotlyjs
+
+        plotlyjs = f'<script type="text/javascript">{get_plotlyjs()}</script>'
     sections = [
         _section("Summary", _headline(metrics)),
         _section("3D view", _views_3d(before, after, max_faces), "Drag to turn, scroll to zoom; both views "
-                 "move together. Each face shows the mean texture colour at its corners and centre."),
-        _section("Held-out views", _renders(before, after, truth, cameras),
-                 "Unlit renders at views the field never trained on; PSNR against the ground truth where known."),
+                 "move together. Each face shows the mean texture colour at its corners and centre: this view "
+                 "is for the geometry; judge the texture in the comparisons below.")
+        if plotly else _section("3D view", f"<p>{html.escape(missing_message('plotly', 'The 3D view'))}.</p>"),
+        _section("Held-out views", _renders(before, after, truth, cameras, _per_view_scores(metrics)),
+                 "Unlit renders at views the field never trained on, compared with a wipe: drag the white "
+                 "handle or the slider to move the split, scroll or use the buttons to zoom, drag the image to "
+                 "pan; the menus pick which image is on each side. The scores are each view's own, from "
+                 "metrics.json (computed at the views' resolution; the renders here are finer)."),
     ]
     if getattr(result, "comparisons", None):
         sections.append(_section("Held-out photos", _comparisons(result.comparisons),
@@ -87,8 +112,9 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
                                  "| the result."))
     if before is not None:
         sections.append(_section("Atlas", _atlases(before, after),
-                                 "The texture images themselves: whole (scaled to fit) and a detail at full "
-                                 "resolution (nearest-neighbour, so texels stay visible)."))
+                                 "The texture images themselves: whole (scaled to fit), then one region of the UV "
+                                 "square in both atlases, compared with a wipe. It opens at 1:1 (one texel of the "
+                                 "finer atlas per screen pixel); zoomed in, texels are drawn as squares."))
     sections += [
         _section("Metrics", _metrics_tables(metrics)),
         _section("Timings", _timings(metrics.get("timings_s", {}))),
@@ -96,8 +122,8 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
         _section("All metrics (metrics.json)", f"<details><summary>show</summary><pre>"
                  f"{html.escape(json.dumps(metrics, indent=2, default=json_default))}</pre></details>"),
     ]
-    return PAGE.format(title=html.escape(f"scantex report: {name}"), plotlyjs=get_plotlyjs(),
-                       style=STYLE, script=SYNC_SCRIPT, date=time.strftime("%Y-%m-%d %H:%M"),
+    return PAGE.format(title=html.escape(f"scantex report: {name}"), plotlyjs=plotlyjs,
+                       style=STYLE + COMPARE_STYLE, script=SYNC_SCRIPT + COMPARE_SCRIPT, date=time.strftime("%Y-%m-%d %H:%M"),
                        body="\n".join(sections))
 
 
@@ -187,24 +213,94 @@ def _facing_camera(scan: Scan) -> dict:
                 up=dict(x=up[0], y=up[1], z=up[2]))
 
 
-def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list[Camera]) -> str:
+def _per_view_scores(m: dict) -> tuple[str, dict[str, dict[str, list]]] | None:
+    """``(what the scores compare against, {scan name: {"psnr": [...], "ssim": [...]}})`` from the
+    metrics' held-out scores, one entry per held-out view in ``views.test`` order; ``None`` without."""
+    for key, against in (("held_out_vs_ground_truth", "ground truth"), ("held_out_vs_input", "input renders")):
+        scores = m.get(key)
+        if scores and all("per_view" in s for s in scores.values()):
+            return against, {name: s["per_view"] for name, s in scores.items()}
+    return None
+
+
+def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list[Camera],
+             scores: tuple[str, dict] | None = None) -> str:
+    from scantex.photos.alignment import resized_camera
+
     caster = RayCaster(after.positions, after.faces)  # the geometry is the same for all three
     columns = [("input", before), ("enhanced", after), ("ground truth", truth)]
     columns = [(n, s) for n, s in columns if s is not None]
-    head = "".join(f"<th>{html.escape(n)}</th>" for n, _ in columns)
-    rows = []
+    widgets = []
     for k, cam in enumerate(cameras):
-        images = {n: render(s, cam, caster, supersample=2) for n, s in columns}
-        cells = []
-        for n, _ in columns:
-            image, alpha = images[n]
-            caption = ""
-            if truth is not None and n != "ground truth":
-                ref, ref_alpha = images["ground truth"]
-                caption = f"PSNR {_num(psnr(image, ref, ref_alpha >= 0.999))} dB"
-            cells.append(f"<td>{_img(to_uint8(image), f'{n}, view {k + 1}', 'render')}<div class='cap'>{caption}</div></td>")
-        rows.append(f"<tr>{''.join(cells)}</tr>")
-    return f'<table class="images"><tr>{head}</tr>{"".join(rows)}</table>'
+        factor = max(1, math.ceil(RENDER_DISPLAY / max(cam.width, cam.height)))
+        fine = resized_camera(cam, cam.width * factor, cam.height * factor)
+        images = {n: to_uint8(render(s, fine, caster, supersample=2)[0]) for n, s in columns}
+        if scores is None and truth is not None:  # metrics without per-view scores: score here, as they would
+            ref, ref_alpha = render(truth, cam, caster, supersample=2)
+            mask = ref_alpha >= 0.999
+            measured = {n: render(s, cam, caster, supersample=2)[0] for n, s in columns if n != "ground truth"}
+            view_scores = ("ground truth", {n: {"psnr": psnr(im, ref, mask), "ssim": ssim(im, ref, mask)}
+                                            for n, im in measured.items()})
+        elif scores is not None:
+            against, per_view = scores
+            view_scores = (against, {n: {m: v[m][k] for m in ("psnr", "ssim") if k < len(v.get(m, []))}
+                                     for n, v in per_view.items()})
+        else:
+            view_scores = None
+        table = _scores_table(view_scores, f"view {k + 1}: {cam.width}×{cam.height} px scored, "
+                              f"{fine.width}×{fine.height} shown")
+        right = "enhanced"
+        left = "input" if "input" in images else "ground truth" if "ground truth" in images else "enhanced"
+        widgets.append(_compare(f"view-{k + 1}", images, left, right, table, fit=True))
+    return "".join(widgets)
+
+
+def _scores_table(scores: tuple[str, dict] | None, caption: str) -> str:
+    rows = ""
+    if scores is not None:
+        against, values = scores
+        rows = "".join(f"<tr><th>{html.escape(n)}</th><td>{_num(v.get('psnr'))} dB</td><td>{_fmt(v.get('ssim'))}</td></tr>"
+                       for n, v in values.items())
+        rows = (f"<tr><th></th><th>PSNR</th><th>SSIM</th></tr>{rows}"
+                f"<tr><td colspan=3 class='cap'>against the {html.escape(against)}</td></tr>")
+    return f"<table class='cmp-scores'><caption>{html.escape(caption)}</caption>{rows}</table>"
+
+
+def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, side: str, *, fit: bool) -> str:
+    """A wipe viewer over ``images`` (all shown over the same box: the largest image's size), ``left``
+    and ``right`` shown first; ``side`` is HTML put beside it. ``fit``: open fitted to the box, else at
+    1:1 (one pixel of the largest image per CSS pixel)."""
+    H = max(im.shape[0] for im in images.values())
+    W = max(im.shape[1] for im in images.values())
+    # at 1:1, a box a little larger than a small image leaves room to zoom in
+    box_w, box_h = min(max(W, 384), VIEWER_SIZE[0]), min(max(H, 384), VIEWER_SIZE[1])
+    if fit:  # keep the image's aspect in the box
+        scale = min(VIEWER_SIZE[0] / W, VIEWER_SIZE[1] / H)
+        box_w, box_h = max(1, round(W * scale)), max(1, round(H * scale))
+    sources = "".join(_img(im, name, "cmp-source", data_name=name) for name, im in images.items())
+
+    def menu(side_name: str, chosen: str) -> str:
+        options = "".join(f'<option value="{html.escape(n)}"{" selected" if n == chosen else ""}>{html.escape(n)}'
+                          f"</option>" for n in images)
+        return f'<label>{side_name} <select class="cmp-{side_name}">{options}</select></label>'
+
+    return (f'<div class="compare" id="compare-{key}" data-width="{W}" data-height="{H}" '
+            f'data-open="{"fit" if fit else "1"}">'
+            f'<div class="cmp-controls">{menu("left", left)} {menu("right", right)} '
+            '<button type="button" data-zoom="out" title="zoom out">−</button>'
+            '<button type="button" data-zoom="in" title="zoom in">+</button>'
+            '<button type="button" data-zoom="1" title="one image pixel per screen pixel">1:1</button>'
+            '<button type="button" data-zoom="fit" title="the whole image">fit</button>'
+            '<span class="cmp-zoom"></span></div>'
+            f'<div class="cmp-body"><div class="cmp-view" style="width:{box_w}px;height:{box_h}px">'
+            '<div class="cmp-layer cmp-a"><img class="cmp-img" alt=""></div>'
+            '<div class="cmp-layer cmp-b"><img class="cmp-img" alt=""></div>'
+            '<div class="cmp-divider"><div class="cmp-handle"></div></div>'
+            '<span class="cmp-label cmp-label-a"></span><span class="cmp-label cmp-label-b"></span></div>'
+            f'<div class="cmp-side">{side}</div></div>'
+            f'<input type="range" class="cmp-split" min="0" max="100" step="0.1" value="50" '
+            f'style="width:{box_w}px" aria-label="split position">'
+            f'<div class="cmp-sources" hidden>{sources}</div></div>')
 
 
 def _atlases(before: Scan, after: Scan) -> str:
@@ -215,7 +311,7 @@ def _atlases(before: Scan, after: Scan) -> str:
     for m, (mb, ma) in enumerate(zip(before.materials, after.materials)):
         if mb.image is None or ma.image is None:
             continue
-        cells_whole, cells_crop = [], []
+        cells_whole, crops, where = [], {}, {}
         for label, image in (("before", mb.image), ("after", ma.image)):
             H, W = image.shape[:2]
             scale = min(1.0, THUMBNAIL / max(H, W))
@@ -230,13 +326,18 @@ def _atlases(before: Scan, after: Scan) -> str:
             y0 = int(round((1 - cv - size / 2) * H))
             n = min(max(1, int(round(size * W))), W, H)
             x0, y0 = min(max(x0, 0), max(W - n, 0)), min(max(y0, 0), max(H - n, 0))
-            region = image[y0:y0 + n, x0:x0 + n, :3]
-            big = Image.fromarray(np.ascontiguousarray(region)).resize((CROP_DISPLAY, CROP_DISPLAY), Image.NEAREST)
-            cells_crop.append(f"<td>{_img(np.asarray(big), f'{label} atlas detail')}"
-                              f"<div class='cap'>{label}: texels {x0}–{x0 + n} × {y0}–{y0 + n}</div></td>")
+            crops[label] = np.ascontiguousarray(image[y0:y0 + n, x0:x0 + n, :3])
+            where[label] = f"texels {x0}–{x0 + n} × {y0}–{y0 + n} of {W}×{H}"
         title = html.escape(mb.name)
+        same = before.triangle_uvs.shape == after.triangle_uvs.shape and np.allclose(before.triangle_uvs,
+                                                                                      after.triangle_uvs)
+        note = ("The same UV region of both atlases (the layout is kept, so the same surface)." if same else
+                "The same square of UV space in both atlases; the layouts differ, so it is not the same surface.")
+        side = ("<table class='cmp-scores'><caption>material " + title + "</caption>"
+                + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in where.items())
+                + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
         rows.append(f"<tr><th colspan=2>material {title}</th></tr><tr>{''.join(cells_whole)}</tr>"
-                    f"<tr>{''.join(cells_crop)}</tr>")
+                    f"<tr><td colspan=2>{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}</td></tr>")
     return f'<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
 
 
@@ -293,7 +394,7 @@ def _metrics_tables(m: dict) -> str:
         if not scores:
             continue
         names = list(scores)
-        cols = sorted({c for s in scores.values() for c in s})
+        cols = sorted({c for s in scores.values() for c in s if c != "per_view"})
         head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
         body = "".join(f"<tr><th>{html.escape(c)}</th>" + "".join(f"<td>{_fmt(scores[n].get(c))}</td>" for n in names)
                        + "</tr>" for c in cols)
@@ -360,13 +461,14 @@ def _fmt(v) -> str:
     return html.escape(json.dumps(v, default=json_default))
 
 
-def _img(image: np.ndarray, alt: str, kind: str = "") -> str:
+def _img(image: np.ndarray, alt: str, kind: str = "", data_name: str | None = None) -> str:
     from PIL import Image
 
     buffer = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="PNG", optimize=False)
     data = base64.b64encode(buffer.getvalue()).decode("ascii")
-    return f'<img class="{kind}" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+    name = f' data-name="{html.escape(data_name)}"' if data_name is not None else ""
+    return f'<img class="{kind}"{name} alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
 def json_default(value):
@@ -396,6 +498,7 @@ pre { background: #f6f6f6; padding: 8px; overflow: auto; max-height: 480px; }
 SYNC_SCRIPT = """
 (function () {
   var specs = document.querySelectorAll('script.figure');
+  if (!specs.length) { return; }
   var plots = [];
   specs.forEach(function (node) {
     var fig = JSON.parse(node.textContent);
@@ -416,13 +519,128 @@ SYNC_SCRIPT = """
 })();
 """
 
+COMPARE_STYLE = """
+.compare { margin: 10px 0 22px; } .cmp-controls { margin-bottom: 4px; } .cmp-controls button { min-width: 32px; }
+.cmp-controls label { margin-right: 6px; } .cmp-zoom { color: #666; margin-left: 6px; font-size: 12px; }
+.cmp-body { display: flex; gap: 16px; align-items: flex-start; flex-wrap: wrap; }
+.cmp-view { position: relative; overflow: hidden; background: #333; cursor: grab; touch-action: none;
+            user-select: none; flex: none; }
+.cmp-view.panning { cursor: grabbing; }
+.cmp-layer { position: absolute; inset: 0; overflow: hidden; }
+.cmp-layer img { position: absolute; left: 0; top: 0; transform-origin: 0 0; max-width: none;
+                 image-rendering: pixelated; pointer-events: none; }
+.cmp-divider { position: absolute; top: 0; bottom: 0; left: 50%; width: 24px; margin-left: -12px; cursor: ew-resize; }
+.cmp-divider::before { content: ""; position: absolute; left: 11px; top: 0; bottom: 0; width: 2px; background: #fff;
+                       box-shadow: 0 0 3px #000; }
+.cmp-handle { position: absolute; left: 0; top: 50%; width: 20px; height: 20px; margin-top: -12px; border-radius: 50%;
+              background: #fff; border: 2px solid #333; }
+.cmp-label { position: absolute; top: 6px; padding: 1px 6px; background: rgba(0,0,0,.6); color: #fff; font-size: 12px;
+             pointer-events: none; } .cmp-label-a { left: 6px; } .cmp-label-b { right: 6px; }
+.cmp-split { display: block; margin: 4px 0 0; } .cmp-scores caption { text-align: left; color: #666; font-size: 12px; }
+"""
+
+#: the wipe viewers: the right image is clipped to the right of the split; both images share one zoom
+#: and pan (a CSS transform), so the same texel is under the cursor on both sides of the split
+COMPARE_SCRIPT = """
+(function () {
+  function setup(root) {
+    var W = +root.dataset.width, H = +root.dataset.height;
+    var view = root.querySelector('.cmp-view'), layerB = root.querySelector('.cmp-b');
+    var images = [root.querySelector('.cmp-a img'), root.querySelector('.cmp-b img')];
+    var menus = [root.querySelector('.cmp-left'), root.querySelector('.cmp-right')];
+    var labels = [root.querySelector('.cmp-label-a'), root.querySelector('.cmp-label-b')];
+    var divider = root.querySelector('.cmp-divider'), split = root.querySelector('.cmp-split');
+    var zoomText = root.querySelector('.cmp-zoom');
+    var sources = {};
+    root.querySelectorAll('.cmp-source').forEach(function (img) { sources[img.dataset.name] = img.src; });
+    var state = {s: 1, x: 0, y: 0};
+    function fitScale() { return Math.min(view.clientWidth / W, view.clientHeight / H); }
+    function place(size, box, offset) {  // centred when smaller than the box, else no empty margin
+      return size <= box ? (box - size) / 2 : Math.min(0, Math.max(box - size, offset));
+    }
+    function apply() {
+      state.x = place(W * state.s, view.clientWidth, state.x);
+      state.y = place(H * state.s, view.clientHeight, state.y);
+      var t = 'translate(' + state.x + 'px,' + state.y + 'px) scale(' + state.s + ')';
+      images.forEach(function (img) { img.style.transform = t; });
+      zoomText.textContent = Math.abs(state.s - 1) < 1e-6 ? '1:1' : Math.round(state.s * 100) + ' %';
+    }
+    function zoomAt(s, mx, my) {
+      s = Math.min(64, Math.max(Math.min(1, fitScale()) / 2, s));
+      state.x = mx - (mx - state.x) * s / state.s;
+      state.y = my - (my - state.y) * s / state.s;
+      state.s = s;
+      apply();
+    }
+    function setSplit(p) {
+      p = Math.min(100, Math.max(0, +p));
+      layerB.style.clipPath = 'inset(0 0 0 ' + p + '%)';
+      divider.style.left = p + '%';
+      if (+split.value !== p) { split.value = p; }
+      root.dataset.split = p;
+    }
+    function choose() {
+      for (var i = 0; i < 2; i++) {
+        images[i].src = sources[menus[i].value];
+        labels[i].textContent = menus[i].value;
+      }
+    }
+    images.forEach(function (img) { img.style.width = W + 'px'; img.style.height = H + 'px'; });
+    menus.forEach(function (m) { m.addEventListener('change', choose); });
+    split.addEventListener('input', function () { setSplit(split.value); });
+    root.querySelectorAll('button[data-zoom]').forEach(function (b) {
+      b.addEventListener('click', function () {
+        var z = b.dataset.zoom, cx = view.clientWidth / 2, cy = view.clientHeight / 2;
+        if (z === 'in') { zoomAt(state.s * 2, cx, cy); }
+        else if (z === 'out') { zoomAt(state.s / 2, cx, cy); }
+        else if (z === '1') { zoomAt(1, cx, cy); }
+        else { zoomAt(fitScale(), cx, cy); }
+      });
+    });
+    view.addEventListener('wheel', function (e) {
+      e.preventDefault();
+      var r = view.getBoundingClientRect();
+      zoomAt(state.s * (e.deltaY < 0 ? 1.25 : 0.8), e.clientX - r.left, e.clientY - r.top);
+    }, {passive: false});
+    var drag = null;
+    view.addEventListener('pointerdown', function (e) {
+      drag = {mode: divider.contains(e.target) ? 'split' : 'pan', x: e.clientX, y: e.clientY};
+      if (drag.mode === 'pan') { view.classList.add('panning'); }
+      if (view.setPointerCapture) { try { view.setPointerCapture(e.pointerId); } catch (err) { /* synthetic */ } }
+      e.preventDefault();
+    });
+    view.addEventListener('pointermove', function (e) {
+      if (!drag) { return; }
+      if (drag.mode === 'split') {
+        var r = view.getBoundingClientRect();
+        setSplit(100 * (e.clientX - r.left) / r.width);
+      } else {
+        state.x += e.clientX - drag.x;
+        state.y += e.clientY - drag.y;
+        apply();
+      }
+      drag.x = e.clientX;
+      drag.y = e.clientY;
+    });
+    function end() { drag = null; view.classList.remove('panning'); }
+    view.addEventListener('pointerup', end);
+    view.addEventListener('pointercancel', end);
+    choose();
+    setSplit(split.value);
+    state.s = root.dataset.open === 'fit' ? fitScale() : 1;
+    apply();
+  }
+  document.querySelectorAll('.compare').forEach(setup);
+})();
+"""
+
 PAGE = """<!DOCTYPE html>
 <html lang="en">
 <head>
 <meta charset="utf-8">
 <title>{title}</title>
 <style>{style}</style>
-<script type="text/javascript">{plotlyjs}</script>
+{plotlyjs}
 </head>
 <body>
 <h1>{title}</h1>

@@ -323,6 +323,14 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
     small = [p for p in pieces if len(p[0]) < options.min_chart_faces]
     if not small or not options.xatlas:
         return assemble(pieces, len(faces))
+    from scantex.deps import has_module, missing_message
+
+    if not has_module("xatlas"):  # optional (the `unwrap` extra): the small planar charts are a valid layout
+        message = (missing_message("xatlas", f"charting {sum(len(p[0]) for p in small)} faces in curved or rough "
+                                   "regions") + "; they keep their small planar charts")
+        log.warning(message)
+        record.fallbacks.append(message)
+        return assemble(pieces, len(faces))
     keep = [p for p in pieces if len(p[0]) >= options.min_chart_faces]
     leftover = np.concatenate([p[0] for p in small])
     regions = [r for r in _components(leftover, pairs, len(faces))]

@@ -81,12 +81,6 @@ def case_garbage_ply(tmp_path):
     return tmp_path / "m.ply", "cannot read PLY"
 
 
-def case_missing_texture(tmp_path):
-    obj = write_cube(tmp_path)
-    (tmp_path / "tex0.png").unlink()
-    return obj, "tex0.png: texture named by material 'mat0' not found"
-
-
 def case_texture_not_image(tmp_path):
     obj = write_cube(tmp_path)
     (tmp_path / "tex0.png").write_text("this is not a picture")
@@ -101,7 +95,7 @@ def case_missing_mtl(tmp_path):
 
 CASES = [case_missing, case_folder, case_wrong_extension, case_binary_obj, case_empty, case_no_faces,
          case_nan, case_inf, case_index_out_of_range, case_truncated_obj, case_truncated_glb,
-         case_garbage_ply, case_missing_texture, case_texture_not_image, case_missing_mtl]
+         case_garbage_ply, case_texture_not_image, case_missing_mtl]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.__name__[5:] for c in CASES])
@@ -133,6 +127,21 @@ def test_debug_shows_traceback(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "scantex", "info", str(tmp_path / "x.obj"), "--debug"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode != 0 and "Traceback" in proc.stderr
+
+
+def test_missing_texture_is_read_untextured_with_a_warning(tmp_path, caplog):
+    """A capture app's export that lost its texture still loads: that material is untextured, and the
+    warning names the file and the material."""
+    obj = tmp_path / "cube.obj"
+    save_scan(textured_cube(materials=2), obj)
+    (tmp_path / "tex0.png").unlink()
+    with caplog.at_level("WARNING"):
+        scan = load_scan(obj)
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("tex0.png: texture named by material 'mat0' not found: the material is read untextured" in m
+               for m in messages)
+    assert scan.materials[0].image is None and scan.materials[1].image is not None
+    assert scan.is_textured  # the other material keeps its atlas
 
 
 def test_degenerate_and_non_manifold_are_accepted_with_warning(tmp_path, caplog):

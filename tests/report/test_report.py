@@ -43,19 +43,58 @@ def test_two_3d_views_of_every_face(page, result):
     assert before["data"][0]["facecolor"] != after["data"][0]["facecolor"]
 
 
+def compares(page: str) -> list[tuple[str, list[str]]]:
+    """``(id, names of the images it holds)`` of every wipe viewer."""
+    out = []
+    for m in re.finditer(r'<div class="compare" id="compare-([^"]+)"', page):
+        sources = page[m.end():].split('<div class="cmp-sources" hidden>', 1)[1].split("</div>", 1)[0]
+        out.append((m.group(1), re.findall(r'data-name="([^"]+)"', sources)))
+    return out
+
+
 def test_renders_atlases_metrics_timings_config(page, result):
     n_test = len(result.views.views.test)
-    # input, enhanced and ground truth renders per held-out view, 2 thumbnails and 2 crops of the atlas
-    assert page.count('class="render"') == 3 * n_test
+    # one wipe viewer per held-out view (input, enhanced, ground truth), one over the atlas crop
+    assert compares(page) == [(f"view-{k + 1}", ["input", "enhanced", "ground truth"]) for k in range(n_test)] + [
+        ("atlas-0", ["before", "after"])]
     assert page.count('class="thumb"') == 2
-    assert page.count("atlas detail") == 2
     body = page.split("<body>", 1)[1]
-    assert body.count('src="data:image/png;base64,') == 3 * n_test + 4
+    # every image once: the viewers' images are copied into place by the script, not repeated
+    assert body.count('src="data:image/png;base64,') == 3 * n_test + 2 + 2
     assert "Hausdorff" in page and "mean point-to-mesh" in page
     assert "identical: 432 vertices, 782 faces" in page
     assert "&quot;preset&quot;: &quot;toy&quot;" in page  # the config
     assert "<th>plan</th><td>0.10 s</td>" in page  # the timings
     assert "open surface" in page  # the volume note
+
+
+def test_held_out_views_show_their_own_scores(page, result):
+    """Each viewer shows its view's PSNR and SSIM from the metrics (not the mean)."""
+    scores = result.metrics["held_out_vs_ground_truth"]
+    per_view = scores["input"]["per_view"]
+    assert len(per_view["psnr"]) == len(result.views.views.test)
+    assert np.mean(per_view["psnr"]) == pytest.approx(scores["input"]["psnr"])
+    assert len(set(np.round(per_view["psnr"], 2))) > 1  # the views differ, so a mean would show here
+    tables = re.findall(r"<table class='cmp-scores'><caption>view (\d+):.*?</table>", page, re.S)
+    assert len(tables) == len(per_view["psnr"])
+    for k, (psnr, ssim) in enumerate(zip(per_view["psnr"], per_view["ssim"])):
+        table = page.split(f"<caption>view {k + 1}:", 1)[1].split("</table>", 1)[0]
+        assert f"<th>input</th><td>{psnr:.4g} dB</td><td>{ssim:.4g}</td>" in table
+    assert "per_view" not in page.split('id="metrics"', 1)[1].split("</section>", 1)[0]
+
+
+def test_atlas_viewer_holds_the_same_uv_region_at_each_atlas_resolution(page, result):
+    from PIL import Image
+    import base64
+    import io
+
+    sources = page.split('id="compare-atlas-0"', 1)[1].split('<div class="cmp-sources" hidden>', 1)[1]
+    crops = {name: np.asarray(Image.open(io.BytesIO(base64.b64decode(data))))
+             for name, data in re.findall(r'data-name="(\w+)"[^>]*src="data:image/png;base64,([^"]+)"', sources)}
+    before, after = result.input_scan.materials[0].image, result.scan.materials[0].image
+    scale = after.shape[1] / before.shape[1]
+    assert crops["after"].shape[0] == round(crops["before"].shape[0] * scale)  # the same UV square
+    assert 'data-open="1"' in page.split('id="compare-atlas-0"', 1)[1][:200]  # opens at 1:1
 
 
 def test_decimates_large_meshes_for_display(tmp_path, result):
@@ -95,3 +134,15 @@ def test_enhance_outputs_include_report_and_zero_distances(tmp_path):
     page = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert len(figures(page)) == 2 and "Held-out views vs ground truth" in page
     assert np.isfinite(metrics["held_out_vs_ground_truth"]["enhanced"]["psnr"])
+
+
+def test_scores_are_measured_when_the_metrics_lack_per_view_scores(page, result):
+    """Metrics from before per-view scores existed: the report measures each view itself, the same way."""
+    import copy
+
+    old = copy.deepcopy(result.metrics)
+    for scores in old["held_out_vs_ground_truth"].values():
+        del scores["per_view"]
+    measured = build_report(result, metrics=old)
+    tables = lambda p: re.findall(r"<table class='cmp-scores'><caption>view .*?</table>", p, re.S)  # noqa: E731
+    assert tables(measured) == tables(page)
