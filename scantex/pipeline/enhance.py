@@ -452,7 +452,9 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "rejected_pixels": rejected,
         "alignment": None if photo.alignment is None else {
             "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
-            "ratio": round(photo.alignment.ratio, 3), "summary": photo.alignment.summary()},
+            "ratio": round(photo.alignment.ratio, 3), "offset_m": round(photo.alignment.offset_m, 4),
+            "turn_deg": round(photo.alignment.turn_deg, 2), "displacement": round(photo.alignment.displacement, 5),
+            "summary": photo.alignment.summary()},
     }}
     if photo.held_out:
         out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,
