@@ -270,6 +270,27 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     return rays, P, weights
 
 
+def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
+    """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
+    to the canonical appearance by each photo's inverse colour transform (training photo ``k`` is
+    appearance group ``k``), with ``fallback`` (the field) where no photo sees them."""
+    import torch
+
+    from scantex.errors import ScanError
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+
+    if pc.texturing != "projective":
+        raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
+    canonicalise = None
+    if fitted.appearance is not None:
+        def canonicalise(rgb, group):
+            return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
+                                               torch.as_tensor(group, device=device)).cpu().numpy()
+    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
+                                       fallback, ProjectiveSettings(temperature=pc.temperature))
+    return colour, {"mode": "projective", **report}
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -389,6 +410,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
     colour = surface_colour_with_fill(scan, fitted, fill, taught, charts + chart_offset, device,
                                       detail=config.bake.detail)
+    projective_report = None
+    if photo is not None and config.photos.texturing != "field":
+        colour, projective_report = photo_texture(photo, fitted, colour, config.photos, device)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -427,6 +451,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         if photo is not None:
             sheets: dict = {}
             metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster, sheets))
+            metrics["photos"]["texturing"] = projective_report or {"mode": "field"}
             comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
