@@ -213,6 +213,8 @@ class PhotoData:
     held_out: list[PhotoView]
     alignment: object | None
     """the :class:`scantex.photos.alignment.AlignmentReport`, when checked"""
+    pose_corrections: list = field(default_factory=list)
+    """:class:`scantex.photos.poses.PoseCorrection` per training photo, when refined"""
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -225,10 +227,16 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     if report is not None:
         log.info("%s", report.summary())
     train, held = split_photos(len(photos), pc.holdout, seed)
+    corrections = []
+    if pc.refine_poses and scan.is_textured:
+        from scantex.photos.poses import refine_poses
+
+        # held-out photos keep their recorded poses: they are the score's reference, not training data
+        photos, corrections = refine_poses(scan, photos, train, lambda f, b: shade_hits(scan, f, b), caster)
     settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
-    return PhotoData(photos, views[:len(train)], views[len(train):], report)
+    return PhotoData(photos, views[:len(train)], views[len(train):], report, corrections)
 
 
 def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
@@ -475,6 +483,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
         "photo_rays": int((rays.chart < P).sum()), "synthetic_rays": int((rays.chart >= P).sum()),
         "rejected_pixels": rejected,
+        "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": None if photo.alignment is None else {
             "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
             "ratio": round(photo.alignment.ratio, 3), "offset_m": round(photo.alignment.offset_m, 4),
