@@ -13,7 +13,8 @@ keeping only render edges that can be an edge in the photo:
   dropped;
 - creases: visible mesh edges whose faces meet at more than ``CREASE_DEG`` (shading changes there);
 - texture edges of a textured mesh, after fitting the render's exposure to the photo (a per-channel
-  gain and offset), inside the mesh's image, away from its open border and from untextured holes;
+  gain and offset), inside the mesh's image, away from its open border, from untextured holes and from
+  UV chart borders (where a capture app's atlas jumps in exposure: an edge no photo has);
 - the photo's edges: Sobel gradient after a Gaussian blur, thinned by non-maximum suppression and
   thresholded (a light Canny without hysteresis).
 
@@ -71,6 +72,9 @@ CREASE_DEG = 40.0
 #: contour pixels this close (working pixels) to a projected open boundary edge are the scan's end,
 #: not an edge of the real surface
 BORDER_PX = 3
+#: typical size of the rigid correction's parameters (rotation vector: 3 degrees; translation: 5 % of the
+#: edge points' spread), the unit of the weak prior towards no motion
+PRIOR_SCALE = np.array([np.radians(3.0)] * 3 + [0.05] * 3)
 #: most edge points per photo used to estimate the rigid correction
 MAX_FIT_POINTS = 3000
 
@@ -228,7 +232,9 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_side
                 corrected = _chamfer(_lookup(sample.distance, p1), DISTANCE_CAP * max(w, h))
                 results[k] = _replace(results[k], corrected_distance_px=corrected)
             displacement = float(np.median(moves))
-            fitted = _nanmedian([results[k].corrected_ratio for k in covered])
+            # the better of as-is and corrected: the fit minimises a robust cost, not this ratio
+            fitted = min(_nanmedian([results[k].corrected_ratio for k in covered]),
+                         _nanmedian([results[k].ratio for k in covered]))
             if not fitted <= MAX_EDGE_RATIO:
                 problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
                            f"moved at random, even after the best small correction; aligned data gives "
@@ -290,6 +296,7 @@ def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.nda
         r = residuals(x) / 2.0
         return float(np.mean(2 * (np.sqrt(1 + r * r) - 1)))
 
+    prior = 0.05 * np.sqrt(sum(len(s.points) for s in sharp))
     x = np.zeros(6)
     start = x.copy()
     start[3:] = _translation_from_shifts(sharp, centre) / spread
@@ -301,7 +308,9 @@ def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.nda
         def partial(y, free=free):
             full = x.copy()
             full[free] = y
-            return residuals(full)
+            # a weak prior towards no motion: with few edges (a small or flat mesh) a fit may otherwise
+            # trade a turn against a shift that the edges hardly tell apart
+            return np.concatenate([residuals(full), prior * full / PRIOR_SCALE])
 
         fit = least_squares(partial, x[free], loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=40)
         trial = x.copy()
@@ -309,7 +318,7 @@ def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.nda
         samples = sharp
         # keep a step only when the sharp edges agree better: a blurred field can pull a sparse set of
         # edge points off a perfect fit
-        if sharp_cost(trial) < sharp_cost(x):
+        if sharp_cost(trial) < 0.97 * sharp_cost(x):  # a real improvement, not noise
             x = trial
     samples = sharp
     return Rotation.from_rotvec(x[:3]).as_matrix(), x[3:] * spread, centre
@@ -356,7 +365,8 @@ class _MeshEdges:
 
     border: np.ndarray  # (B, 2, 3) end points of open boundary edges
     creases: np.ndarray  # (C, 2, 3) end points of crease edges
-    holes: np.ndarray  # (F,) bool untextured faces (their texture edges are the hole's, not the photo's)
+    holes: np.ndarray  # (F,) bool faces whose texture edges are no photo's: untextured, or touching another
+    # UV chart (a capture app's atlas jumps in exposure there)
 
     @classmethod
     def of(cls, scan: Scan) -> _MeshEdges:
@@ -380,9 +390,10 @@ class _MeshEdges:
         P = scan.positions
         first = np.zeros(weld.max() + 1 if weld.size else 0, int)
         first[weld.reshape(-1)[::-1]] = np.arange(len(P))[::-1]
-        from scantex.atlas.holes import untextured_faces
+        from scantex.photos.poses import reference_faces
 
-        return cls(P[first[border]], P[first[crease]], untextured_faces(scan))
+        return cls(P[first[border]], P[first[crease]],
+                   ~reference_faces(scan) if scan.is_textured else np.zeros(scan.n_faces, bool))
 
 
 def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None) -> np.ndarray:
