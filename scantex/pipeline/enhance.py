@@ -31,7 +31,7 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import downsample, render, render_gbuffer
+from scantex.views.render import downsample, render, render_gbuffer, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -251,12 +251,12 @@ def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
 
     if pc.texturing != "projective":
         raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
-    canonicalise = None
-    if fitted.appearance is not None:
-        def canonicalise(rgb, group):
-            return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
-                                               torch.as_tensor(group, device=device)).cpu().numpy()
-    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
+    def canonicalise(rgb, group):
+        return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
+                                           torch.as_tensor(group, device=device)).cpu().numpy()
+
+    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)),
+                                       canonicalise if fitted.appearance is not None else None,
                                        fallback, ProjectiveSettings(temperature=pc.temperature))
     return colour, {"mode": "projective", **report}
 

@@ -95,7 +95,6 @@ def partial_wall_scan(tmp_path):
     every photo, where the photographed wall simply goes on)."""
     from scipy import ndimage
 
-    from scantex.scan import Material
 
     rng = np.random.default_rng(3)
     texture = ndimage.gaussian_filter(rng.uniform(0, 1, (256, 256, 3)), (4, 4, 0))

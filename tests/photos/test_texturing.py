@@ -7,7 +7,11 @@ import dataclasses
 import numpy as np
 from PIL import Image
 
-from scantex.photos.texturing import ProjectiveSettings, photo_sharpness, projective_colour
+from scantex.photos.texturing import (
+    ProjectiveSettings,
+    photo_sharpness,
+    projective_colour,
+)
 from scantex.photos.training import VisibilitySettings, prepare_photos
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
