@@ -250,3 +250,49 @@ def _view_colour(points: np.ndarray, camera: Camera, image: np.ndarray, depth: n
     rgb[seen] /= weight[seen, None]
     # a view counts once per texel, however many of its pixels contributed
     return rgb, seen.astype(np.float64)
+
+
+def best_view_projective(scan: Scan, photos, views, *, size: int = 0) -> Scan:
+    """Classical photo texturing on the input's own UV layout: per texel, the photo that sees it best
+    (frontal, close, sharp, unoccluded; the same visibility test as scantex, a near-hard choice:
+    softmax temperature 0.02, 1 px feather), each photo levelled to the input texture's colours first
+    (a per-channel gain and offset fitted on the pixels where it sees the mesh: the global colour
+    adjustment of classical texture mappers), then every UV seam levelled (:func:`blend_seams`).
+    Texels no photo sees keep the input's colour.
+
+    Args:
+        photos: the :class:`~scantex.photos.PhotoSet` (full-resolution images).
+        views: the training photos' :class:`~scantex.photos.training.PhotoView` (working resolution).
+    """
+    from scantex.atlas.bake import bake
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.views.render import render_gbuffer, shade_hits
+
+    caster = RayCaster(scan.positions, scan.faces)
+    gains = []
+    for view in views:
+        from scantex.views.raycast import cast_gbuffer
+
+        g = cast_gbuffer(caster, view.camera, scan.face_normals)
+        reference = render_gbuffer(scan, g)
+        mask = view.valid & g.mask
+        gain, offset = np.ones(3), np.zeros(3)
+        for c in range(3):
+            x, y = view.image[..., c][mask], reference[..., c][mask]
+            if x.size > 16 and np.var(x) > 1e-8:
+                gain[c] = np.cov(x, y, bias=True)[0, 1] / np.var(x)
+                offset[c] = y.mean() - gain[c] * x.mean()
+        gains.append((gain, offset))
+    G = np.array([g for g, _ in gains], np.float32)
+    O = np.array([o for _, o in gains], np.float32)
+
+    def level(rgb, group):
+        return rgb * G[group] + O[group]
+
+    def input_colour(points, normals, face_ids, bary):
+        return shade_hits(scan, face_ids, bary) if scan.is_textured else np.full((len(points), 3), 0.5, np.float32)
+
+    colour, _ = projective_colour(photos, views, range(len(views)), level, input_colour,
+                                  ProjectiveSettings(temperature=0.02, feather_px=1.0))
+    images = bake(scan, colour, size=size)
+    return blend_seams(_with_images(scan, images, "bestview"))

@@ -143,6 +143,7 @@ def cmd_enhance(args) -> int:
     config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                              train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
                              photos__holdout=args.holdout, refine__enabled=args.refine,
+                             photos__check_alignment=False if args.no_alignment_check else None,
                              refine__diffusion=True if args.diffusion else None)
     if args.output.exists() and not args.overwrite:
         raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
@@ -403,6 +404,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
     p.add_argument("--holdout", type=float, metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
+    p.add_argument("--no-alignment-check", action="store_true",
+                   help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
+                        "a mesh moved or turned out of the cameras' frame)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views of the field with a Vision Transformer trained self-supervised on the "
                         "scan's own views (masked completion, cross-view consistency, internal "

@@ -136,6 +136,12 @@ class PhotosConfig:
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame"""
+    refine_poses: bool = False
+    """refine each training photo's pose (small rotation, translation, focal) photometrically against the input texture (textured scans; off: not yet reliable, see bench/RESULTS.md)"""
+    texturing: str = "projective"
+    """texel colours: projective (sampled from the photos that see them best, at full resolution, blended smoothly; the field fills the rest) or field (the field's colour everywhere)"""
+    temperature: float = 0.15
+    """projective texturing: softmax temperature on the view quality (lower: the best view dominates more)"""
     canonical: str = "input"
     """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 

@@ -31,7 +31,7 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import downsample, render, render_gbuffer
+from scantex.views.render import downsample, render, render_gbuffer, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -175,6 +175,8 @@ class PhotoData:
     held_out: list[PhotoView]
     alignment: object | None
     """the :class:`scantex.photos.alignment.AlignmentReport`, when checked"""
+    pose_corrections: list = field(default_factory=list)
+    """:class:`scantex.photos.poses.PoseCorrection` per training photo, when refined"""
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -187,10 +189,16 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     if report is not None:
         log.info("%s", report.summary())
     train, held = split_photos(len(photos), pc.holdout, seed)
+    corrections = []
+    if pc.refine_poses and scan.is_textured:
+        from scantex.photos.poses import refine_poses
+
+        # held-out photos keep their recorded poses: they are the score's reference, not training data
+        photos, corrections = refine_poses(scan, photos, train, lambda f, b: shade_hits(scan, f, b), caster)
     settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
-    return PhotoData(photos, views[:len(train)], views[len(train):], report)
+    return PhotoData(photos, views[:len(train)], views[len(train):], report, corrections)
 
 
 def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
@@ -230,6 +238,27 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     else:
         weights[:P] = counts[:P]
     return rays, P, weights
+
+
+def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
+    """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
+    to the canonical appearance by each photo's inverse colour transform (training photo ``k`` is
+    appearance group ``k``), with ``fallback`` (the field) where no photo sees them."""
+    import torch
+
+    from scantex.errors import ScanError
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+
+    if pc.texturing != "projective":
+        raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
+    def canonicalise(rgb, group):
+        return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
+                                           torch.as_tensor(group, device=device)).cpu().numpy()
+
+    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)),
+                                       canonicalise if fitted.appearance is not None else None,
+                                       fallback, ProjectiveSettings(temperature=pc.temperature))
+    return colour, {"mode": "projective", **report}
 
 
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
@@ -356,6 +385,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
         colour = field_colour(scan, fitted, fill, taught, charts + chart_offset, device, detail=config.bake.detail)
         bake_report = {"source": "field"}
+    projective_report = None
+    if photo is not None and config.photos.texturing != "field":
+        colour, projective_report = photo_texture(photo, fitted, colour, config.photos, device)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -397,6 +429,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         if photo is not None:
             sheets: dict = {}
             metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster, sheets))
+            metrics["photos"]["texturing"] = projective_report or {"mode": "field"}
             comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
@@ -420,9 +453,12 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
         "photo_rays": int((rays.chart < P).sum()), "synthetic_rays": int((rays.chart >= P).sum()),
         "rejected_pixels": rejected,
+        "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": None if photo.alignment is None else {
             "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
-            "ratio": round(photo.alignment.ratio, 3), "summary": photo.alignment.summary()},
+            "ratio": round(photo.alignment.ratio, 3), "offset_m": round(photo.alignment.offset_m, 4),
+            "turn_deg": round(photo.alignment.turn_deg, 2), "displacement": round(photo.alignment.displacement, 5),
+            "summary": photo.alignment.summary()},
     }}
     if photo.held_out:
         out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,

@@ -28,7 +28,11 @@ def toy_photos(toy_demo, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def photo_result(toy_demo, toy_photos):
-    return enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    # the alignment check is off at this toy size: 128 px photos of an open wall with a 64 px atlas show it
+    # no contours (the wall's border is the scan's end) and texture edges too fine to fit a pose to (it
+    # misjudged it as turned 11 degrees); it is tested on its own in tests/photos/test_alignment.py
+    return enhance(toy_demo.scan, TOY.override(photos__check_alignment=False), ground_truth=toy_demo.ground_truth,
+                   photos=toy_photos)
 
 
 def test_synthetic_capture_writes_a_readable_set(toy_photos):
@@ -81,12 +85,14 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
-           str(tmp_path / "config.json"), "--holdout", "2", "--photos", str(toy_photos.source), "-o", str(out)]
+           str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--photos", str(toy_photos.source),
+           "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "2 held-out photos" in run.stdout
     metrics = json.loads((out / "metrics.json").read_text())
-    assert len(metrics["photos"]["held_out"]) == 2
+    assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
+    assert metrics["photos"]["texturing"]["mode"] == "projective"
     sheets = sorted((out / "comparisons").glob("held_out_photo_*.png"))
     assert len(sheets) == 2
     from PIL import Image
@@ -102,7 +108,7 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
 
 def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
     """The refiner learns from renders of the input texture, which the photos outclass (bench_photos)."""
-    cfg = TOY.override(train__steps=30, refine__enabled=True, refine__steps=4, refine__batch=2, refine__max_views=2)
+    cfg = TOY.override(photos__check_alignment=False, train__steps=30, refine__enabled=True, refine__steps=4, refine__batch=2, refine__max_views=2)
     skipped = enhance(toy_demo.scan, cfg, photos=toy_photos)
     assert "refine" not in skipped.metrics and "refine" not in skipped.metrics["timings_s"]
     asked = enhance(toy_demo.scan, cfg.override(refine__with_photos=True), photos=toy_photos)

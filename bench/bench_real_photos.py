@@ -1,0 +1,131 @@
+"""Photo mode on the real captures in ../shared/data, by their held-out protocol (skips without them).
+
+    python bench/bench_real_photos.py                 # bolster and façade, default settings
+    python bench/bench_real_photos.py --only bolster --override photos__texturing=field
+
+For each capture (``../shared/data/README.md``): ``--photos`` gets ONLY the training photos (a filtered
+``cameras.json`` written to a temporary folder outside the repository, ``photos.holdout`` 0); the
+app-style input is enhanced; then the input, the result and the classical baseline
+(:func:`bench.baselines.best_view_projective` on the same training photos) are rendered through the
+held-out photos' cameras and scored on the pixels that pass the visibility test, raw and colour-matched
+(a per-photo gain and offset per channel). Each run is its own process (time and peak memory its own).
+Comparison images (photo | input | result | baseline) go to ``/tmp/scantex_real_photos/``.
+Writes the 'real photos' section of bench/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bench._results import run_worker, update_section  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data"
+CAPTURES = {
+    "bolster": ("bolster_rgbd_posed/cameras.json", "bolster_rgbd_posed/app_style_input/bolster_app_style.obj", [4, 11]),
+    "facade": ("facade_openmvs/cameras.json", "facade_openmvs/app_style_input/scene_mesh_baked.obj", [2, 7]),
+}
+OUT = Path("/tmp/scantex_real_photos")
+
+WORKER = r"""
+import json, resource, sys, tempfile, time
+from pathlib import Path
+import numpy as np
+from PIL import Image
+sys.path.insert(0, ".")
+from scantex.io import load_scan
+from scantex.photos import load_photos
+from scantex.photos.training import VisibilitySettings, prepare_photos, score_photos
+from scantex.pipeline.config import preset
+from scantex.pipeline.enhance import enhance
+from scantex.views.raycast import RayCaster
+from scantex.views.render import to_uint8
+spec = json.loads(sys.argv[1])
+cameras = Path(spec["cameras"])
+frames = json.loads(cameras.read_text())["frames"]
+held = spec["held"]
+train = [i for i in range(len(frames)) if i not in held]
+scan = load_scan(spec["mesh"])
+everything = load_photos(cameras)
+with tempfile.TemporaryDirectory() as tmp:
+    subset = []
+    for i in train:
+        f = dict(frames[i])
+        for key in ("image", "depth"):
+            if f.get(key):
+                f[key] = str((cameras.parent / f[key]).resolve())
+        subset.append(f)
+    (Path(tmp) / "cameras.json").write_text(json.dumps({"frames": subset}))
+    given = load_photos(Path(tmp) / "cameras.json")
+    t = time.perf_counter()
+    if spec["method"] == "scantex":
+        cfg = preset(spec["preset"]).override(photos__holdout=0, **spec.get("override", {}))
+        result = enhance(scan, cfg, photos=given)
+        out, extra = result.scan, {"timings": result.metrics["timings_s"],
+                                   "alignment": result.metrics["photos"]["alignment"]}
+    else:
+        from bench.baselines import best_view_projective
+        caster = RayCaster(scan.positions, scan.faces)
+        views = prepare_photos(scan, given, range(len(given)), caster, 640, VisibilitySettings(supersample=2))
+        out, extra = best_view_projective(scan, given, views), {}
+    seconds = time.perf_counter() - t
+caster = RayCaster(scan.positions, scan.faces)
+held_views = prepare_photos(scan, everything, held, caster, 640, VisibilitySettings(supersample=2))
+sheets = {}
+scores = score_photos({"input": scan, "output": out}, held_views, caster, images=sheets)
+folder = Path(spec["png"]); folder.mkdir(parents=True, exist_ok=True)
+for i, im in sheets.items():
+    Image.fromarray(to_uint8(im)).save(folder / f"{spec['name']}_{spec['method']}_held_out_{i:02d}.png")
+print(json.dumps({"seconds": seconds, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "scores": scores, **extra}))
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=sorted(CAPTURES), action="append")
+    parser.add_argument("--preset", default="default")
+    parser.add_argument("--override", action="append", default=[], metavar="SECTION__NAME=VALUE",
+                        help="a config override for the scantex runs (JSON value or a string)")
+    parser.add_argument("--no-write", action="store_true", help="print only, leave RESULTS.md alone")
+    args = parser.parse_args()
+    if not DATA.exists():
+        print(f"{DATA} not present: nothing to do")
+        return
+    override = {}
+    for item in args.override:
+        key, _, value = item.partition("=")
+        try:
+            override[key] = json.loads(value)
+        except json.JSONDecodeError:
+            override[key] = value
+    lines = ["## Photo mode on real captures (held-out protocol of ../shared/data)", "",
+             "| capture | method | held-out PSNR dB (input -> output) | colour-matched PSNR | colour-matched SSIM | "
+             "time s | peak GiB |", "|---|---|---|---|---|---|---|"]
+    for name in args.only or sorted(CAPTURES):
+        cams, mesh, held = CAPTURES[name]
+        for method in ("scantex", "best-view baseline"):
+            spec = {"name": name, "cameras": str(DATA / cams), "mesh": str(DATA / mesh), "held": held,
+                    "method": "scantex" if method == "scantex" else "baseline", "preset": args.preset,
+                    "override": override, "png": str(OUT)}
+            r = run_worker(WORKER, spec)
+            i, o = r["scores"]["input"], r["scores"]["output"]
+            label = method if method != "scantex" else f"scantex `{args.preset}`" + (
+                f" {override}" if override else "")
+            lines.append(f"| {name} | {label} | {i['psnr']:.2f} -> {o['psnr']:.2f} | "
+                         f"{i['psnr_matched']:.2f} -> **{o['psnr_matched']:.2f}** "
+                         f"({o['psnr_matched'] - i['psnr_matched']:+.2f}) | {i['ssim_matched']:.3f} -> "
+                         f"{o['ssim_matched']:.3f} | {r['seconds']:.0f} | {r['peak_mb'] / 1024:.2f} |")
+            print(lines[-1], json.dumps({k: v for k, v in r.items() if k not in ("scores",)}), flush=True)
+    lines += ["", f"Held-out photos: bolster {CAPTURES['bolster'][2]}, façade {CAPTURES['facade'][2]}; "
+              f"comparison images in {OUT}/. Command: `python bench/bench_real_photos.py`"]
+    if not args.no_write:
+        update_section("real photos", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""Projective texturing: texels sampled from the photos at full resolution, smooth weights, field fill."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from PIL import Image
+
+from scantex.photos.texturing import (
+    ProjectiveSettings,
+    photo_sharpness,
+    projective_colour,
+)
+from scantex.photos.training import VisibilitySettings, prepare_photos
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from scantex.views.render import shade_hits
+from tests.conftest import grid_wall
+from tests.photos.test_alignment import photograph
+
+
+def smooth_wall():
+    """A 2 m wall whose texture is a smooth colour ramp plus a fine stripe (detail a 96 px view misses)."""
+    u, v = np.meshgrid(np.linspace(0, 1, 512), np.linspace(0, 1, 512))
+    stripes = 0.15 * np.sin(2 * np.pi * u * 40)
+    rgb = np.stack([0.3 + 0.4 * u + stripes, 0.3 + 0.4 * v, 0.5 + stripes], axis=-1)
+    wall = grid_wall()
+    return dataclasses.replace(wall, materials=(dataclasses.replace(wall.materials[0], image=(
+        255 * np.clip(rgb, 0, 1)).astype(np.uint8)),))
+
+
+def wall_photos(tmp_path, scan, gains=(1.0, 1.0)):
+    eyes = [(0.7, -2.2, 1.0), (1.3, -2.0, 1.1)]
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480) for e in eyes]
+    photos = photograph(scan, cams, tmp_path)
+    for path, gain in zip(photos.images, gains):  # a photo's own exposure
+        im = np.asarray(Image.open(path)).astype(np.float32) * gain
+        Image.fromarray(np.clip(im, 0, 255).astype(np.uint8)).save(path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = prepare_photos(scan, photos, range(len(photos)), caster, 160, VisibilitySettings(supersample=2))
+    return photos, views
+
+
+def surface_points(scan, n=4000, seed=0):
+    rng = np.random.default_rng(seed)
+    f = rng.integers(0, scan.n_faces, n)
+    b = rng.uniform(0, 1, (n, 2))
+    b = np.where(b.sum(1, keepdims=True) > 1, 1 - b, b)
+    tri = scan.triangles[f]
+    points = tri[:, 0] + b[:, :1] * (tri[:, 1] - tri[:, 0]) + b[:, 1:] * (tri[:, 2] - tri[:, 0])
+    return points, scan.face_normals[f], f, b.astype(np.float32)
+
+
+def grey(points, normals, face_ids, bary):
+    return np.full((len(points), 3), 0.5, np.float32)
+
+
+def test_texels_come_from_the_full_resolution_photos(tmp_path):
+    """Working views are 160 px, the photos 640 px: the fine stripes survive only if sampled at 640."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan)
+    colour, report = projective_colour(photos, views, [0, 1], None, grey)
+    assert report["sampled_at"] == [[640, 480]]
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    got = colour(points, normals, f, b)
+    seen = np.abs(got - 0.5).max(axis=1) > 1e-6
+    assert seen.mean() > 0.5
+    err = np.abs(got[seen] - truth[seen]).mean()
+    low, _ = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(max_side=160))
+    err_low = np.abs(low(points, normals, f, b)[seen] - truth[seen]).mean()
+    assert err < 0.03 and err < 0.6 * err_low
+
+
+def test_unseen_points_get_the_fallback_and_appearance_is_corrected(tmp_path):
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(0.6, 0.6))
+    behind = np.array([[1.0, 0.5, 1.0]])  # off the wall, seen by no photo
+    colour, _ = projective_colour(photos, views, [0, 1], None, grey)
+    np.testing.assert_allclose(colour(behind, np.array([[0.0, -1.0, 0.0]]), np.array([0]),
+                                      np.zeros((1, 2), np.float32)), 0.5)
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    dark = colour(points, normals, f, b)
+    fixed, _ = projective_colour(photos, views, [0, 1], lambda rgb, g: rgb / 0.6, grey)
+    bright = fixed(points, normals, f, b)
+    seen = np.abs(dark - 0.5).max(axis=1) > 1e-6
+    inner = seen & (truth.max(axis=1) < 0.9)  # not clipped in the photos
+    assert np.abs(bright[inner] - truth[inner]).mean() < 0.5 * np.abs(dark[inner] - truth[inner]).mean()
+
+
+def test_weights_are_smooth_between_photos(tmp_path):
+    """Two photos of different exposure: along a line across the wall, no step where the best view changes."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(1.0, 0.7))
+    colour, _ = projective_colour(photos, views, [0, 1], None, grey)
+    x = np.linspace(0.6, 1.4, 801)
+    points = np.stack([x, np.zeros_like(x), np.full_like(x, 1.0)], axis=1)
+    caster = RayCaster(scan.positions, scan.faces)
+    hits = caster.intersect(points + [0, -1, 0], np.tile([[0.0, 1.0, 0.0]], (len(x), 1)).astype(np.float32))
+    rgb = colour(points, scan.face_normals[hits.face_id], hits.face_id, hits.bary)
+    green = rgb[:, 1]  # the green ramp runs along z only: a step in it is an exposure switch
+    assert np.abs(np.diff(green)).max() < 0.01
+    assert (green > 0.7 * 0.5 - 0.02).all() and (green < 0.5 + 0.02).all()  # between the two exposures
+
+
+def test_sharpness_measure_prefers_sharp_images():
+    rng = np.random.default_rng(0)
+    sharp = rng.uniform(0, 1, (64, 64, 3)).astype(np.float32)
+    from scipy import ndimage
+
+    blurred = ndimage.gaussian_filter(sharp, (2, 2, 0))
+    assert photo_sharpness(sharp) > 10 * photo_sharpness(blurred)
