@@ -135,14 +135,7 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
 
     start, losses = 0, []
     if resume and checkpoint is not None and checkpoint.exists():
-        state = torch.load(checkpoint, map_location=device, weights_only=True)
-        field.load_state_dict(state["field"])
-        if appearance is not None and "appearance" in state:
-            appearance.load_state_dict(state["appearance"])
-        optim.load_state_dict(state["optim"])
-        sched.load_state_dict(state["sched"])
-        gen.set_state(state["rng"])
-        start, losses = int(state["step"]), state["losses"].tolist()
+        start, losses = _load(checkpoint, device, field, appearance, optim, sched, gen, train.steps)
         log.info("resuming field training at step %d of %d", start, train.steps)
 
     origins = torch.as_tensor(data.origins, device=device)
@@ -193,6 +186,33 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
     field.eval()
     return FittedField(field, appearance, normaliser, train.n_samples, band, np.array(losses), seconds,
                        steps_run=train.steps - start)
+
+
+def _load(path: Path, device, field, appearance, optim, sched, gen, steps: int) -> tuple[int, list[float]]:
+    """Restore a checkpoint written by :func:`_save`; ``(step, losses)``.
+
+    Raises:
+        ScanError: the file is damaged, or was written by a run with other settings or another input
+            (the error says to run again without ``--resume``).
+    """
+    from scantex.errors import ScanError
+
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+        field.load_state_dict(state["field"])
+        if appearance is not None:
+            appearance.load_state_dict(state["appearance"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        gen.set_state(state["rng"])
+        step, losses = int(state["step"]), state["losses"].tolist()
+        if not 0 < step <= steps or len(losses) != step:
+            raise ValueError(f"it stopped at step {step} of a run of {steps}")
+    except Exception as e:  # torch raises anything from pickle errors to RuntimeError on a mismatch
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0][:100]
+        raise ScanError(path, f"cannot resume from this checkpoint: it is damaged or from a run with other "
+                              f"settings ({type(e).__name__}: {detail}); run again without --resume") from None
+    return step, losses
 
 
 def _save(path: Path, field, appearance, optim, sched, gen, step: int, losses: list[float]) -> None:

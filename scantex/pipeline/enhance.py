@@ -295,6 +295,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     from scantex.uv import blend_seams, plan_uvs
 
+    from scantex.errors import ScanError
+    from scantex.pipeline.config import validate
+
+    validate(config)
     reporter = reporter or Reporter()
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
@@ -346,6 +350,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                                                  config.photos.synthetic_weight,
                                                                  config.photos.canonical)
         n_groups += chart_offset
+    if len(data) == 0:
+        raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
+                                     "(are its faces degenerate or collinear?)")
     lo, hi = scan.bounds
     normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
     band = tc.band_width * float(np.linalg.norm(hi - lo))
@@ -355,7 +362,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
                                max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
                                use_viewdirs=fs.use_viewdirs)
-    checkpoint = Path(work_dir) / "field.pt" if work_dir is not None else None
+    from scantex.pipeline.outputs import CHECKPOINT
+
+    checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
     with reporter.stage("training the field") as update:
         gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
         if gains is not None and chart_offset:
