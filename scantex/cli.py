@@ -88,6 +88,7 @@ def cmd_demo_scan(args) -> int:
     from scantex.io.atomic import atomic_dir
     from scantex.synth import make_room, make_wall, write_demo
 
+    check_output_early(args.output, args.overwrite)
     steps = 3 if args.photos else 2
     with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
         update(0, steps)
@@ -215,13 +216,15 @@ def cmd_enhance(args) -> int:
     check_output(work, inputs, folders, role="the work folder")
     try:
         work.mkdir(parents=True, exist_ok=True)
+        if not args.resume:  # a fresh run: a checkpoint left by an earlier one is not this run's state
+            remove_work_dir(work, keep_checkpoint=False, remove_folder=False)
         result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
                          reporter=BarReporter(args.quiet))
         with atomic_dir(args.output, overwrite=args.overwrite, inputs=inputs, folders=folders) as tmp:
             write_outputs(result, tmp)
-    except BaseException:
+    except BaseException as e:
         kept = remove_work_dir(work, keep_checkpoint=True)
-        if kept is not None:
+        if kept is not None and not (isinstance(e, ScanError) and e.path == kept):
             log.warning("kept the checkpoint %s: run the same command with --resume to continue", kept)
         raise
     remove_work_dir(work, keep_checkpoint=False)

@@ -20,7 +20,7 @@ def work_dir_for(output: Path) -> Path:
     return output.with_name(output.name + ".partial")
 
 
-def remove_work_dir(work: Path, keep_checkpoint: bool) -> Path | None:
+def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = True) -> Path | None:
     """Clean up an enhance run's work folder; returns the checkpoint kept, if any.
 
     Only the files the run writes there are removed, then the folder if it is empty: a failed run
@@ -33,6 +33,8 @@ def remove_work_dir(work: Path, keep_checkpoint: bool) -> Path | None:
     if keep_checkpoint and checkpoint.is_file():
         return checkpoint
     checkpoint.unlink(missing_ok=True)
+    if not remove_folder:
+        return None
     try:
         work.rmdir()
     except OSError:
