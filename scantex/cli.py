@@ -383,8 +383,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with the refiner: also denoise the refined views with a small diffusion model "
                         "trained on them (SDEdit-style partial noising; off by default: it removes detail "
                         "along with noise on the demo scans)")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
-    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from its field checkpoint in DIR.partial (kept by a run "
+                        "that was killed or failed after a checkpoint; refused if it is of another input or "
+                        "other settings)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it exists (never an input: DIR may not be or hold the scan, its "
+                        "textures, the photos or the config)")
     p.set_defaults(func=cmd_enhance)
 
     p = sub.add_parser("view", parents=[common], help="write an interactive 3D view (self-contained HTML)",

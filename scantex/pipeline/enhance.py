@@ -270,6 +270,26 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     return rays, P, weights
 
 
+def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
+    """A digest of what a field checkpoint depends on: the scan's geometry and UVs, the photos' cameras
+    and the settings (but the step count, which a resumed run may raise): ``--resume`` refuses another's."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    for array in (scan.positions, scan.faces, scan.uvs, scan.face_uvs):
+        if array is not None:
+            h.update(np.ascontiguousarray(array).tobytes())
+    settings = config.to_dict()
+    settings["train"] = {k: v for k, v in settings["train"].items() if k not in ("steps", "checkpoint_every")}
+    for key in ("device", "threads"):
+        settings.pop(key, None)
+    h.update(json.dumps(settings, sort_keys=True, default=str).encode())
+    if photos is not None:
+        h.update(json.dumps([c.to_dict() for c in photos.cameras], default=str).encode())
+    return h.hexdigest()[:16]
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -371,6 +391,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
         fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
                            seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
+                           run_key=run_key(scan, config, photos),
                            initial_gains=gains, appearance_weights=appearance_weights)
     timings["train"] = time.perf_counter() - t
 

@@ -50,7 +50,7 @@ def test_view_and_compare_never_replace_an_input(tmp_path, capsys, monkeypatch):
 def test_demo_scan_never_replaces_the_current_folder(tmp_path, capsys, monkeypatch):
     (tmp_path / "keep.txt").write_text("mine")
     monkeypatch.chdir(tmp_path)
-    assert_clean_error(*run_cli(capsys, "demo-scan", "-o", ".", "--overwrite", "-q"), "current folder")
+    assert_clean_error(*run_cli(capsys, "demo-scan", "--variant", "room", "-o", ".", "--overwrite", "-q"), "current folder")
     assert (tmp_path / "keep.txt").read_text() == "mine"
 
 
@@ -116,9 +116,17 @@ def test_resume_with_a_damaged_or_foreign_checkpoint(tmp_path, capsys, monkeypat
     (work / "field.pt").write_bytes(b"not a checkpoint at all")
     rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "--resume", "-q")
     assert_clean_error(rc, err, "field.pt", "without --resume")
-    torch.save({"field": {"weight": torch.zeros(3)}, "step": 2}, work / "field.pt")  # another run's
+    torch.save({"field": {"weight": torch.zeros(3)}, "step": 2}, work / "field.pt")  # another program's
     rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "--resume", "-q")
     assert_clean_error(rc, err, "field.pt", "without --resume")
+    # a real checkpoint of the same settings, but of another scan: the field would fit, the run is not this one
+    from scantex.pipeline.enhance import enhance
+    from tests.conftest import textured_cube
+
+    enhance(textured_cube(materials=1, seed=1), TINY, work_dir=work)
+    assert torch.load(work / "field.pt", weights_only=True)["step"] == 2
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "--resume", "-q")
+    assert_clean_error(rc, err, "field.pt", "another input")
     assert not (tmp_path / "out").exists()
     # the advice works: a fresh run succeeds and cleans up
     rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "-q")
@@ -237,7 +245,12 @@ BAD_CONFIGS = [{"views": {"n_views": 0}}, {"views": {"n_views": 1}}, {"views": {
 def test_bad_config_is_one_clean_line(tmp_path, capsys, monkeypatch, bad):
     monkeypatch.chdir(tmp_path)
     mesh = write_cube(tmp_path / "scan")
-    (tmp_path / "c.json").write_text(json.dumps(bad))
+    doc = bad
+    if isinstance(bad, dict):  # one bad value in an otherwise tiny config (a run never takes long)
+        doc = TINY.to_dict()
+        for key, value in bad.items():
+            doc[key] = {**doc[key], **value} if isinstance(value, dict) else value
+    (tmp_path / "c.json").write_text(json.dumps(doc))
     rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", tmp_path / "c.json", "-q")
     assert_clean_error(rc, err, "c.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "scan"]
@@ -259,6 +272,8 @@ BAD_NUMBERS = [["render", "--views", "0"], ["render", "--fov", "nan"], ["render"
 def test_bad_cli_number_is_one_clean_line(tmp_path, capsys, argv):
     mesh = write_cube(tmp_path)
     command, rest = argv[0], argv[1:]
+    if command == "enhance":
+        rest = rest + ["--config", write_tiny_config(tmp_path / "cfg" / "tiny.json")]
     meshes = [mesh, mesh] if command == "compare" else [mesh]
     out = ["-o", tmp_path / ("out.html" if command == "view" else "out")] if command != "compare" else []
     rc, err = run_cli(capsys, command, *meshes, *out, *rest)
