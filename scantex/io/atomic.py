@@ -34,6 +34,17 @@ class AtomicFiles:
     def commit(self) -> list[Path]:
         for tmp, final in self._pending:
             os.replace(tmp, final)
+        # temporaries of the same files that runs killed while writing left behind
+        names: dict[Path, set[str]] = {}
+        for _, final in self._pending:
+            names.setdefault(final.parent, set()).add(final.name)
+        stale = re.compile(r"\.(.+)\.[0-9a-f]{8}\.tmp")
+        for folder, finals in names.items():
+            with contextlib.suppress(OSError):
+                for entry in os.scandir(folder):
+                    m = stale.fullmatch(entry.name)
+                    if m and m.group(1) in finals and entry.is_file(follow_symlinks=False):
+                        os.unlink(entry.path)
         return [final for _, final in self._pending]
 
     def discard(self) -> None:

@@ -420,3 +420,15 @@ def test_truncated_binary_stl_has_a_real_message(tmp_path, capsys):
     (tmp_path / "cut.stl").write_bytes(data[:-20])
     assert_clean_error(*run_cli(capsys, "info", tmp_path / "cut.stl"), "truncated")
     assert "charset" not in capsys.readouterr().err
+
+
+def test_stale_file_temporary_is_removed_by_the_next_success(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    mesh = write_cube(tmp_path / "scan")
+    stale = tmp_path / ".view.html.0123abcd.tmp"  # a kill -9 while 'view' wrote its file
+    stale.write_text("<html>half")
+    other = tmp_path / ".notes.txt.0123abcd.tmp"  # not a temporary of this output: kept
+    other.write_text("x")
+    rc, err = run_cli(capsys, "view", mesh, "-o", tmp_path / "view.html", "-q")
+    assert rc == 0, err
+    assert not stale.exists() and other.exists()
