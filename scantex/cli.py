@@ -159,7 +159,6 @@ def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
 def cmd_view(args) -> int:
     from scantex.inspect.plotly_view import view_html
     from scantex.io import load_scan
-
     from scantex.io.atomic import check_output
 
     scan = load_scan(args.mesh)
