@@ -63,7 +63,7 @@ def check_pose(matrix, where: Path, what: str) -> np.ndarray:
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
         raise ScanError(where, f"{what}: pose's last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
     R = m[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+    if np.abs(R).max() > 2 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
         raise ScanError(where, f"{what}: pose's rotation is not a rotation (scaled or mirrored poses "
                                "are not supported)")
     return m
