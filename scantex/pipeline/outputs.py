@@ -28,6 +28,8 @@ def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = Tru
     from (``keep_checkpoint``; a kill -9 during training leaves one the same way).
     """
     work = Path(work)
+    if not work.is_dir():
+        return None  # never made, or a file of the user's that only has the work folder's name
     checkpoint = work / CHECKPOINT
     (work / CHECKPOINT_TMP).unlink(missing_ok=True)
     if keep_checkpoint and checkpoint.is_file():
