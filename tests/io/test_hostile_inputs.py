@@ -443,3 +443,27 @@ def test_stale_file_temporary_is_removed_by_the_next_success(tmp_path, capsys, m
     rc, err = run_cli(capsys, "view", mesh, "-o", tmp_path / "view.html", "-q")
     assert rc == 0, err
     assert not stale.exists() and other.exists()
+
+
+def test_binary_ply_check_fast_path_agrees_with_the_row_walk(tmp_path):
+    """All-triangle face lists are checked at numpy speed; any other layout row by row: same verdicts."""
+    from scantex.errors import ScanError
+    from scantex.io.ply import check_ply
+
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+            "property float z\nelement face {nf}\nproperty list uchar int vertex_indices\nend_header\n")
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32).tobytes()
+    tris = [(0, 1, 2), (1, 3, 2)]
+    for bad in (None, 4, -1):
+        faces = [f if bad is None or k == 0 else (1, 3, bad) for k, f in enumerate(tris)]
+        fast = b"".join(struct.pack("<B3i", 3, *f) for f in faces)
+        slow = fast + struct.pack("<B4i", 4, 0, 1, 3, 2)  # a quad forces the row walk
+        verdicts = []
+        for name, body, nf in (("fast.ply", fast, 2), ("slow.ply", slow, 3)):
+            (tmp_path / name).write_bytes(head.format(nf=nf).encode() + verts + body)
+            try:
+                verdicts.append(check_ply(tmp_path / name).triangles - (nf - 2) * 2)
+            except ScanError as e:
+                verdicts.append(e.problem)
+        assert verdicts[0] == verdicts[1], verdicts
+        assert (verdicts[0] == 2) == (bad is None)
