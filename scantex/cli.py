@@ -86,13 +86,14 @@ def _echo(args, message: str) -> None:
 
 def cmd_demo_scan(args) -> int:
     from scantex.io.atomic import atomic_dir
-    from scantex.synth import make_room, make_wall, write_demo
+    from scantex.synth import make_app_wall, make_room, make_wall, write_demo
 
     check_output_early(args.output, args.overwrite)
     steps = 3 if args.photos else 2
     with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
         update(0, steps)
-        demo = make_wall(seed=args.seed) if args.variant == "wall" else make_room(seed=args.seed)
+        make = {"wall": make_wall, "room": make_room, "app": make_app_wall}[args.variant]
+        demo = make(seed=args.seed)
         update(1, steps)
         with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
             write_demo(demo, tmp)
@@ -314,8 +315,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "DIR/scan.obj (degraded atlas: what a capture app gives you) and "
                                    "DIR/ground_truth.obj (same geometry, ground-truth texture).")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
-    p.add_argument("--variant", choices=["wall", "room"], default="wall",
-                   help="a paper-scale brick wall (40k vertices, 79k faces) or a small room (default: wall)")
+    p.add_argument("--variant", choices=["wall", "room", "app"], default="wall",
+                   help="wall: a paper-scale brick wall (40k vertices, 79k faces) with a poor 1024² atlas (strong "
+                        "exposure jumps, JPEG q50, blur, 3 %% holes); app: the same wall as a good capture app "
+                        "delivers it (sharp 4096² atlas, exposure within ±8 %%, JPEG q80, a few small holes); "
+                        "room: a small room (default: wall)")
     p.add_argument("--seed", type=SEED, default=0, help="random seed (default: 0)")
     p.add_argument("--photos", type=whole(0, 10_000), default=0, metavar="N",
                    help="also take N synthetic posed photos of the true scene (own exposure, blur, noise, JPEG, "

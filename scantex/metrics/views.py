@@ -18,9 +18,13 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
 
     Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
-    one of ``hole_faces`` (what the input left black).
+    one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
+    has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
     """
-    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "hole_psnr": []} for name in scans}
+    from scantex.metrics.patches import patch_score
+
+    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": [], "hole_psnr": []}
+                            for name in scans}
     hole_pixels = {name: [] for name in scans}
     for cam in cameras:
         ref, ref_alpha = reference(cam)
@@ -32,6 +36,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
             out[name]["psnr"].append(psnr(img, ref, mask))
             out[name]["ssim"].append(ssim(img, ref, mask))
             out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))
+            out[name]["patches"].append(patch_score(img, ref, mask))
             if holes.any():
                 hole_pixels[name].append(((img - ref) ** 2)[holes])
     result = {}

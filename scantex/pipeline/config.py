@@ -107,9 +107,17 @@ class BakeConfig:
     """output atlas size in texels (0: twice the input atlas, at most 8192)"""
     chunk: int = 16384
     """texels evaluated per field call (bounded memory)"""
+    source: str = "input"
+    """mesh-only colour source: input (the input's own texels, seam-levelled and denoised against the
+    field; holes filled) or field (the paper's: the field's colour replaces every taught texel)"""
+    levelling: bool = True
+    """source input: smooth per-chart offsets that make both sides of every seam agree (local seam levelling)"""
+    denoise: float = 1.0
+    """source input: differences from the field up to this many times the input's estimated noise level
+    are removed as noise (0: keep the input's texels exactly)"""
     detail: float = 0.0
-    """share of the input's own detail put back: field + detail x (input through its chart's inverse
-    colour transform - field); 0 bakes the field alone"""
+    """source field: share of the input's own detail put back: field + detail x (input through its chart's
+    inverse colour transform - field); 0 bakes the field alone"""
 
 
 @dataclass(frozen=True)

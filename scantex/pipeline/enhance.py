@@ -17,21 +17,21 @@ from pathlib import Path
 
 import numpy as np
 
-from scantex.atlas.bake import bake, output_size
+from scantex.atlas.bake import SurfaceColour, bake, output_size
 from scantex.atlas.holes import untextured_faces
-from scantex.atlas.inpaint import grow_faces, harmonic_vertex_colours
+from scantex.atlas.inpaint import grow_faces
 from scantex.atlas.levelling import chart_gains
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.views import score_views
 from scantex.photos.photoset import PhotoSet
 from scantex.photos.training import PhotoView
-from scantex.pipeline.config import EnhanceConfig, PhotosConfig
+from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import downsample, render, render_gbuffer, shade_hits
+from scantex.views.render import downsample, render, render_gbuffer
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -144,64 +144,26 @@ def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarr
     return np.bincount(hit, minlength=n_faces) >= min_rays
 
 
-def surface_colour_with_fill(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray,
-                             device, *, detail: float = 0.0):
-    """The colour to bake at surface points, by what is known about each face.
+def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
+                     config: BakeConfig) -> tuple[SurfaceColour, dict]:
+    """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report."""
+    from scantex.atlas.colour import atlas_noise, field_colour, levelled_input_colour
+    from scantex.atlas.levelling import seam_offsets
 
-    - taught faces: the field's canonical colour, mixed with ``detail`` of the input's own colour brought
-      to the canonical appearance by its chart's inverse transform (``field + detail * (input - field)``:
-      fine detail the field smooths away, exposure still levelled);
-    - faces no training ray reached but the input textures: that canonical input colour (a hash grid is
-      noise where nothing taught it);
-    - ``fill`` faces (holes and their border): a harmonic interpolation over the mesh of the colours
-      around them.
-    """
-    import torch
+    if config.source not in ("input", "field"):
+        from scantex.errors import ScanError
 
-    use_input = fitted.appearance is not None and scan.is_textured
-
-    def base(face_ids, bary, points, normals):
-        rgb = fitted.surface_colour(points, normals, device)
-        if not use_input:
-            return rgb
-        weight = np.where(taught[face_ids], detail, 1.0)[:, None]
-        sel = np.flatnonzero(weight[:, 0] > 0)
-        if sel.size:
-            observed = shade_hits(scan, face_ids[sel], bary[sel])
-            canon = fitted.appearance.canonical(torch.as_tensor(observed, device=device),
-                                                torch.as_tensor(charts[face_ids[sel]], device=device))
-            rgb[sel] = np.clip(rgb[sel] + weight[sel] * (canon.cpu().numpy() - rgb[sel]), 0, 1)
-        return rgb
-
-    # colours at the vertices of faces outside the fill region, read through one such face each
-    outside = np.flatnonzero(~fill)
-    corner_face = np.full(scan.n_vertices, -1)
-    corner_slot = np.zeros(scan.n_vertices, int)
-    for k in range(3):
-        corner_face[scan.faces[outside, k]] = outside
-        corner_slot[scan.faces[outside, k]] = k
-    known = corner_face >= 0
-    vertex_rgb = np.zeros((scan.n_vertices, 3))
-    idx = np.flatnonzero(known)
-    corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
-    for s in range(0, idx.size, 16384):
-        v = idx[s:s + 16384]
-        f = corner_face[v]
-        vertex_rgb[v] = base(f, corner_bary[corner_slot[v]], scan.positions[v], scan.face_normals[f])
-    if fill.any():
-        vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
-
-    def colour(points, normals, face_ids, bary):
-        rgb = base(face_ids, bary, points, normals)
-        hole = fill[face_ids]
-        if hole.any():
-            corners = vertex_rgb[scan.faces[face_ids[hole]]]  # [n, 3, 3]
-            b = bary[hole].astype(np.float64)
-            w = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)
-            rgb[hole] = np.einsum("nk,nkc->nc", w, corners)
-        return rgb
-
-    return colour
+        raise ScanError(None, f"bake.source must be 'input' or 'field', not '{config.source}'")
+    if config.source == "field" or not scan.is_textured:
+        return field_colour(scan, fitted, fill, taught, charts, device, detail=config.detail), {"source": "field"}
+    offsets = seam_offsets(scan, exclude=fill) if config.levelling else np.zeros((len(scan.uvs), 3))
+    noise = atlas_noise(scan, exclude=fill)
+    colour = levelled_input_colour(scan, offsets, fill, fitted=fitted, taught=taught, charts=charts, device=device,
+                                   noise_threshold=config.denoise * noise)
+    return colour, {"source": "input", "noise_level": round(noise, 5),
+                    "noise_threshold": round(config.denoise * noise, 5),
+                    "levelling_offset_mean": round(float(np.abs(offsets).mean()) if offsets.size else 0.0, 5),
+                    "levelling_offset_max": round(float(np.abs(offsets).max()) if offsets.size else 0.0, 5)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -417,8 +379,13 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         taught = seen | (taught_faces(tv, scan.n_faces) if scan.is_textured else False)
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
-    colour = surface_colour_with_fill(scan, fitted, fill, taught, charts + chart_offset, device,
-                                      detail=config.bake.detail)
+    if photo is None:
+        colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake)
+    else:
+        from scantex.atlas.colour import field_colour
+
+        colour = field_colour(scan, fitted, fill, taught, charts + chart_offset, device, detail=config.bake.detail)
+        bake_report = {"source": "field"}
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -428,7 +395,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         t = time.perf_counter()
         with reporter.stage("refining (ViT)") as update:
             refined = refine_colour(scan, fitted, tv, caster, colour, config.refine, device, update, fill=fill,
-                                    charts=charts + chart_offset, seed=rng_seed)
+                                    charts=charts + chart_offset, seed=rng_seed,
+                                    canonical=bake_report["source"] == "field")
             colour, refine_report = refined.colour, refined.report
         timings["refine"] = time.perf_counter() - t
 
@@ -452,6 +420,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
         metrics["field"]["untaught_faces"] = int((~taught & ~fill).sum())
+        metrics["bake"] = bake_report
+        metrics["sampling"] = sampling_report(scan, tv, taught, fill)
         if refine_report is not None:
             metrics["refine"] = refine_report
         if photo is not None:
@@ -511,6 +481,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                             "enhanced": round(seam_visibility(enhanced), 3)},
     }
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
+    if scan.is_textured:
+        metrics["patches"] = patch_metrics(scan, enhanced, test_cams, caster)
     if ground_truth is not None:
         metrics["held_out_vs_ground_truth"] = score_views(
             lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
@@ -521,3 +493,42 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
             lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},
             test_cams, caster, holes)
     return metrics
+
+
+def patch_metrics(scan: Scan, enhanced: Scan, cameras: list[Camera], caster: RayCaster) -> dict:
+    """The patch measure of the result against the input at ``cameras`` (see :mod:`scantex.metrics.patches`):
+    the share of pixels where the result has a low-frequency edge the input does not. A result that only
+    levels exposure smoothly, fills holes and removes noise scores about 0."""
+    from scantex.metrics.patches import SIGMA_SHARE, THRESHOLD, patch_score
+
+    scores = []
+    for cam in cameras:
+        before, alpha = render(scan, cam, caster, supersample=2)
+        after, _ = render(enhanced, cam, caster, supersample=2)
+        scores.append(patch_score(after, before, alpha >= 0.999))
+    return {"enhanced_vs_input": round(float(np.mean(scores)), 5) if scores else 0.0,
+            "per_view": [round(s, 5) for s in scores], "sigma_share": SIGMA_SHARE, "threshold": THRESHOLD}
+
+
+def used_texels(scan: Scan) -> int:
+    """About how many texels of the input's atlases its faces cover (their UV area in texels)."""
+    if not scan.is_textured:
+        return 0
+    uv = scan.triangle_uvs
+    area = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]))
+    total = 0.0
+    for m, material in enumerate(scan.materials):
+        if material.image is not None:
+            H, W = material.image.shape[:2]
+            total += float(area[scan.face_materials == m].sum()) * H * W
+    return int(total)
+
+
+def sampling_report(scan: Scan, tv: TrainingViews, taught: np.ndarray, fill: np.ndarray) -> dict:
+    """How densely the training views sample the input: rays per used texel, and the faces they teach."""
+    rays = int(tv.valid[tv.views.train].sum())
+    texels = used_texels(scan)
+    usable = ~fill
+    return {"train_rays": rays, "used_input_texels": texels,
+            "rays_per_used_texel": round(rays / texels, 4) if texels else None,
+            "taught_face_share": round(float(taught[usable].mean()) if usable.any() else 0.0, 4)}

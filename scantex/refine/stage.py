@@ -5,7 +5,7 @@ the field's colour, and return a colour function that fuses them back for the ba
    their chart's inverse transform; holes, excluded faces and silhouettes carry no target. The ground
    truth is never looked at.
 2. The refiner is trained on them (:func:`scantex.refine.train.fit_refiner`).
-3. Views of the base colour (what :func:`~scantex.pipeline.enhance.surface_colour_with_fill` gives: the
+3. Views of the base colour (what :func:`~scantex.pipeline.enhance.mesh_only_colour` gives: the
    field's canonical colour, hole fill) are rendered from the training cameras ``view_scale`` times finer,
    about one pixel per output texel, refined, optionally denoised, and fused back
    (:func:`scantex.refine.fusion.fuse_views`).
@@ -47,12 +47,13 @@ class Refined:
     report: dict = field(default_factory=dict)
 
 
-def canonical_targets(tv, fitted, charts: np.ndarray, device) -> RefinerData:
-    """The training views' input renders in the canonical appearance, with cross-view pairs."""
+def canonical_targets(tv, fitted, charts: np.ndarray, device, canonical: bool = True) -> RefinerData:
+    """The training views' input renders, in the canonical appearance when ``canonical`` (the base colour
+    is the field's) or as they are (the base colour is the input's own), with cross-view pairs."""
     train = np.asarray(tv.views.train)
     images = tv.views.images[train].astype(np.float32)  # [N, H, W, 3]
     valid = tv.valid[train]
-    if fitted.appearance is not None:
+    if canonical and fitted.appearance is not None:
         fid = tv.face_id[train][valid]
         canon = fitted.appearance.canonical(torch.as_tensor(images[valid], device=device),
                                             torch.as_tensor(charts[fid], device=device))
@@ -85,7 +86,8 @@ def pick_views(face_id: np.ndarray, valid: np.ndarray, max_views: int) -> list[i
 
 
 def refine_colour(scan: Scan, fitted, tv, caster: RayCaster, base_colour: SurfaceColour, config: RefineConfig,
-                  device, update: Update, *, fill: np.ndarray, charts: np.ndarray, seed: int = 0) -> Refined:
+                  device, update: Update, *, fill: np.ndarray, charts: np.ndarray, seed: int = 0,
+                  canonical: bool = True) -> Refined:
     """Train the refiner on the scan's views and return the colour of the refined, fused views.
 
     Args:
@@ -100,10 +102,13 @@ def refine_colour(scan: Scan, fitted, tv, caster: RayCaster, base_colour: Surfac
         fill: ``(F,) bool`` faces whose base colour is a fill (holes): flagged to the refiner.
         charts: ``(F,)`` input chart of every face.
         seed: random seed.
+        canonical: the targets in the field's canonical appearance (the base colour is the field's);
+            ``False`` when the base colour keeps the input's own appearance (``bake.source = "input"``),
+            so that the refiner never learns an appearance shift to paint onto the base.
     """
     times: dict[str, float] = {}
     t = time.perf_counter()
-    data = canonical_targets(tv, fitted, charts, device)
+    data = canonical_targets(tv, fitted, charts, device, canonical)
     times["targets"] = time.perf_counter() - t
 
     train = np.asarray(tv.views.train)

@@ -53,3 +53,19 @@ def make_wall(seed: int = 0, *, grid: tuple[int, int] = (200, 200), size_m: tupl
     return make_demo(wall_panels(grid=grid, size_m=size_m, finish=finish), seed, "wall",
                      gt_texture_size=gt_texture_size, scan_texture_size=scan_texture_size,
                      unwrap=Unwrap(n_charts=n_charts), degradation=degradation, supersample=supersample)
+
+
+#: what a good phone capture app delivers: a sharp atlas, subtle exposure steps between charts, mild
+#: compression and blur, a few small holes (the demo wall's degradation is far stronger)
+APP_LIKE = Degradation(blur_sigma=0.5, gain_spread=0.08, white_balance_spread=0.03, offset_spread=0.005,
+                       jpeg_quality=80, hole_share=0.005, hole_clusters=3)
+
+
+def make_app_wall(seed: int = 0, *, grid: tuple[int, int] = (200, 200), size_m: tuple[float, float] = (4.0, 3.0),
+                  texture_size: int = 4096, n_charts: int = 80, supersample: int = 2) -> DemoScan:
+    """The app-realistic demo: the demo wall's geometry with a sharp ``texture_size``² atlas degraded as a
+    good capture app would (:data:`APP_LIKE`: chart exposure within about ±8 %, JPEG q80, blur 0.5
+    texel, 0.5 % of the surface in 3 small holes); the ground truth at the same resolution."""
+    return make_demo(wall_panels(grid=grid, size_m=size_m), seed, "app", gt_texture_size=texture_size,
+                     scan_texture_size=texture_size, unwrap=Unwrap(n_charts=n_charts), degradation=APP_LIKE,
+                     supersample=supersample)

@@ -374,3 +374,23 @@ def test_write_demo_round_trips(tiny_wall, tmp_path):
         np.testing.assert_array_equal(loaded.faces, original.faces)
         np.testing.assert_allclose(loaded.positions, original.positions, atol=1e-9)
         np.testing.assert_array_equal(loaded.materials[0].image[..., :3], original.materials[0].image)
+
+
+def test_app_wall_is_a_subtle_sharp_degradation():
+    """The app-realistic variant: full-resolution atlas, small holes, subtle exposure, far closer to the
+    truth than the demo wall's degradation, yet not the truth."""
+    from scantex.synth import make_app_wall
+    from scantex.synth.wall import APP_LIKE
+
+    app = make_app_wall(0, grid=(60, 46), size_m=(2.0, 1.5), texture_size=512, n_charts=12, supersample=1)
+    poor = make_wall(0, grid=(60, 46), size_m=(2.0, 1.5), gt_texture_size=512, scan_texture_size=512, n_charts=12,
+                     supersample=1)
+    assert app.scan.materials[0].image.shape == app.ground_truth.materials[0].image.shape == (512, 512, 3)
+    area = app.scan.face_areas
+    assert 0 < area[app.hole_faces].sum() / area.sum() <= 2 * APP_LIKE.hole_share
+    camera = Camera.look_at((0.0, -2.2, 0.75), (0.0, 0.0, 0.75), fov_deg=60, width=160, height=120)
+    exact, _ = render_ground_truth(app, camera, supersample=2)
+    app_view, _ = render(app.scan, camera, supersample=2)
+    poor_view, _ = render(poor.scan, camera, supersample=2)
+    assert psnr(app_view, exact) > psnr(poor_view, exact) + 3
+    assert psnr(app_view, exact) < 45

@@ -1,0 +1,182 @@
+"""Local seam levelling, noise estimation and the levelled-input colour source."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scantex.atlas.bake import bake
+from scantex.atlas.colour import estimate_noise, levelled_input_colour
+from scantex.atlas.levelling import seam_offsets
+from scantex.atlas.seams import seam_edges, seam_visibility
+from scantex.metrics.patches import patch_score
+from scantex.scan import Material, Scan
+from scantex.views.camera import Camera
+from scantex.views.render import render
+
+
+def two_chart_wall(n: int = 16, size: int = 256, gain_right: float = 1.0, seed: int = 0) -> Scan:
+    """A 2 m x 1 m wall (x-z plane, facing -y) cut into a left and a right chart at x = 0.
+
+    Its texture is one world-space pattern (stripes), the right chart's texels multiplied by
+    ``gain_right``: an exposure step along the seam when it is not 1.
+    """
+    xs = np.linspace(-1, 1, 2 * n + 1)
+    zs = np.linspace(0, 1, n + 1)
+    X, Z = np.meshgrid(xs, zs, indexing="ij")
+    positions = np.stack([X.ravel(), np.zeros(X.size), Z.ravel()], 1)
+    vid = np.arange(X.size).reshape(X.shape)
+    faces, face_uvs, uvs = [], [], []
+    uv_index = {}
+
+    def uv_of(i, k, chart):
+        key = (i, k, chart)
+        if key not in uv_index:
+            x0 = 0 if chart == 0 else n
+            u = (0.04 if chart == 0 else 0.54) + 0.42 * (i - x0) / n
+            uv_index[key] = len(uvs)
+            uvs.append((u, 0.05 + 0.9 * k / n))
+        return uv_index[key]
+
+    for i in range(2 * n):
+        chart = 0 if i < n else 1
+        for k in range(n):
+            a, b, c, d = vid[i, k], vid[i + 1, k], vid[i + 1, k + 1], vid[i, k + 1]
+            ua, ub, uc, ud = (uv_of(i, k, chart), uv_of(i + 1, k, chart), uv_of(i + 1, k + 1, chart),
+                              uv_of(i, k + 1, chart))
+            faces += [[a, c, b], [a, d, c]]
+            face_uvs += [[ua, uc, ub], [ua, ud, uc]]
+    uvs = np.array(uvs)
+    # the texture: every texel gets the world pattern at the point it maps to
+    H = W = size
+    yy, xx = np.mgrid[:H, :W]
+    u, v = (xx + 0.5) / W, 1 - (yy + 0.5) / H
+    right = u > 0.5
+    x = np.where(right, (u - 0.54) / 0.42, -1 + (u - 0.04) / 0.42)
+    z = (v - 0.05) / 0.9
+    rng = np.random.default_rng(seed)
+    phase = rng.uniform(0, 6, 3)
+    # stripes along x (so the seam at x = 0 crosses them) and a slow variation across it
+    pattern = 0.5 + 0.15 * np.sin(9 * z + phase[0]) + 0.05 * np.sin(40 * z + phase[1]) + 0.05 * np.sin(2 * x + phase[2])
+    rgb = np.stack([pattern, 0.9 * pattern, 0.8 * pattern], -1)
+    rgb = np.where(right[..., None], rgb * gain_right, rgb)
+    image = (np.clip(rgb, 0, 1) * 255).round().astype(np.uint8)
+    return Scan(positions, np.array(faces), uvs, np.array(face_uvs), None, (Material("wall", image),))
+
+
+def front_camera(width: int = 200, height: int = 100) -> Camera:
+    return Camera.look_at((0.0, -2.2, 0.5), (0.0, 0.0, 0.5), fov_deg=60.0, width=width, height=height)
+
+
+def levelled(scan: Scan, **kwargs) -> Scan:
+    fill = np.zeros(scan.n_faces, bool)
+    offsets = seam_offsets(scan, **kwargs)
+    colour = levelled_input_colour(scan, offsets, fill)
+    (image,) = bake(scan, colour, size=scan.materials[0].image.shape[0])
+    return scan.replace(materials=(Material("wall", image),))
+
+
+def test_the_fixture_has_one_straight_seam_and_a_step():
+    scan = two_chart_wall(gain_right=1.1)
+    assert len(seam_edges(scan)) == 16
+    assert seam_visibility(scan) > 8.0
+    assert seam_visibility(two_chart_wall()) < 1.5
+
+
+def test_levelling_removes_an_exposure_step_at_the_seam():
+    scan = two_chart_wall(gain_right=1.1)
+    out = levelled(scan)
+    assert seam_visibility(out) < 0.25 * seam_visibility(scan)
+
+
+def test_levelling_leaves_a_texture_without_steps_alone():
+    scan = two_chart_wall()
+    offsets = seam_offsets(scan)
+    assert np.abs(offsets).max() < 0.01
+    out = levelled(scan)
+    diff = np.abs(out.materials[0].image.astype(int) - scan.materials[0].image.astype(int))
+    assert np.median(diff) <= 1
+
+
+def test_levelling_offsets_are_smooth_and_balanced():
+    scan = two_chart_wall(gain_right=1.1)
+    g = seam_offsets(scan)
+    assert np.abs(g.mean(axis=0)).max() < 0.02  # the overall colour balance stays
+    # the two charts move in opposite directions: the right one down, the left one up
+    left = scan.uvs[:, 0] < 0.5
+    assert g[left].mean() > 0 > g[~left].mean()
+    # constant over a chart whose only seam has one step: no edge inside the charts
+    assert g[left].std() < 0.5 * np.abs(g[left].mean()) + 1e-3
+
+
+def test_levelled_output_has_no_patches_against_the_input():
+    scan = two_chart_wall(gain_right=1.08)
+    out = levelled(scan)
+    cam = front_camera()
+    a, mask = render(scan, cam, supersample=2)
+    b, _ = render(out, cam, supersample=2)
+    assert patch_score(b, a, mask > 0.5) < 0.002  # the step it removes never counts; nothing is added
+
+
+def test_a_colour_edge_on_a_seam_is_not_levelled():
+    """A seam whose sides disagree far beyond exposure (a real colour edge) moves nothing."""
+    scan = two_chart_wall(gain_right=1.6)
+    assert np.abs(seam_offsets(scan)).max() < 1e-3
+    assert np.abs(seam_offsets(scan, max_step=1.0)).mean() > 0.05  # without the gate it would
+
+
+def test_a_seam_on_a_crease_is_not_levelled():
+    scan = two_chart_wall(gain_right=1.1)
+    folded = scan.positions.copy()
+    right = folded[:, 0] > 1e-9
+    folded[right, 1] = folded[right, 0]  # fold the right half by 90 degrees about x = 0
+    folded[right, 0] = 0
+    bent = Scan(folded, scan.faces, scan.uvs, scan.face_uvs, None, scan.materials)
+    assert np.abs(seam_offsets(bent)).max() < 1e-3
+    assert np.abs(seam_offsets(bent, max_crease_deg=95)).mean() > 0.01
+
+
+def test_noise_estimate_recovers_white_noise_on_a_smooth_image():
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:256, :256]
+    smooth = 0.5 + 0.2 * np.sin(xx / 40)[..., None] * np.ones(3)
+    for sigma in (0.01, 0.03):
+        noisy = smooth + rng.normal(0, sigma, (256, 256, 1))
+        assert abs(estimate_noise(noisy) - sigma) < 0.25 * sigma
+    assert estimate_noise(smooth) < 0.002
+
+
+def test_denoising_against_a_perfect_field_removes_noise_and_keeps_strong_detail():
+    """With a field that predicts the clean texture, noise within the threshold goes, a strong mark stays."""
+    scan = two_chart_wall(size=128)
+    clean = scan.materials[0].image.astype(np.float32) / 255
+    rng = np.random.default_rng(1)
+    noisy = clean + rng.normal(0, 0.02, clean.shape).astype(np.float32)
+    noisy[60:68, 30:38] += 0.3  # a mark the field does not know: detail, not noise
+    noisy_scan = scan.replace(materials=(Material("wall", (np.clip(noisy, 0, 1) * 255).round().astype(np.uint8)),))
+
+    class PerfectField:
+        appearance = None
+
+        def surface_colour(self, points, normals, device):
+            from scantex.views.raycast import RayCaster
+
+            caster = RayCaster(scan.positions, scan.faces)
+            hits = caster.intersect(points - 0.01 * normals, normals)
+            from scantex.views.render import shade_hits
+
+            return shade_hits(scan, hits.face_id, hits.bary)
+
+    fill = np.zeros(scan.n_faces, bool)
+    colour = levelled_input_colour(noisy_scan, np.zeros((len(scan.uvs), 3)), fill, fitted=PerfectField(),
+                                   taught=np.ones(scan.n_faces, bool), charts=np.zeros(scan.n_faces, int),
+                                   device="cpu", noise_threshold=0.05)
+    (image,) = bake(noisy_scan, colour, size=128)
+    out = image.astype(np.float32) / 255
+    inside = np.zeros((128, 128), bool)
+    inside[10:118, 8:52] = True
+    inside[10:118, 72:118] = True
+    inside[56:72, 26:42] = False
+    err_in = np.abs(noisy - clean)[inside].mean()
+    err_out = np.abs(out - clean)[inside].mean()
+    assert err_out < 0.5 * err_in
+    assert out[61:67, 31:37].mean() - clean[61:67, 31:37].mean() > 0.2  # the mark is kept

@@ -1,0 +1,62 @@
+"""The patch measure: hard-edged low-frequency changes count, global and smooth ones do not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scantex.metrics.patches import patch_map, patch_score
+
+
+@pytest.fixture
+def texture() -> np.ndarray:
+    """A detailed 240 x 320 texture: a fine pattern and pixel noise."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[:240, :320]
+    t = 0.5 + 0.15 * np.sin(xx / 3.0) * np.cos(yy / 5.0) + 0.05 * rng.standard_normal((240, 320))
+    return np.clip(np.repeat(t[..., None], 3, axis=2), 0, 1)
+
+
+def blob(shape=(240, 320), centre=(120, 160), radius=50) -> np.ndarray:
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    return ((yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 < radius**2)[..., None]
+
+
+def test_a_pasted_hard_edged_patch_scores_high(texture):
+    patched = np.clip(texture * np.where(blob(), 1.08, 1.0), 0, 1)
+    assert patch_score(patched, texture) > 0.003  # a busy texture masks a faint step, partly
+    assert patch_score(np.clip(texture * np.where(blob(), 1.16, 1.0), 0, 1), texture) > patch_score(patched, texture)
+    plain = np.clip(0.6 + np.random.default_rng(2).normal(0, 0.02, texture.shape), 0, 1)
+    assert patch_score(np.clip(plain * np.where(blob(), 1.08, 1.0), 0, 1), plain) > 0.02  # on a plain wall: clear
+
+
+def test_a_global_exposure_change_and_a_smooth_gradient_score_zero(texture):
+    assert patch_score(np.clip(texture * 1.08, 0, 1), texture) == 0.0
+    ramp = 1 + 0.15 * np.linspace(0, 1, 320)[None, :, None]
+    assert patch_score(np.clip(texture * ramp, 0, 1), texture) == 0.0
+    assert patch_score(texture, texture) == 0.0
+
+
+def test_pixel_noise_and_removing_an_edge_do_not_count(texture):
+    rng = np.random.default_rng(1)
+    assert patch_score(np.clip(texture + rng.normal(0, 0.03, texture.shape), 0, 1), texture) < 0.001
+    # the reference has the step; the image has it levelled away: not a patch
+    stepped = np.clip(texture * np.where(blob(), 1.1, 1.0), 0, 1)
+    assert patch_score(texture, stepped) == 0.0
+
+
+def test_the_patch_is_found_at_its_border_and_silhouettes_are_ignored(texture):
+    patched = np.clip(texture * np.where(blob(), 1.1, 1.0), 0, 1)
+    patch, usable = patch_map(patched, texture)
+    ys, xs = np.nonzero(patch)
+    r = np.hypot(ys - 120, xs - 160)
+    assert np.all(np.abs(r - 50) < 15)  # on the blob's border, nowhere else
+    # a mask edge (the surface's silhouette) with black outside is no patch
+    mask = np.ones((240, 320), bool)
+    mask[:, 200:] = False
+    assert patch_score(np.where(mask[..., None], texture * 1.05, 0), np.where(mask[..., None], texture, 0), mask) == 0.0
+
+
+def test_shapes_must_match(texture):
+    with pytest.raises(ValueError):
+        patch_score(texture[:100], texture)
