@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -38,6 +39,46 @@ def progress_bar(description: str, quiet: bool = False):
         yield update
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line error style (``scantex render: error: ...``, exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def whole(lo: int, hi: int | None = None):
+    """An argparse type: a whole number in ``[lo, hi]``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+        if value < lo or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"expected {lo} to {hi}, got {value}" if hi is not None
+                                             else f"expected at least {lo}, got {value}")
+        return value
+    parse.__name__ = "whole number"
+    return parse
+
+
+def real(lo: float, hi: float, *, open_low: bool = False):
+    """An argparse type: a finite number in ``[lo, hi]`` (``(lo, hi]`` with ``open_low``)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+        if not math.isfinite(value) or value < lo or value > hi or (open_low and value == lo):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'above' if open_low else 'from'} {lo:g} "
+                                             f"up to {hi:g}, got '{text}'")
+        return value
+    parse.__name__ = "number"
+    return parse
+
+
+SEED = whole(0, 2**32 - 1)
+
+
 def _echo(args, message: str) -> None:
     if not args.quiet:
         print(message)
@@ -47,6 +88,7 @@ def cmd_demo_scan(args) -> int:
     from scantex.io.atomic import atomic_dir
     from scantex.synth import make_app_wall, make_room, make_wall, write_demo
 
+    check_output_early(args.output, args.overwrite)
     steps = 3 if args.photos else 2
     with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
         update(0, steps)
@@ -68,21 +110,35 @@ def cmd_demo_scan(args) -> int:
     return 0
 
 
+def check_output_early(output: Path, overwrite: bool) -> None:
+    """The checks on an output folder that need no input read: fail before minutes of work."""
+    from scantex.errors import OutputExistsError
+    from scantex.io.atomic import check_output
+
+    check_output(output)
+    if output.exists() and not output.is_dir():
+        raise OutputExistsError(output, "is a file, not a folder: choose another path")
+    if output.exists() and not overwrite:
+        raise OutputExistsError(output, "already exists (pass --overwrite to replace it)")
+
+
 def cmd_render(args) -> int:
     from scantex.io import load_scan
-    from scantex.io.atomic import atomic_dir
+    from scantex.io.atomic import atomic_dir, check_output
     from scantex.views.planning import face_coverage, plan_views
     from scantex.views.raycast import RayCaster
     from scantex.views.viewset import render_views, write_views
 
+    check_output_early(args.output, args.overwrite)
     scan = load_scan(args.mesh)
+    check_output(args.output, scan.inputs)
     _echo(args, f"{args.mesh}: {scan.summary()}")
     caster = RayCaster(scan.positions, scan.faces)
     cameras = plan_views(scan, args.views, mode=args.mode, width=args.width, height=args.height,
                          fov_deg=args.fov, seed=args.seed, up=up_axis(args.up, args.mesh), caster=caster)
     coverage = face_coverage(scan, cameras, caster=caster)
     _echo(args, f"{len(cameras)} views planned ({args.mode}); {coverage.summary()}")
-    with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
+    with atomic_dir(args.output, overwrite=args.overwrite, inputs=scan.inputs) as tmp:
         with progress_bar("rendering", args.quiet) as update:
             views = render_views(scan, cameras, lit=not args.unlit, supersample=args.supersample,
                                  seed=args.seed, caster=caster, progress=update)
@@ -105,9 +161,11 @@ def cmd_view(args) -> int:
     from scantex.deps import require
     from scantex.inspect.plotly_view import view_html
     from scantex.io import load_scan
+    from scantex.io.atomic import check_output
 
     require("plotly", "scantex view")  # before the (possibly long) load
     scan = load_scan(args.mesh)
+    check_output(args.output, scan.inputs)
     out = view_html(scan, args.output, max_faces=args.max_faces)
     _echo(args, f"interactive view of {args.mesh} written to {out}")
     return 0
@@ -136,17 +194,19 @@ def _check_device(name: str) -> None:
 
 
 def cmd_enhance(args) -> int:
+    from scantex.io.atomic import check_output
     from scantex.io.discover import find_capture
-    from scantex.pipeline.config import load_config, preset
+    from scantex.pipeline.config import load_config, preset, validate
+    from scantex.pipeline.outputs import work_dir_for
 
     config = load_config(args.config) if args.config else preset(args.preset)
-    config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
-                             train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
-                             photos__holdout=args.holdout, refine__enabled=args.refine,
-                             photos__check_alignment=False if args.no_alignment_check else None,
-                             refine__diffusion=True if args.diffusion else None)
-    if args.output.exists() and not args.overwrite:
-        raise ScanError(args.output, "already exists (pass --overwrite to replace it)")
+    config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
+                                      train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
+                                      photos__holdout=args.holdout, refine__enabled=args.refine,
+                                      photos__check_alignment=False if args.no_alignment_check else None,
+                                      refine__diffusion=True if args.diffusion else None), "the options")
+    check_output_early(args.output, args.overwrite)
+    check_output(work_dir_for(args.output), role="the work folder")
     _check_device(config.device)
     with find_capture(args.mesh, photos=not args.no_photos and not args.photos) as capture:
         return _enhance_capture(args, config, capture)
@@ -154,9 +214,9 @@ def cmd_enhance(args) -> int:
 
 def _enhance_capture(args, config, capture) -> int:
     from scantex.io import load_scan
+    from scantex.io.atomic import atomic_dir, check_output
     from scantex.pipeline.enhance import enhance
-    from scantex.pipeline.outputs import write_outputs, work_dir_for
-    from scantex.io.atomic import atomic_dir
+    from scantex.pipeline.outputs import remove_work_dir, work_dir_for, write_outputs
 
     if capture.kind != "file" or capture.photos is not None:
         _echo(args, capture.describe())
@@ -172,24 +232,41 @@ def _enhance_capture(args, config, capture) -> int:
         _echo(args, f"{photos_path}: {len(photos)} photos ({photos.format})")
     tiles = tile_count(args, scan, photos)
     work = work_dir_for(args.output)
-    work.mkdir(parents=True, exist_ok=True)
-    if tiles > 1:
-        from scantex.scale.executors import executor
-        from scantex.scale.tiles import TilingConfig, enhance_tiled
+    # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the
+    # work folder (which is removed at the end)
+    inputs = list(scan.inputs) + (list(truth.inputs) if truth else []) + ([args.config] if args.config else [])
+    inputs.append(args.mesh)  # the mesh file, or the export's folder or zip as the user named it
+    folders = []
+    if photos is not None:
+        inputs += [*photos.images, *(d for d in photos.depths if d is not None), photos.source]
+        folders.append(photos.source if photos.source.is_dir() else photos.source.parent)
+    check_output(args.output, inputs, folders)
+    check_output(work, inputs, folders, role="the work folder")
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+        if not args.resume:  # a fresh run: a checkpoint left by an earlier one is not this run's state
+            remove_work_dir(work, keep_checkpoint=False, remove_folder=False)
+        if tiles > 1:
+            from scantex.scale.executors import executor
+            from scantex.scale.tiles import TilingConfig, enhance_tiled
 
-        _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
-        result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap), ground_truth=truth,
-                               runner=executor(args.ray, args.workers), reporter=BarReporter(args.quiet))
-    else:
-        if args.ray or args.workers:
-            log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
-        result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
-                         reporter=BarReporter(args.quiet))
-    with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
-        write_outputs(result, tmp)
-    import shutil
-
-    shutil.rmtree(work, ignore_errors=True)
+            _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
+            result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap),
+                                   ground_truth=truth, runner=executor(args.ray, args.workers),
+                                   reporter=BarReporter(args.quiet))
+        else:
+            if args.ray or args.workers:
+                log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
+            result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
+                             reporter=BarReporter(args.quiet))
+        with atomic_dir(args.output, overwrite=args.overwrite, inputs=inputs, folders=folders) as tmp:
+            write_outputs(result, tmp)
+    except BaseException as e:
+        kept = remove_work_dir(work, keep_checkpoint=True)
+        if kept is not None and not (isinstance(e, ScanError) and e.path == kept):
+            log.warning("kept the checkpoint %s: run the same command with --resume to continue", kept)
+        raise
+    remove_work_dir(work, keep_checkpoint=False)
     _echo(args, enhance_summary(result.metrics))
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb, "
                 f"metrics.json, config.json, report.html)")
@@ -273,11 +350,18 @@ def cmd_compare(args) -> int:
     from scantex.metrics.compare import compare, read_photos, summary_lines
 
     a, b = load_scan(args.a), load_scan(args.b)
+    if args.json:
+        from scantex.io.atomic import check_output
+
+        check_output(args.json, [*a.inputs, *b.inputs, *([args.cameras] if args.cameras else [])])
     photos = read_photos(args.cameras) if args.cameras else None
     result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
     if args.json:
+        from scantex.io.atomic import atomic_files
+
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+        with atomic_files() as files:
+            files.path(args.json).write_text(json.dumps(result, indent=2))
     _echo(args, summary_lines(result))
     if args.json:
         _echo(args, f"metrics written to {args.json}")
@@ -324,15 +408,15 @@ def add_executor_options(p, job: str) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="scantex",
         description="Better textures for LiDAR-scanned meshes; the geometry stays exactly as it was.",
         epilog="Run 'scantex COMMAND --help' for a command's options.")
     parser.add_argument("--version", action="version", version=f"scantex {__version__}")
-    common = argparse.ArgumentParser(add_help=False)
+    common = Parser(add_help=False)
     common.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
     common.add_argument("-q", "--quiet", action="store_true", help="print only errors")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=Parser)
 
     p = sub.add_parser("demo-scan", parents=[common], help="write the built-in synthetic demo scan",
                        description="Write a procedural LiDAR-like scan with known ground truth: "
@@ -344,8 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "exposure jumps, JPEG q50, blur, 3 %% holes); app: the same wall as a good capture app "
                         "delivers it (sharp 4096² atlas, exposure within ±8 %%, JPEG q80, a few small holes); "
                         "room: a small room (default: wall)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    p.add_argument("--photos", type=int, default=0, metavar="N",
+    p.add_argument("--seed", type=SEED, default=0, help="random seed (default: 0)")
+    p.add_argument("--photos", type=whole(0, 10_000), default=0, metavar="N",
                    help="also take N synthetic posed photos of the true scene (own exposure, blur, noise, JPEG, "
                         "small pose errors) into DIR/photos, for enhance --photos (default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
@@ -357,19 +441,20 @@ def build_parser() -> argparse.ArgumentParser:
                                    "view_NNN.png and cameras.json (OpenCV convention).")
     p.add_argument("mesh", type=Path, help="mesh file (OBJ, GLB/GLTF, PLY, ...)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
-    p.add_argument("--views", type=int, default=8, help="number of views (default: 8)")
+    p.add_argument("--views", type=whole(1, 10_000), default=8, help="number of views (default: 8)")
     p.add_argument("--mode", choices=["auto", "orbit", "hemisphere", "surface"], default="auto",
                    help="camera placement: around a closed object, above it, or in front of an open "
                         "surface; auto picks (default: auto)")
-    p.add_argument("--width", type=int, default=640, help="image width in pixels (default: 640)")
-    p.add_argument("--height", type=int, default=480, help="image height in pixels (default: 480)")
-    p.add_argument("--fov", type=float, default=60.0, help="horizontal field of view, degrees (default: 60)")
+    p.add_argument("--width", type=whole(8, 8192), default=640, help="image width in pixels (default: 640)")
+    p.add_argument("--height", type=whole(8, 8192), default=480, help="image height in pixels (default: 480)")
+    p.add_argument("--fov", type=real(1, 170), default=60.0,
+                   help="horizontal field of view, degrees, 1 to 170 (default: 60)")
     p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto",
                    help="the scan's up axis; auto: y for GLB/GLTF (the format's rule), z otherwise")
     p.add_argument("--unlit", action="store_true",
                    help="plain texture colour instead of the lit preview (directional light + ambient)")
-    p.add_argument("--supersample", type=int, default=2, help="rays per pixel per axis (default: 2)")
-    p.add_argument("--seed", type=int, default=0, help="random seed for planning and the split")
+    p.add_argument("--supersample", type=whole(1, 8), default=2, help="rays per pixel per axis (default: 2)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed for planning and the split")
     p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
     p.set_defaults(func=cmd_render)
 
@@ -386,14 +471,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset (default: default; ~3 min on a 2-core CPU for an 80k-face scan)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
-    p.add_argument("--texture-size", type=int, help="output atlas size (default: 2x the input, at most 8192)")
+    p.add_argument("--texture-size", type=whole(16, 16384),
+                   help="output atlas size (default: 2x the input, at most 8192)")
     p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
                    help="texture layout: keep the input's (default), optimize it (merge/split charts by "
                         "stretch, uniform texel density) or unwrap afresh; meshes without UVs are unwrapped")
-    p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
-    p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
+    p.add_argument("--views", type=whole(2, 10_000),
+                   help="number of synthetic views, at least 2: one is held out (preset's by default)")
+    p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
-    p.add_argument("--seed", type=int, help="random seed (default: 0)")
+    p.add_argument("--seed", type=SEED, help="random seed (default: 0)")
     p.add_argument("--ground-truth", type=Path, metavar="MESH",
                    help="the same geometry with its true texture (synthetic scans): scores held-out views")
     p.add_argument("--photos", type=Path, metavar="PATH",
@@ -402,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     p.add_argument("--no-photos", action="store_true",
                    help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
-    p.add_argument("--holdout", type=float, metavar="X",
+    p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
@@ -415,7 +502,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with the refiner: also denoise the refined views with a small diffusion model "
                         "trained on them (SDEdit-style partial noising; off by default: it removes detail "
                         "along with noise on the demo scans)")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted run from its checkpoint")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from its field checkpoint in DIR.partial (kept by a run "
+                        "that was killed or failed after a checkpoint; refused if it is of another input or "
+                        "other settings)")
     p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
                    help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
                         "or Ray tasks with --ray) and fuse them with smooth weights; auto: one tile per "
@@ -425,7 +515,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tile-overlap", type=float, default=0.15, metavar="X",
                    help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
     add_executor_options(p, "tile")
-    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it exists (never an input: DIR may not be or hold the scan, its "
+                        "textures, the photos or the config)")
     p.set_defaults(func=cmd_enhance)
 
     p = sub.add_parser("batch", parents=[common], help="enhance many scans: a local process pool or a Ray cluster",
@@ -461,7 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="An offline Plotly 3D view of the mesh, coloured from its texture.")
     p.add_argument("mesh", type=Path, help="mesh file")
     p.add_argument("-o", "--output", type=Path, default=Path("view.html"), help="HTML file (default: view.html)")
-    p.add_argument("--max-faces", type=int, default=200_000,
+    p.add_argument("--max-faces", type=whole(1), default=200_000,
                    help="show a random subset of faces above this count (display only; default 200000)")
     p.set_defaults(func=cmd_view)
 
@@ -476,10 +568,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", type=Path, metavar="JSON",
                    help="cameras.json with photos (frames of image, width, height, K, world_to_camera): "
                         "both meshes' renders are scored against the photos")
-    p.add_argument("--views", type=int, default=8, help="views planned on A when there are no photos (default: 8)")
-    p.add_argument("--samples", type=int, default=100_000,
+    p.add_argument("--views", type=whole(1, 10_000), default=8,
+                   help="views planned on A when there are no photos (default: 8)")
+    p.add_argument("--samples", type=whole(1, 100_000_000), default=100_000,
                    help="surface points per direction for the distances, besides every vertex (default: 100000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed for samples and views (default: 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed for samples and views (default: 0)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write every metric to this JSON file")
     p.set_defaults(func=cmd_compare)
 
@@ -510,6 +603,13 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"scantex: error: {e}", file=sys.stderr)  # names the pip install that provides it
         return 1
+    except OSError as e:  # the system refused a read or write: a full disk, a read-only folder, a long name
+        if args.debug:
+            raise
+        where = e.filename or getattr(args, "output", None) or getattr(args, "mesh", None)
+        problem = e.strerror or (str(e).strip().splitlines() or [type(e).__name__])[0]
+        print(f"scantex: error: {where}: {problem}" if where else f"scantex: error: {problem}", file=sys.stderr)
+        return 2
     except Exception as e:  # anything else is a bug: one line, the traceback with --debug
         if args.debug:
             raise

@@ -21,6 +21,10 @@ import numpy as np
 from scantex.errors import ScanError
 
 
+#: largest coordinate magnitude accepted: squares of differences of coordinates stay far inside float32
+MAX_COORDINATE = 1e12
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """One material: a base colour and, usually, a texture atlas.
@@ -57,6 +61,8 @@ class Scan:
         normals: ``(N, 3) float64`` shading normals, or ``None``.
         face_normals_idx: ``(F, 3) int64`` indices into ``normals`` per face corner, or ``None``.
         source: the file the scan came from, if any.
+        inputs: every file the scan was read from (the mesh, its material libraries, textures, buffers),
+            so that no output ever replaces one of them.
     """
 
     positions: np.ndarray
@@ -70,6 +76,7 @@ class Scan:
     normals: np.ndarray | None = None
     face_normals_idx: np.ndarray | None = None
     source: Path | None = field(default=None)
+    inputs: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -100,6 +107,11 @@ class Scan:
         if bad.any():
             raise ScanError(where, f"{int(bad.sum())} vertex positions are NaN or infinite "
                                    f"(first: vertex {int(np.flatnonzero(bad)[0]) + 1})")
+        huge = (np.abs(self.positions) > MAX_COORDINATE).any(axis=1)
+        if huge.any():
+            raise ScanError(where, f"{int(huge.sum())} vertex positions lie beyond +-{MAX_COORDINATE:g} "
+                                   f"(first: vertex {int(np.flatnonzero(huge)[0]) + 1}); no scan is that "
+                                   "large, and edge lengths, normals and the float32 ray caster overflow")
         _check_index(where, self.faces, V, "face", "vertex", "vertices")
         if (self.uvs is None) != (self.face_uvs is None):
             raise ScanError(where, "uvs and face_uvs must be given together")

@@ -110,7 +110,7 @@ def resolve_device(name: str) -> torch.device:
 def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldConfig, train,
               n_charts: int, band: float, *, device: torch.device, seed: int = 0, progress: Progress | None = None,
               initial_gains: np.ndarray | None = None, appearance_weights: np.ndarray | None = None,
-              checkpoint: Path | None = None, resume: bool = False) -> FittedField:
+              checkpoint: Path | None = None, resume: bool = False, run_key: str = "") -> FittedField:
     """Train a :class:`RadianceField` (and per-chart appearance) on ``data``.
 
     Args:
@@ -121,6 +121,8 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
             the canonical appearance is the photos' average one.
         checkpoint: file to save state to every ``train.checkpoint_every`` steps; with ``resume``,
             training continues from it when it exists.
+        run_key: identifies the run (input and settings) in the checkpoint: resuming from a checkpoint
+            with another key is refused.
     """
     torch.manual_seed(seed)
     gen = torch.Generator(device="cpu").manual_seed(seed)
@@ -144,14 +146,7 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
 
     start, losses = 0, []
     if resume and checkpoint is not None and checkpoint.exists():
-        state = torch.load(checkpoint, map_location=device, weights_only=True)
-        field.load_state_dict(state["field"])
-        if appearance is not None and "appearance" in state:
-            appearance.load_state_dict(state["appearance"])
-        optim.load_state_dict(state["optim"])
-        sched.load_state_dict(state["sched"])
-        gen.set_state(state["rng"])
-        start, losses = int(state["step"]), state["losses"].tolist()
+        start, losses = _load(checkpoint, device, field, appearance, optim, sched, gen, train.steps, run_key)
         log.info("resuming field training at step %d of %d", start, train.steps)
 
     origins = torch.as_tensor(data.origins, device=device)
@@ -196,7 +191,7 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
         if progress:
             progress(step + 1, train.steps)
         if checkpoint is not None and (step + 1) % train.checkpoint_every == 0 and step + 1 < train.steps:
-            _save(checkpoint, field, appearance, optim, sched, gen, step + 1, losses)
+            _save(checkpoint, field, appearance, optim, sched, gen, step + 1, losses, run_key)
     seconds = time.perf_counter() - t0
     if levels is not None:
         levels(n_levels)
@@ -205,9 +200,40 @@ def fit_field(data: RayDataset, normaliser: BoxNormaliser, field_config: FieldCo
                        steps_run=train.steps - start)
 
 
-def _save(path: Path, field, appearance, optim, sched, gen, step: int, losses: list[float]) -> None:
+def _load(path: Path, device, field, appearance, optim, sched, gen, steps: int,
+          run_key: str = "") -> tuple[int, list[float]]:
+    """Restore a checkpoint written by :func:`_save`; ``(step, losses)``.
+
+    Raises:
+        ScanError: the file is damaged, or was written by a run with other settings or another input
+            (the error says to run again without ``--resume``).
+    """
+    from scantex.errors import ScanError
+
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+        if state.get("run_key", "") != run_key:
+            raise ValueError("it was written for another input or other settings")
+        field.load_state_dict(state["field"])
+        if appearance is not None:
+            appearance.load_state_dict(state["appearance"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        gen.set_state(state["rng"])
+        step, losses = int(state["step"]), state["losses"].tolist()
+        if not 0 < step <= steps or len(losses) != step:
+            raise ValueError(f"it stopped at step {step} of a run of {steps}")
+    except Exception as e:  # torch raises anything from pickle errors to RuntimeError on a mismatch
+        detail = (str(e).strip().splitlines() or [type(e).__name__])[0][:100]
+        raise ScanError(path, f"cannot resume from this checkpoint: it is damaged or from a run with other "
+                              f"settings ({type(e).__name__}: {detail}); run again without --resume") from None
+    return step, losses
+
+
+def _save(path: Path, field, appearance, optim, sched, gen, step: int, losses: list[float],
+          run_key: str = "") -> None:
     state = {"field": field.state_dict(), "optim": optim.state_dict(), "sched": sched.state_dict(),
-             "rng": gen.get_state(), "step": step, "losses": torch.tensor(losses, device="cpu")}
+             "rng": gen.get_state(), "step": step, "losses": torch.tensor(losses, device="cpu"), "run_key": run_key}
     if appearance is not None:
         state["appearance"] = appearance.state_dict()
     tmp = path.with_suffix(".tmp")

@@ -59,7 +59,7 @@ def _refuse_overwriting_input(scan: Scan, path: Path) -> None:
     if scan.source is None:
         return
     src = Path(scan.source).resolve()
-    inputs = {src}
+    inputs = {src} | {Path(p).resolve() for p in scan.inputs}
     if src.suffix.lower() == ".obj":  # its material library and textures were read too
         inputs.add(src.with_suffix(".mtl"))
         inputs |= {src.parent / m.image_name for m in scan.materials if m.image_name}

@@ -1,37 +1,84 @@
-"""Texture images in and out, with errors that name the file."""
+"""Texture images in and out, with errors that name the file.
+
+Every image scantex reads (textures, photos, depth maps) is opened through :func:`open_image`, which
+checks the size the file's header claims before anything is decoded: a few hundred bytes of PNG can
+claim 100000 x 100000 pixels (a decompression bomb) and would otherwise ask for tens of GB.
+"""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
 
 from scantex.errors import ScanError
 
+#: largest image accepted, in pixels: a 16k x 16k atlas (scan atlases reach 16k; photos are far smaller)
+MAX_IMAGE_PIXELS = 16384 * 16384
 
-def read_image(path: str | Path) -> np.ndarray:
-    """``(H, W, 3) uint8`` RGB of an image file (alpha dropped: scan textures are opaque)."""
+
+def check_image_size(image, where, what: str = "image") -> None:
+    """Refuse an opened (not yet decoded) Pillow image whose header claims more than
+    :data:`MAX_IMAGE_PIXELS` pixels, or no pixels at all."""
+    w, h = image.size
+    if w <= 0 or h <= 0:
+        raise ScanError(where, f"{what} has no pixels ({w}x{h})")
+    if w * h > MAX_IMAGE_PIXELS:
+        raise ScanError(where, f"{what} claims {w}x{h} pixels, more than scantex reads "
+                               f"({MAX_IMAGE_PIXELS:,} pixels: a 16384x16384 atlas)")
+
+
+@contextlib.contextmanager
+def open_image(path: str | Path, what: str = "image"):
+    """``with open_image(path, "texture") as im:`` a Pillow image whose size was checked; errors while
+    opening or decoding inside the block become one-line :class:`ScanError` naming the file."""
     from PIL import Image, UnidentifiedImageError
 
     path = Path(path)
     if not path.is_file():
-        raise ScanError(path, "texture file not found")
-    # scan atlases reach 16k x 16k; Pillow's decompression-bomb guard stops at ~89 Mpx
-    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, 16384 * 16384 + 1)
+        raise ScanError(path, f"{what} file not found")
+    # our own limit is checked below from the header; Pillow's guard would stop at ~89 Mpx
+    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, MAX_IMAGE_PIXELS + 1)
     try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
+        im = Image.open(path)
     except UnidentifiedImageError:
-        raise ScanError(path, "texture is not an image Pillow can read") from None
+        raise ScanError(path, f"{what} is not an image Pillow can read") from None
+    except Image.DecompressionBombError:
+        raise ScanError(path, f"{what} claims more pixels than scantex reads") from None
     except (OSError, SyntaxError, ValueError) as e:
-        raise ScanError(path, f"texture image is damaged or truncated ({e})") from None
+        raise ScanError(path, f"cannot read the {what} ({_first_line(e)})") from None
+    try:
+        with im:
+            check_image_size(im, path, what)
+            yield im
+    except Image.DecompressionBombError:
+        raise ScanError(path, f"{what} claims more pixels than scantex reads") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as e:
+        raise ScanError(path, f"{what} is damaged or truncated ({_first_line(e)})") from None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0][:120] if text else type(e).__name__
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB of an image file (alpha dropped: scan textures are opaque)."""
+    with open_image(path, "texture") as im:
+        return np.asarray(im.convert("RGB"))
 
 
 def image_from_pil(image, where) -> np.ndarray:
+    from PIL import Image
+
+    check_image_size(image, where, "embedded texture image")
     try:
         return np.asarray(image.convert("RGB"))
-    except (OSError, SyntaxError, ValueError) as e:
-        raise ScanError(where, f"embedded texture image is damaged ({e})") from None
+    except Image.DecompressionBombError:
+        raise ScanError(where, "embedded texture image claims more pixels than scantex reads") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as e:
+        raise ScanError(where, f"embedded texture image is damaged ({_first_line(e)})") from None
 
 
 #: zlib level of the PNGs written: 1 encodes an 8192^2 atlas several times faster than the default 6 for

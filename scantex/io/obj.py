@@ -59,6 +59,40 @@ def _vertex_colors(rows: list[str]) -> np.ndarray | None:
     return rgba.astype(np.uint8)
 
 
+#: MTL texture options and how many arguments each takes (``-o``, ``-s``, ``-t`` take 1 to 3 numbers)
+MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1, "-mm": 2,
+               "-texres": 1, "-bm": 1, "-type": 1, "-o": 3, "-s": 3, "-t": 3}
+
+
+def map_file_name(rest: str) -> str:
+    """The file name of a ``map_Kd`` statement's arguments, options before it skipped:
+    ``-clamp on -s 1 1 1 -bm 0.5 texture name.png`` -> ``texture name.png`` (names may hold spaces)."""
+    rest = rest.strip()
+    while rest.startswith("-"):
+        option, _, rest = rest.partition(" ")
+        rest = rest.lstrip()
+        n = MAP_OPTIONS.get(option.lower())
+        if n is None:
+            break  # not an option scantex knows: take the rest as the name
+        variable = option.lower() in ("-o", "-s", "-t")
+        for k in range(n):
+            arg, _, after = rest.partition(" ")
+            if variable and k > 0 and not re.fullmatch(r"[-+]?[\d.]+(?:[eE][-+]?\d+)?", arg):
+                break  # -o/-s/-t take one to three numbers
+            rest = after.lstrip()
+    return rest
+
+
+def _mtl_numbers(path: Path, line: str, rest: str, lo: int, hi: int) -> list[float]:
+    try:
+        values = [float(x) for x in rest.split()[:hi]]
+    except ValueError:
+        values = []
+    if len(values) < lo or not np.isfinite(values).all():
+        raise ScanError(path, f"cannot read '{line[:60]}' (expected {lo} to {hi} numbers)")
+    return values
+
+
 def parse_mtl(path: Path) -> dict[str, dict]:
     """Materials of an MTL file: ``{name: {"diffuse": (r, g, b, a), "map_Kd": Path | None}}``."""
     try:
@@ -71,24 +105,30 @@ def parse_mtl(path: Path) -> dict[str, dict]:
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
-        key, _, rest = line.partition(" ")
+        key, rest = (line.split(None, 1) + [""])[:2]
         rest = rest.strip()
         if key == "newmtl":
             current = materials.setdefault(rest, {"diffuse": [1.0, 1.0, 1.0, 1.0], "map_Kd": None})
         elif current is None:
             continue
         elif key == "Kd":
-            try:
-                current["diffuse"][:3] = [float(x) for x in rest.split()[:3]]
-            except ValueError:
-                raise ScanError(path, f"cannot read '{line[:60]}'") from None
+            rgb = _mtl_numbers(path, line, rest, 1, 3)
+            current["diffuse"][:3] = rgb if len(rgb) == 3 else [rgb[0]] * 3  # 'Kd r': g = b = r
         elif key == "d":
-            current["diffuse"][3] = float(rest.split()[0])
+            current["diffuse"][3] = _mtl_numbers(path, line, rest, 1, 1)[0]
         elif key.lower() == "map_kd":
-            # options come before the file name: map_Kd -s 1 1 1 -bm 0.5 texture name.png
-            name = re.sub(r"^(?:-\w+(?:\s+[-+\d.eE]+)*\s+)*", "", rest)
+            name = map_file_name(rest)
             current["map_Kd"] = (path.parent / name.replace("\\", "/")) if name else None
     return materials
+
+
+def mtllib_paths(obj_path: Path, rest: str) -> list[Path]:
+    """The files of an ``mtllib`` statement: several names separated by spaces, or one name with spaces
+    when a file of that whole name exists."""
+    whole = obj_path.parent / rest.strip().replace("\\", "/")
+    if whole.is_file() or len(rest.split()) < 2:
+        return [whole]
+    return [obj_path.parent / name.replace("\\", "/") for name in rest.split()]
 
 
 def read_obj(path: str | Path) -> Scan:
@@ -110,8 +150,10 @@ def read_obj(path: str | Path) -> Scan:
     current = -1  # faces before any usemtl use an implicit default material
     n_ngons = 0
     for lineno, line in enumerate(text.splitlines(), start=1):
+        if line[:1] in (" ", "\t"):
+            line = line.lstrip()
         head = line[:3]
-        if head == "v  " or head.startswith("v ") or head == "v\t":
+        if head.startswith("v ") or head.startswith("v\t"):
             v_rows.append(line[2:])
             v_lines.append(lineno)
         elif head == "vt " or head == "vt\t":
@@ -133,10 +175,16 @@ def read_obj(path: str | Path) -> Scan:
             except ValueError:
                 raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}'") from None
             nv, nt, nn = len(v_rows), len(vt_rows), len(vn_rows)
-            # OBJ indices are 1-based; negative ones count back from the latest element
-            vi = [i - 1 if i > 0 else nv + i if i < 0 else -(1 << 40) for i in vi]
-            ti = [i - 1 if i > 0 else nt + i if i < 0 else -1 for i in ti]
-            ni = [i - 1 if i > 0 else nn + i if i < 0 else -1 for i in ni]
+            # OBJ indices are 1-based; negative ones count back from the latest element. BAD marks an
+            # index that points before the first element (0, or too negative): refused below
+            vi = [i - 1 if i > 0 else nv + i if -nv <= i < 0 else BAD for i in vi]
+            ti = [i - 1 if i > 0 else nt + i if -nt <= i < 0 else -1 if i == 0 else BAD for i in ti]
+            ni = [i - 1 if i > 0 else nn + i if -nn <= i < 0 else -1 if i == 0 else BAD for i in ni]
+            if BAD in vi or BAD in ti or BAD in ni:
+                raise ScanError(path, f"line {lineno}: face '{line.strip()[:60]}' has an index of 0 or one "
+                                      "before the first element (OBJ indices start at 1)")
+            if max(vi + ti + ni) > MAX_INDEX:
+                raise ScanError(path, f"line {lineno}: face index too large '{line.strip()[:60]}'")
             if len(parts) > 3:
                 n_ngons += 1
             for k in range(1, len(parts) - 1):  # fan triangulation, as trimesh does
@@ -144,22 +192,19 @@ def read_obj(path: str | Path) -> Scan:
                 corner_t.append((ti[0], ti[k], ti[k + 1]))
                 corner_n.append((ni[0], ni[k], ni[k + 1]))
                 face_mat.append(current)
-        elif line.startswith("usemtl"):
+        elif line.startswith("usemtl") and line[6:7] in (" ", "\t"):
             name = line[6:].strip()
             if name not in mat_index:
                 mat_index[name] = len(mat_names)
                 mat_names.append(name)
             current = mat_index[name]
-        elif line.startswith("mtllib"):
+        elif line.startswith("mtllib") and line[6:7] in (" ", "\t"):
             mtllibs.append(line[6:].strip())
 
     positions = _floats(path, v_rows, 3, "vertex", v_lines)
     if not corner_v:
         raise ScanError(path, "the mesh has no faces" if v_rows else "no vertices or faces: not an OBJ mesh")
     faces = np.array(corner_v, dtype=np.int64)
-    if faces.min() < -1:
-        bad = int(np.flatnonzero((faces < 0).any(axis=1))[0])
-        raise ScanError(path, f"face {bad + 1} has a vertex index of 0 (OBJ indices start at 1)")
     vertex_colors = _vertex_colors(v_rows)
     uvs = _floats(path, vt_rows, 2, "texture coordinate", vt_lines) if vt_rows else None
     face_uvs = np.array(corner_t, dtype=np.int64) if uvs is not None else None
@@ -174,21 +219,30 @@ def read_obj(path: str | Path) -> Scan:
     if face_normals_idx is not None and (face_normals_idx < 0).any():
         normals, face_normals_idx = None, None  # partial normals are of no use; shading recomputes them
 
-    materials, face_materials = _materials(path, mtllibs, mat_names, np.array(face_mat, dtype=np.int32))
+    inputs = [path]
+    materials, face_materials = _materials(path, mtllibs, mat_names, np.array(face_mat, dtype=np.int32),
+                                           inputs)
     if n_ngons:
         log.info("%s: %d polygons with more than 3 corners were fan-triangulated", path, n_ngons)
     return Scan(positions, faces, uvs, face_uvs, face_materials, materials,
                 vertex_colors=vertex_colors, normals=normals, face_normals_idx=face_normals_idx,
-                source=path)
+                source=path, inputs=tuple(inputs))
 
 
-def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.ndarray):
+#: index of a face corner that points before the first element (refused once the file is read)
+BAD = -(1 << 62)
+#: largest index kept (beyond int64 a numpy array cannot hold it; no file has that many elements)
+MAX_INDEX = (1 << 62) - 1
+
+
+def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.ndarray, inputs: list[Path]):
     library: dict[str, dict] = {}
     for lib in mtllibs:
-        lib_path = path.parent / lib.replace("\\", "/")
-        if not lib_path.is_file():
-            raise ScanError(lib_path, f"material library named by {path.name} not found")
-        library.update(parse_mtl(lib_path))
+        for lib_path in mtllib_paths(path, lib):
+            if not lib_path.is_file():
+                raise ScanError(lib_path, f"material library named by {path.name} not found")
+            library.update(parse_mtl(lib_path))
+            inputs.append(lib_path)
     materials = []
     images: dict[Path, np.ndarray] = {}
     for name in names:
@@ -208,6 +262,7 @@ def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.nd
                 continue
             if tex not in images:
                 images[tex] = read_image(tex)
+                inputs.append(tex)
             image = images[tex]
         materials.append(Material(name, image, tuple(spec["diffuse"]), image_name=tex.name if tex else None))
     if (face_mat < 0).any():

@@ -8,6 +8,7 @@ meshes' vertices concatenated in scene order.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -52,8 +53,119 @@ def _material_of(geometry, index: int, where) -> tuple[Material, np.ndarray | No
     return Material(f"material_{index}", diffuse=(0.7, 0.7, 0.7, 1.0)), None
 
 
+def _check_stl(path: Path) -> None:
+    """A binary STL is 84 bytes of header and count, then 50 bytes per triangle: refuse one whose size
+    does not match its count (trimesh would go on to guess a text encoding and fail obscurely)."""
+    import struct
+
+    data = path.read_bytes()
+    if len(data) >= 84 and 84 + 50 * struct.unpack("<I", data[80:84])[0] == len(data):
+        return
+    head = data[:1024].lstrip()
+    if head[:5].lower() == b"solid" and all(b < 128 for b in head):
+        return  # ASCII STL
+    n = struct.unpack("<I", data[80:84])[0] if len(data) >= 84 else 0
+    raise ScanError(path, f"truncated or damaged binary STL: its header says {n} triangles "
+                          f"({84 + 50 * n} bytes), the file has {len(data)} bytes")
+
+
+def _gltf_images(path: Path) -> tuple[list[tuple[str, bytes | Path]], list[Path]]:
+    """The images a GLB/glTF holds, as ``(label, bytes or file)``, and the external files it names."""
+    import base64
+    import json
+    import struct
+
+    data = path.read_bytes()
+    binary = b""
+    if path.suffix.lower() == ".glb":
+        if len(data) < 20 or data[:4] != b"glTF":
+            return [], []  # trimesh reports what is wrong with it
+        length = struct.unpack("<I", data[12:16])[0]
+        doc_bytes = data[20:20 + length]
+        rest = data[20 + length:]
+        if len(rest) >= 8 and rest[4:8] == b"BIN\x00":
+            binary = rest[8:8 + struct.unpack("<I", rest[:4])[0]]
+    else:
+        doc_bytes = data
+    try:
+        doc = json.loads(doc_bytes)
+    except (ValueError, RecursionError):
+        return [], []
+    if not isinstance(doc, dict):
+        return [], []
+    files, images = [], []
+    for key in ("buffers", "images"):
+        for item in doc.get(key) or []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                files.append(path.parent / uri)
+    views = doc.get("bufferViews") or []
+    for i, image in enumerate(doc.get("images") or []):
+        if not isinstance(image, dict):
+            continue
+        label = f"embedded texture image {i}"
+        uri, view = image.get("uri"), image.get("bufferView")
+        try:
+            if isinstance(uri, str) and uri.startswith("data:"):
+                images.append((label, base64.b64decode(uri.split(",", 1)[1])))
+            elif isinstance(uri, str):
+                images.append((f"texture image {uri}", path.parent / uri))
+            elif isinstance(view, int) and 0 <= view < len(views) and binary:
+                v = views[view]
+                start = int(v.get("byteOffset", 0))
+                images.append((label, binary[start:start + int(v["byteLength"])]))
+        except (KeyError, ValueError, TypeError, IndexError, AttributeError):
+            raise ScanError(path, f"{label} is described wrongly in the glTF document") from None
+    return images, files
+
+
+def _check_gltf_images(path: Path) -> list[Path]:
+    """Decode every image of a GLB/glTF (size checked first): trimesh drops one it cannot read without a
+    word. Returns the external files the document names."""
+    import io
+
+    from PIL import Image
+
+    from scantex.io.images import check_image_size, open_image
+
+    images, files = _gltf_images(path)
+    for label, source in images:
+        if isinstance(source, Path):
+            with open_image(source, "texture") as im:
+                im.load()
+            continue
+        try:
+            with Image.open(io.BytesIO(source)) as im:
+                check_image_size(im, path, label)
+                im.load()
+        except ScanError:
+            raise
+        except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError, DecompressionBombError...
+            raise ScanError(path, f"{label} cannot be decoded ({type(e).__name__}: "
+                                  f"{(str(e).strip().splitlines() or [''])[0][:80]})") from None
+    return files
+
+
 def read_with_trimesh(path: str | Path) -> Scan:
     path = Path(path)
+    suffix = path.suffix.lower()
+    inputs, ply, ply_texture = [path], None, None
+    if suffix == ".stl":
+        _check_stl(path)
+    elif suffix in (".glb", ".gltf"):
+        inputs += _check_gltf_images(path)
+    elif suffix == ".ply":
+        from scantex.io.images import read_image
+        from scantex.io.ply import check_ply
+
+        try:
+            ply = check_ply(path)
+        except ScanError as e:
+            raise ScanError(path, f"cannot read PLY file: {e.problem}") from None
+        if ply.texture:
+            texture = path.parent / ply.texture.replace("\\", "/")
+            ply_texture = read_image(texture)  # refused here, before trimesh prints its own traceback
+            inputs.append(texture)
     scene = _load_scene(path)
     # meshes in the file's order (the graph's own node order is not the file's)
     nodes = [n for name in scene.geometry for n in scene.graph.geometry_nodes.get(name, [])]
@@ -103,8 +215,17 @@ def read_with_trimesh(path: str | Path) -> Scan:
     if any(c is not None for c in fcolors):
         face_colors = np.concatenate([c[:, :4] if c is not None else np.full((len(f), 4), 255, np.uint8)
                                       for c, f in zip(fcolors, faces)])
+    if ply is not None:
+        if (len(all_pos), len(all_faces)) != (ply.vertices, ply.triangles):
+            raise ScanError(path, f"read as {len(all_pos)} vertices and {len(all_faces)} triangles, but the "
+                                  f"file declares {ply.vertices} and {ply.triangles}: refused rather than "
+                                  "changing the geometry")
+        # trimesh gives a PLY with UVs and no texture a 2x2 placeholder image: the texture is the file's
+        # own TextureFile, read above, or none
+        image = ply_texture if scan_uvs is not None else None
+        materials = [dataclasses.replace(m, image=image) for m in materials]
     return Scan(all_pos, all_faces, scan_uvs, face_uvs, np.concatenate(face_mat), tuple(materials),
-                vertex_colors=vertex_colors, face_colors=face_colors, source=path)
+                vertex_colors=vertex_colors, face_colors=face_colors, source=path, inputs=tuple(inputs))
 
 
 def _split_for_gltf(scan: Scan, faces_sel: np.ndarray):

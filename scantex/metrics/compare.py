@@ -35,12 +35,23 @@ def read_photos(path: str | Path) -> list[tuple[Camera, np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         raise ScanError(path, "cameras file not found")
+    from scantex.photos.conventions import check_intrinsics, check_pose
+    from scantex.photos.files import load_frames_file
+
+    path, _, frames = load_frames_file(path, "cameras.json")
     try:
-        frames = json.loads(path.read_text())["frames"]
-        pairs = [(Camera.from_dict(f), f["image"]) for f in frames]
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as e:
+        pairs = []
+        for i, f in enumerate(frames):
+            K = np.asarray(f["K"], dtype=np.float64)
+            if K.shape != (3, 3):
+                raise ValueError(f"frame {i}: K has shape {K.shape}")
+            width, height = check_intrinsics(K, f["width"], f["height"], path, f"frame {i}")
+            w2c = check_pose(f["world_to_camera"], path, f"frame {i}")
+            pairs.append((Camera(K, w2c, width, height), str(f["image"])))
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
+        detail = (str(e).strip().splitlines() or [""])[0][:80]
         raise ScanError(path, f"not a cameras file with frames of image, width, height, K, world_to_camera "
-                              f"({type(e).__name__}: {e})") from None
+                              f"({type(e).__name__}: {detail})") from None
     photos = []
     for cam, name in pairs:
         image = read_image(path.parent / name)

@@ -70,7 +70,7 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
             width, height = frame["width"], frame["height"]
         else:
             width, height = image_size(image)
-        check_intrinsics(K, width, height, path, what)
+        width, height = check_intrinsics(K, width, height, path, what)
         camera = Camera(K, w2c, width, height)
         distortion = _distortion(frame.get("distortion"), path, what)
         distortions.append(accept_distortion(distortion, camera, max_distortion_px, path, what))

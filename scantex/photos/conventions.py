@@ -63,13 +63,36 @@ def check_pose(matrix, where: Path, what: str) -> np.ndarray:
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
         raise ScanError(where, f"{what}: pose's last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
     R = m[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+    if np.abs(R).max() > 2 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
         raise ScanError(where, f"{what}: pose's rotation is not a rotation (scaled or mirrored poses "
                                "are not supported)")
     return m
 
 
-def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> None:
+#: largest photo side accepted, pixels (a 100-megapixel sensor is about 12000 wide)
+MAX_PHOTO_SIDE = 65536
+
+
+def pixel_count(value, key: str, where: Path, what: str) -> int:
+    """``value`` as a positive whole number of pixels (at most :data:`MAX_PHOTO_SIDE`), else a ScanError."""
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ScanError(where, f"{what}: '{key}' is not a number of pixels ({str(value)[:40]!r})")
+    if not np.isfinite(value) or value != int(value):
+        raise ScanError(where, f"{what}: '{key}' is not a whole number of pixels ({value!r})")
+    if not 0 < value <= MAX_PHOTO_SIDE:
+        raise ScanError(where, f"{what}: '{key}' is {int(value)}, expected 1 to {MAX_PHOTO_SIDE} pixels")
+    return int(value)
+
+
+def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tuple[int, int]:
+    """Check a pinhole camera's ``K`` and image size; returns ``(width, height)`` as ints."""
+    width = pixel_count(width, "width", where, what)
+    height = pixel_count(height, "height", where, what)
     K = np.asarray(K, dtype=np.float64)
     if not np.isfinite(K).all():
         raise ScanError(where, f"{what}: intrinsics have non-finite values")
@@ -78,8 +101,7 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> No
     if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
         raise ScanError(where, f"{what}: intrinsics {K.tolist()} are not of the form "
                                "[[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
-    if int(width) <= 0 or int(height) <= 0:
-        raise ScanError(where, f"{what}: image size {width}x{height} is not positive")
+    return width, height
 
 
 def intrinsics(fx, fy, cx, cy, *, pixel_centre: float) -> np.ndarray:

@@ -47,6 +47,8 @@ def load_json(path: Path):
         raise ScanError(path, f"not valid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
     except UnicodeDecodeError:
         raise ScanError(path, "not valid JSON (not UTF-8 text)") from None
+    except RecursionError:
+        raise ScanError(path, "not a camera file (JSON nested too deeply)") from None
     except OSError as e:
         raise ScanError(path, f"cannot read the file ({e.strerror})") from None
 

@@ -41,6 +41,7 @@ from scantex.photos.conventions import (
     MAX_DISTORTION_PX,
     accept_distortion,
     check_intrinsics,
+    pixel_count,
     check_pose,
     intrinsics,
     opengl_camera_to_world,
@@ -94,20 +95,24 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
             raise ScanError(path, f"{what}: missing 'file_path'")
         image = _image_path(base, str(frame["file_path"]), path, what)
         if get("w") is not None and get("h") is not None:
-            width, height = int(number(scope, "w", path, what)), int(number(scope, "h", path, what))
+            width = pixel_count(need(scope, "w", path, what), "w", path, what)
+            height = pixel_count(need(scope, "h", path, what), "h", path, what)
         else:
             width, height = image_size(image)
         if get("fl_x") is not None:
             fx = number(scope, "fl_x", path, what)
             fy = number(scope, "fl_y", path, what) if get("fl_y") is not None else fx
         elif get("camera_angle_x") is not None:
-            fx = fy = 0.5 * width / math.tan(0.5 * number(scope, "camera_angle_x", path, what))
+            angle = number(scope, "camera_angle_x", path, what)
+            if not 0 < angle < math.pi:
+                raise ScanError(path, f"{what}: camera_angle_x is {angle!r}, expected radians between 0 and pi")
+            fx = fy = 0.5 * width / math.tan(0.5 * angle)
         else:
             raise ScanError(path, f"{what}: no focal length ('fl_x' or 'camera_angle_x')")
         cx = number(scope, "cx", path, what) if get("cx") is not None else width / 2
         cy = number(scope, "cy", path, what) if get("cy") is not None else height / 2
         K = intrinsics(fx, fy, cx, cy, pixel_centre=CORNER_CONVENTION)
-        check_intrinsics(K, width, height, path, what)
+        width, height = check_intrinsics(K, width, height, path, what)
 
         c2w = check_pose(need(frame, "transform_matrix", path, what), path, what)
         if applied is not None and undo_applied_transform:

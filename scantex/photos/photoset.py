@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
+from scantex.io.images import open_image
 from scantex.views.camera import Camera
 
 #: metres per depth-map unit in every format scantex reads: uint16 PNG in millimetres
@@ -138,16 +139,13 @@ class PhotoSet:
             ScanError: the file is missing, not an image, or not of its camera's size.
         """
         path = self.images[i]
-        with _open_image(path) as im:
+        with open_image(path, "photo") as im:
             size = im.size
             cam = self.cameras[i]
             if size != (cam.width, cam.height):
                 raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
                                       f"{cam.width}x{cam.height}")
-            try:
-                return np.asarray(im.convert("RGB"))
-            except (OSError, SyntaxError, ValueError) as e:
-                raise ScanError(path, f"photo is damaged or truncated ({e})") from None
+            return np.asarray(im.convert("RGB"))
 
     def load_depth(self, i: int) -> np.ndarray | None:
         """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,
@@ -155,7 +153,8 @@ class PhotoSet:
         path = self.depths[i]
         if path is None:
             return None
-        with _open_image(path) as im:
+        with open_image(path, "depth map") as im:
+            im.load()  # decode inside the block: a truncated file becomes a clean error
             raw = np.asarray(im)
         if raw.ndim != 2 or raw.dtype.kind not in "ui":
             raise ScanError(path, f"depth map is not a single-channel integer image (mode {im.mode})")
@@ -164,20 +163,7 @@ class PhotoSet:
         return depth
 
 
-def _open_image(path: Path):
-    from PIL import Image, UnidentifiedImageError
-
-    if not path.is_file():
-        raise ScanError(path, "photo not found")
-    try:
-        return Image.open(path)
-    except UnidentifiedImageError:
-        raise ScanError(path, "not an image Pillow can read") from None
-    except OSError as e:
-        raise ScanError(path, f"cannot read the image ({e})") from None
-
-
 def image_size(path: Path) -> tuple[int, int]:
-    """``(width, height)`` of an image file, from its header."""
-    with _open_image(path) as im:
+    """``(width, height)`` of an image file, from its header (checked against the size limit)."""
+    with open_image(path, "photo") as im:
         return im.size

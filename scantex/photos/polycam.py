@@ -29,13 +29,14 @@ from scantex.photos.conventions import (
     CORNER_CONVENTION,
     MAX_DISTORTION_PX,
     check_intrinsics,
+    pixel_count,
     check_pose,
     intrinsics,
     opengl_camera_to_world,
     principal_point,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import check_sizes, copy_into, load_json, number
+from scantex.photos.files import check_sizes, copy_into, load_json, need, number
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera
 
@@ -87,11 +88,12 @@ def load_polycam(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
         doc = load_json(file)
         what = "camera"
         c2w = check_pose([number(doc, k, file, what) for k in POSE_KEYS], file, what)
-        width, height = int(number(doc, "width", file, what)), int(number(doc, "height", file, what))
+        width = pixel_count(need(doc, "width", file, what), "width", file, what)
+        height = pixel_count(need(doc, "height", file, what), "height", file, what)
         K = intrinsics(number(doc, "fx", file, what), number(doc, "fy", file, what),
                        number(doc, "cx", file, what), number(doc, "cy", file, what),
                        pixel_centre=CORNER_CONVENTION)
-        check_intrinsics(K, width, height, file, what)
+        width, height = check_intrinsics(K, width, height, file, what)
         cameras.append(Camera(K, world_to_camera_from_opengl(c2w), width, height))
         depth = root / "depth" / f"{image.stem}.png"
         depths.append(depth if depth.is_file() else None)

@@ -86,7 +86,7 @@ def load_3dscannerapp(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
             raise ScanError(file, f"intrinsics have {K.size} numbers, expected 9 (row-major 3x3)")
         K = K.reshape(3, 3).copy()
         width, height = image_size(image)
-        check_intrinsics(K, width, height, file, "intrinsics")
+        width, height = check_intrinsics(K, width, height, file, "intrinsics")
         K[:2, 2] -= CORNER_CONVENTION
         cameras.append(Camera(K, world_to_camera_from_opengl(c2w), width, height))
         images.append(image)

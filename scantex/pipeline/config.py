@@ -169,9 +169,16 @@ class EnhanceConfig:
 
     @classmethod
     def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
+        """The config a ``config.json`` document describes; every value is checked (:func:`validate`).
+
+        Raises:
+            ScanError: an unknown key, or a value of the wrong type or out of its range.
+        """
         subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
                 "bake": BakeConfig, "photos": PhotosConfig,
                 "refine": RefineConfig}
+        if not isinstance(d, dict):
+            raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
         kwargs = {}
         for key, value in d.items():
             if key in subs:
@@ -180,7 +187,7 @@ class EnhanceConfig:
                 kwargs[key] = value
             else:
                 raise ScanError(where, f"unknown config key '{key}'")
-        return cls(**kwargs)
+        return validate(cls(**kwargs), where)
 
     def override(self, **dotted) -> EnhanceConfig:
         """A copy with ``section__name=value`` (or top-level ``name=value``) settings changed."""
@@ -197,6 +204,8 @@ class EnhanceConfig:
 
 
 def _build(cls, values: dict, where, section: str):
+    if not isinstance(values, dict):
+        raise ScanError(where, f"config '{section}' must be an object of settings, not {str(values)[:40]!r}")
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(values) - names
     if unknown:
@@ -235,8 +244,90 @@ def load_config(path: str | Path) -> EnhanceConfig:
         raise ScanError(path, "config file not found") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ScanError(path, f"not a JSON config ({e})") from None
+    except RecursionError:
+        raise ScanError(path, "not a config (JSON nested too deeply)") from None
+    except OSError as e:
+        raise ScanError(path, f"cannot read the config ({e.strerror})") from None
     return EnhanceConfig.from_dict(d, path)
 
 
 def save_config(config: EnhanceConfig, path: str | Path) -> None:
     Path(path).write_text(json.dumps(config.to_dict(), indent=2))
+
+
+# -- validation ---------------------------------------------------------------------------------
+
+#: allowed values of every setting that is not free: ``(low, high)`` inclusive bounds for numbers
+#: (``None``: unbounded), or a tuple of choices for strings. Types come from the dataclasses' annotations.
+BIG = 1 << 31
+RANGES: dict[str, tuple] = {
+    "seed": (0, 2**32 - 1), "threads": (0, 4096), "device": ("auto", "cpu", "cuda"),
+    "views.n_views": (2, 10_000), "views.width": (8, 8192), "views.height": (8, 8192),
+    "views.fov_deg": (1.0, 170.0), "views.mode": ("auto", "orbit", "hemisphere", "surface"),
+    "views.up": ("auto", "x", "y", "z"), "views.supersample": (1, 8), "views.test_fraction": (0.01, 0.9),
+    "field.encoding": ("hash", "frequency"), "field.hidden": (1, 4096), "field.n_layers": (1, 32),
+    "field.log2_table_size": (4, 26), "field.n_levels": (1, 32), "field.max_resolution": (2, 1 << 20),
+    "field.n_freqs": (1, 24),
+    "train.steps": (1, BIG), "train.batch_rays": (1, 1 << 24), "train.lr": (1e-12, 100.0),
+    "train.n_samples": (1, 256), "train.band_width": (1e-9, 1.0), "train.appearance_lr": (0.0, 100.0),
+    "train.appearance_reg": (0.0, 1e9), "train.coarse_to_fine": (0.0, 1.0), "train.start_levels": (1, 32),
+    "train.checkpoint_every": (1, BIG),
+    "uv.mode": ("keep", "optimize", "unwrap"), "uv.threshold": (1.0, 1e6), "uv.time_budget_s": (0.0, 1e9),
+    "uv.band_texels": (0.0, 1024.0),
+    "bake.texture_size": (0, 16384), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
+    "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
+    "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
+    "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
+    "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
+    "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
+    "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),
+    "refine.view_scale": (1.0, 8.0), "refine.max_views": (1, 10_000), "refine.diffusion_strength": (0.0, 1.0),
+    "refine.diffusion_steps": (1, BIG),
+}
+
+
+def validate(config: EnhanceConfig, where=None) -> EnhanceConfig:
+    """Return ``config`` when every setting has its field's type (int, float, bool, str) and lies in its
+    range (:data:`RANGES`), else raise a one-line :class:`ScanError` naming the setting.
+
+    Driven by the dataclasses' own annotations, so a new field is type-checked without being listed.
+    """
+    import math
+    import typing
+
+    def check(obj, prefix: str) -> None:
+        hints = typing.get_type_hints(type(obj))
+        for f in dataclasses.fields(obj):
+            name, value, kind = prefix + f.name, getattr(obj, f.name), hints[f.name]
+            if dataclasses.is_dataclass(kind):
+                check(value, name + ".")
+                continue
+            bad = f"config '{name}' is {repr(value)[:40]}, expected"
+            if kind is bool:
+                if not isinstance(value, bool):
+                    raise ScanError(where, f"{bad} true or false")
+            elif kind is int:
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ScanError(where, f"{bad} a whole number")
+            elif kind is float:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ScanError(where, f"{bad} a finite number")
+            elif kind is str and not isinstance(value, str):
+                raise ScanError(where, f"{bad} a string")
+            allowed = RANGES.get(name)
+            if allowed is None:
+                continue
+            if isinstance(allowed[0], str):
+                if value not in allowed:
+                    raise ScanError(where, f"{bad} one of {', '.join(allowed)}")
+            elif not allowed[0] <= value <= allowed[1]:
+                raise ScanError(where, f"{bad} {allowed[0]!r} to {allowed[1]!r}")
+
+    check(config, "")
+    if config.train.start_levels > config.field.n_levels:
+        raise ScanError(where, f"config 'train.start_levels' ({config.train.start_levels}) is more than "
+                               f"'field.n_levels' ({config.field.n_levels})")
+    if config.refine.crop % config.refine.patch:
+        raise ScanError(where, f"config 'refine.crop' ({config.refine.crop}) is not a multiple of "
+                               f"'refine.patch' ({config.refine.patch})")
+    return config

@@ -261,6 +261,26 @@ def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
     return colour, {"mode": "projective", **report}
 
 
+def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
+    """A digest of what a field checkpoint depends on: the scan's geometry and UVs, the photos' cameras
+    and the settings (but the step count, which a resumed run may raise): ``--resume`` refuses another's."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    for array in (scan.positions, scan.faces, scan.uvs, scan.face_uvs):
+        if array is not None:
+            h.update(np.ascontiguousarray(array).tobytes())
+    settings = config.to_dict()
+    settings["train"] = {k: v for k, v in settings["train"].items() if k not in ("steps", "checkpoint_every")}
+    for key in ("device", "threads"):
+        settings.pop(key, None)
+    h.update(json.dumps(settings, sort_keys=True, default=str).encode())
+    if photos is not None:
+        h.update(json.dumps([c.to_dict() for c in photos.cameras], default=str).encode())
+    return h.hexdigest()[:16]
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -286,6 +306,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     from scantex.uv import blend_seams, plan_uvs
 
+    from scantex.errors import ScanError
+    from scantex.pipeline.config import validate
+
+    validate(config)
     reporter = reporter or Reporter()
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
@@ -337,6 +361,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                                                  config.photos.synthetic_weight,
                                                                  config.photos.canonical)
         n_groups += chart_offset
+    if len(data) == 0:
+        raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
+                                     "(are its faces degenerate or collinear?)")
     lo, hi = scan.bounds
     normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
     band = tc.band_width * float(np.linalg.norm(hi - lo))
@@ -346,13 +373,16 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                                log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
                                max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
                                use_viewdirs=fs.use_viewdirs)
-    checkpoint = Path(work_dir) / "field.pt" if work_dir is not None else None
+    from scantex.pipeline.outputs import CHECKPOINT
+
+    checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
     with reporter.stage("training the field") as update:
         gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
         if gains is not None and chart_offset:
             gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
         fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
                            seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
+                           run_key=run_key(scan, config, photos),
                            initial_gains=gains, appearance_weights=appearance_weights)
     timings["train"] = time.perf_counter() - t
 

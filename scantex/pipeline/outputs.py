@@ -11,9 +11,37 @@ from scantex.pipeline.config import save_config
 from scantex.views.viewset import write_views
 
 
+#: the files an enhance run keeps in its work folder: the field checkpoint and its temporary
+CHECKPOINT, CHECKPOINT_TMP = "field.pt", "field.tmp"
+
+
 def work_dir_for(output: Path) -> Path:
     """Where an unfinished run keeps its checkpoints (kept for --resume until the run completes)."""
     return output.with_name(output.name + ".partial")
+
+
+def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = True) -> Path | None:
+    """Clean up an enhance run's work folder; returns the checkpoint kept, if any.
+
+    Only the files the run writes there are removed, then the folder if it is empty: a failed run
+    leaves no ``OUT.partial/`` behind unless it holds a field checkpoint that ``--resume`` continues
+    from (``keep_checkpoint``; a kill -9 during training leaves one the same way).
+    """
+    work = Path(work)
+    if not work.is_dir():
+        return None  # never made, or a file of the user's that only has the work folder's name
+    checkpoint = work / CHECKPOINT
+    (work / CHECKPOINT_TMP).unlink(missing_ok=True)
+    if keep_checkpoint and checkpoint.is_file():
+        return checkpoint
+    checkpoint.unlink(missing_ok=True)
+    if not remove_folder:
+        return None
+    try:
+        work.rmdir()
+    except OSError:
+        pass  # missing, or holding files that are not the run's: left as they are
+    return None
 
 
 def write_outputs(result, out_dir: str | Path) -> None:
