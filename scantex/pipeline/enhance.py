@@ -551,7 +551,8 @@ def used_texels(scan: Scan) -> int:
     if not scan.is_textured:
         return 0
     uv = scan.triangle_uvs
-    area = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]))
+    a, b = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
     total = 0.0
     for m, material in enumerate(scan.materials):
         if material.image is not None:

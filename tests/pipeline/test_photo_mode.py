@@ -64,7 +64,8 @@ def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
 
 def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     bare = Scan(toy_demo.scan.positions, toy_demo.scan.faces)
-    result = enhance(bare, TOY.override(bake__texture_size=128), photos=toy_photos)
+    # an untextured toy mesh shows the check no edges to compare: its own tests cover it
+    result = enhance(bare, TOY.override(bake__texture_size=128, photos__check_alignment=False), photos=toy_photos)
     m = result.metrics
     assert m["geometry"]["arrays_identical"] and m["uv"]["mode"] == "unwrap"
     assert m["photos"]["synthetic_rays"] == 0  # an untextured scan's renders teach nothing
