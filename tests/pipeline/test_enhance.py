@@ -127,8 +127,19 @@ def test_chart_appearance_inverts():
     assert float(ChartAppearance(3).regulariser()) == 0.0
 
 
-def test_detail_transfer_keeps_geometry_and_changes_texture(toy_demo, toy_result):
-    with_detail = enhance(toy_demo.scan, TOY.override(bake__detail=1.0), ground_truth=toy_demo.ground_truth)
+def test_detail_transfer_keeps_geometry_and_changes_texture(toy_demo):
+    # bake.detail belongs to the field bake (bake.source = field)
+    field = TOY.override(bake__source="field", refine__enabled=False)
+    plain = enhance(toy_demo.scan, field, ground_truth=toy_demo.ground_truth)
+    with_detail = enhance(toy_demo.scan, field.override(bake__detail=1.0), ground_truth=toy_demo.ground_truth)
     assert with_detail.metrics["geometry"]["arrays_identical"]
-    a, b = toy_result.scan.materials[0].image, with_detail.scan.materials[0].image
+    assert plain.metrics["bake"]["source"] == "field"
+    a, b = plain.scan.materials[0].image, with_detail.scan.materials[0].image
     assert a.shape == b.shape and not np.array_equal(a, b)
+
+
+def test_default_bake_keeps_the_input_texels_and_reports_patches(toy_demo, toy_result):
+    m = toy_result.metrics
+    assert m["bake"]["source"] == "input" and m["bake"]["noise_threshold"] >= 0
+    assert 0 <= m["patches"]["enhanced_vs_input"] <= 1 and len(m["patches"]["per_view"]) == m["views"]["test"]
+    assert m["sampling"]["train_rays"] > 0 and m["sampling"]["used_input_texels"] > 0
