@@ -338,6 +338,8 @@ def enhance_summary(m: dict) -> str:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
                      f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    if not m.get("field", {}).get("trained", True):
+        lines.append(f"field: {m['field']['why']}")
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
         f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
     return "\n".join(lines)

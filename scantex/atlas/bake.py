@@ -20,20 +20,25 @@ from scantex.views.render import to_uint8
 SurfaceColour = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
-def output_size(scan: Scan, material: int, requested: int = 0, cap: int = 8192) -> tuple[int, int]:
-    """Atlas size for a material: ``requested`` square, or twice the input atlas (at most ``cap``)."""
+def output_size(scan: Scan, material: int, requested: int = 0, cap: int = 8192, scale: int = 2) -> tuple[int, int]:
+    """Atlas size for a material: ``requested`` square, or ``scale`` times the input atlas (at most ``cap``;
+    never below the input's own size)."""
     if requested:
         return requested, requested
     image = scan.materials[material].image
     if image is None:
         return 1024, 1024
     H, W = image.shape[:2]
-    return min(2 * H, cap), min(2 * W, cap)
+    return max(H, min(scale * H, cap)), max(W, min(scale * W, cap))
 
 
-def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384,
+def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, chunk: int = 16384,
          progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, ...]:
     """New ``(H, W, 3) uint8`` images, one per material (``None`` for materials without UVs/faces).
+
+    Each is ``size`` square, or ``scale`` times its input atlas (:func:`output_size`). At ``scale`` 1 on
+    the input's own UVs every texel centre is an input texel centre, so a colour that returns the
+    input's texture unchanged bakes the input's texels exactly.
 
     Every texel some triangle covers gets ``colour`` at its surface point; the rest are filled from the
     nearest covered texel (gutter padding).
@@ -49,7 +54,7 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384
     tri_uv = scan.triangle_uvs
     corners = scan.triangles
     normals = scan.face_normals
-    plans = _plans(scan, size)
+    plans = _plans(scan, size, scale)
     total = sum(_estimated_texels(tri_uv[p[0]], p[1], p[2]) for p in plans if p is not None)
     images, done = [], 0
     for plan in plans:
@@ -91,13 +96,14 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384
     return tuple(images)
 
 
-def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: int = 16384) -> tuple[np.ndarray, ...]:
+def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2,
+                   chunk: int = 16384) -> tuple[np.ndarray, ...]:
     """Slow, plainly correct twin of :func:`bake`: the whole atlas's texel map, points and colours at
     once (~100 bytes a texel: 6-7 GB at 8192^2; for tests)."""
     corners = scan.triangles
     normals = scan.face_normals
     images = []
-    for plan in _plans(scan, size):
+    for plan in _plans(scan, size, scale):
         if plan is None:
             images.append(None)
             continue
@@ -117,12 +123,12 @@ def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, chunk: i
     return tuple(images)
 
 
-def _plans(scan: Scan, size: int) -> list[tuple[np.ndarray, int, int] | None]:
+def _plans(scan: Scan, size: int, scale: int = 2) -> list[tuple[np.ndarray, int, int] | None]:
     """Per material: its faces and atlas height and width, or ``None`` when it has no faces."""
     plans = []
     for m in range(len(scan.materials)):
         faces = np.flatnonzero(scan.face_materials == m)
-        plans.append((faces, *output_size(scan, m, size)) if faces.size else None)
+        plans.append((faces, *output_size(scan, m, size, scale=scale)) if faces.size else None)
     return plans
 
 

@@ -42,6 +42,14 @@ log = logging.getLogger(__name__)
 _FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
 #: points per call of a colour function (bounded memory)
 CHUNK = 65536
+#: a denoising threshold below half an 8-bit step cannot change a stored texel: denoising is then skipped
+NOISE_FLOOR = 0.5 / 255
+
+
+def denoising_matters(noise: float, denoise: float) -> bool:
+    """Whether removing residuals up to ``denoise`` times the atlas's ``noise`` level can change a
+    stored (8-bit) texel; when it cannot, the field has nothing to do in the default bake."""
+    return denoise * noise >= NOISE_FLOOR
 
 
 def estimate_noise(image: np.ndarray, mask: np.ndarray | None = None, *, max_tiles: int = 64,

@@ -85,6 +85,9 @@ class TrainConfig:
     """hash-grid levels active at the first step"""
     checkpoint_every: int = 250
     """steps between checkpoints (for --resume)"""
+    always: bool = False
+    """train the field even when nothing uses it: mesh-only mode with bake.source input uses it only to
+    denoise, which is skipped on an atlas whose noise is below what denoising can change"""
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,8 @@ class UVConfig:
 @dataclass(frozen=True)
 class BakeConfig:
     texture_size: int = 0
-    """output atlas size in texels (0: twice the input atlas, at most 8192)"""
+    """output atlas size in texels (0: the input atlas's size when bake.source is input on the input's UVs,
+    so its texels are kept exactly; otherwise twice it, at most 8192)"""
     chunk: int = 16384
     """texels evaluated per field call (bounded memory)"""
     source: str = "input"

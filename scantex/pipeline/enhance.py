@@ -144,9 +144,21 @@ def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarr
     return np.bincount(hit, minlength=n_faces) >= min_rays
 
 
+def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
+    """Whether the run bakes the input's own texels (mesh-only mode, ``bake.source`` input, a textured scan)."""
+    if config.bake.source not in ("input", "field"):
+        from scantex.errors import ScanError
+
+        raise ScanError(None, f"bake.source must be 'input' or 'field', not '{config.bake.source}'")
+    return photos is None and scan.is_textured and config.bake.source == "input"
+
+
 def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
-                     config: BakeConfig) -> tuple[SurfaceColour, dict]:
-    """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report."""
+                     config: BakeConfig, noise: float | None = None) -> tuple[SurfaceColour, dict]:
+    """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report.
+
+    ``fitted`` may be ``None`` with ``bake.source`` input: no denoising (the field was not trained,
+    see :func:`enhance`). ``noise``: the atlas's noise level when already estimated."""
     from scantex.atlas.colour import atlas_noise, field_colour, levelled_input_colour
     from scantex.atlas.levelling import seam_offsets
 
@@ -157,10 +169,10 @@ def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, c
     if config.source == "field" or not scan.is_textured:
         return field_colour(scan, fitted, fill, taught, charts, device, detail=config.detail), {"source": "field"}
     offsets = seam_offsets(scan, exclude=fill) if config.levelling else np.zeros((len(scan.uvs), 3))
-    noise = atlas_noise(scan, exclude=fill)
+    noise = atlas_noise(scan, exclude=fill) if noise is None else noise
     colour = levelled_input_colour(scan, offsets, fill, fitted=fitted, taught=taught, charts=charts, device=device,
                                    noise_threshold=config.denoise * noise)
-    return colour, {"source": "input", "noise_level": round(noise, 5),
+    return colour, {"source": "input", "noise_level": round(noise, 5), "denoised": fitted is not None,
                     "noise_threshold": round(config.denoise * noise, 5),
                     "levelling_offset_mean": round(float(np.abs(offsets).mean()) if offsets.size else 0.0, 5),
                     "levelling_offset_max": round(float(np.abs(offsets).max()) if offsets.size else 0.0, 5)}
@@ -376,14 +388,28 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     from scantex.pipeline.outputs import CHECKPOINT
 
     checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
-    with reporter.stage("training the field") as update:
-        gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
-        if gains is not None and chart_offset:
-            gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
-        fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
-                           seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
-                           run_key=run_key(scan, config, photos),
-                           initial_gains=gains, appearance_weights=appearance_weights)
+    # the default bake keeps the input's texels and uses the field only to denoise them: on an atlas
+    # whose noise is below what denoising can change (most app exports), the field has no use
+    noise, field_skipped = None, None
+    if keeps_input_texels(scan, config, photos):
+        from scantex.atlas.colour import atlas_noise, denoising_matters
+
+        noise = atlas_noise(scan, exclude=excluded)
+        if not (tc.always or denoising_matters(noise, config.bake.denoise)):
+            field_skipped = (f"not trained: the atlas's estimated noise ({noise:.4f}) times bake.denoise "
+                             f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
+                             f"field could not change a texel (train.always trains it anyway)")
+            log.info("field %s", field_skipped)
+    fitted = None
+    if field_skipped is None:
+        with reporter.stage("training the field") as update:
+            gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
+            if gains is not None and chart_offset:
+                gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
+            fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
+                               seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
+                               run_key=run_key(scan, config, photos),
+                               initial_gains=gains, appearance_weights=appearance_weights)
     timings["train"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -409,7 +435,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
     if photo is None:
-        colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake)
+        colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake, noise)
     else:
         from scantex.atlas.colour import field_colour
 
@@ -435,7 +461,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     t = time.perf_counter() - bake_seconds
     with reporter.stage("baking the texture") as update:
         target = plan.scan
-        images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size,
+        # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
+        # the size would only resample them); a field or the photos hold detail worth a finer atlas
+        scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
+        images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
                       chunk=config.bake.chunk, progress=update)
     materials = tuple(
         m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
@@ -451,7 +480,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
+        metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())
         metrics["field"]["untaught_faces"] = int((~taught & ~fill).sum())
+        if field_skipped is not None:
+            metrics["field"]["why"] = field_skipped
         metrics["bake"] = bake_report
         metrics["sampling"] = sampling_report(scan, tv, taught, fill)
         if refine_report is not None:
@@ -510,8 +542,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                   "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
         "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
                   "coverage": coverage.summary()},
-        "field": {"train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run, "final_loss": float(np.mean(fitted.losses[-50:])),
-                  "train_rays": int(tv.valid[tv.views.train].sum())},
+        "field": {"trained": True, "train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run,
+                  "final_loss": float(np.mean(fitted.losses[-50:]))} if fitted is not None else {"trained": False},
         # each texture is measured along its own layout's seams
         "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
                             "enhanced": round(seam_visibility(enhanced), 3)},

@@ -13,7 +13,7 @@ from scantex.atlas.padding import pad_gutters
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.atlas.texelmap import covered_texels, texel_map, texel_map_reference
 from scantex.scan import Material, Scan
-from scantex.views.render import sample_texture
+from scantex.views.render import sample_texture, shade_hits
 from tests.conftest import checker, grid_wall
 
 
@@ -112,6 +112,21 @@ def test_bake_of_the_texture_lookup_reproduces_the_texture(wall):
     (baked,) = bake(wall, colour, size=image.shape[0])
     inner = (slice(2, -2), slice(2, -2))
     assert np.abs(baked[inner].astype(int) - image[inner].astype(int)).max() <= 1
+
+
+def test_bake_at_the_input_size_keeps_every_covered_texel_exactly(wall):
+    """scale 1 on the input's own UVs: texel centres coincide, so the lookup bakes the very texels
+    (scale 2, the field bake's default, resamples them)."""
+    image = wall.materials[0].image
+
+    def colour(points, normals, faces, bary):
+        return shade_hits(wall, faces, bary)
+
+    (same,) = bake(wall, colour, scale=1)
+    (double,) = bake(wall, colour)
+    covered = covered_texels(wall.triangle_uvs, *image.shape[1::-1])
+    assert same.shape == image.shape and double.shape == (2 * image.shape[0], 2 * image.shape[1], 3)
+    assert covered.mean() > 0.5 and np.array_equal(same[covered], image[covered])
 
 
 def test_bake_keeps_layout_per_material(cube):

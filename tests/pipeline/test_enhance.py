@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -55,16 +56,45 @@ def test_texture_beats_input_against_ground_truth(toy_result):
     assert m["input"]["hole_faces"] > 0
 
 
-def test_output_atlas_is_twice_the_input(toy_demo, toy_result):
+def test_output_atlas_keeps_the_input_size_and_layout(toy_demo, toy_result):
+    """The default bake keeps the input's texels on its layout, at its size; the field bake doubles it."""
     (img,) = [m.image for m in toy_result.scan.materials]
-    assert img.shape[:2] == (128, 128)
+    assert img.shape[:2] == (64, 64)
     assert np.array_equal(toy_result.scan.uvs, toy_demo.scan.uvs)
+    field = enhance(toy_demo.scan, TOY.override(bake__source="field", train__steps=5))
+    assert field.scan.materials[0].image.shape[:2] == (128, 128)
+
+
+def test_field_is_trained_only_when_something_uses_it(toy_demo):
+    """The default bake uses the field only to denoise: a clean atlas skips it (and says why); a noisy
+    one, train.always and the field bake train it."""
+    from scantex.atlas.colour import NOISE_FLOOR, atlas_noise
+
+    cfg = TOY.override(train__steps=5)
+    H, W = toy_demo.scan.materials[0].image.shape[:2]
+    smooth = np.stack([*np.meshgrid(np.linspace(40, 200, W), np.linspace(60, 180, H)), np.full((H, W), 120.0)], -1)
+    noisy_image = np.clip(smooth + np.random.default_rng(0).normal(0, 8, smooth.shape), 0, 255)
+
+    def with_image(image):
+        material = dataclasses.replace(toy_demo.scan.materials[0], image=image.astype(np.uint8))
+        return toy_demo.scan.replace(materials=(material,))
+
+    clean, noisy = with_image(smooth), with_image(noisy_image)
+    assert atlas_noise(clean) < NOISE_FLOOR < atlas_noise(noisy)
+
+    skipped = enhance(clean, cfg).metrics
+    assert skipped["field"]["trained"] is False and "noise" in skipped["field"]["why"]
+    assert skipped["bake"]["denoised"] is False and skipped["timings_s"]["train"] < 5
+    for scan, c in ((noisy, cfg), (clean, cfg.override(train__always=True)), (clean, cfg.override(bake__source="field"))):
+        m = enhance(scan, c).metrics
+        assert m["field"]["trained"] is True and m["field"]["steps_run"] == 5 and "why" not in m["field"]
+        assert m["bake"].get("denoised", True) is True
 
 
 def test_resume_continues_from_checkpoint(tmp_path, toy_demo):
     import torch
 
-    cfg = TOY.override(train__steps=60, train__checkpoint_every=20)
+    cfg = TOY.override(train__steps=60, train__checkpoint_every=20, train__always=True)
     enhance(toy_demo.scan, cfg, work_dir=tmp_path)
     ckpt = tmp_path / "field.pt"
     # the last checkpoint before the end is the state an interrupted run would resume from

@@ -1,0 +1,3 @@
+from scantex.cli import main
+
+raise SystemExit(main())

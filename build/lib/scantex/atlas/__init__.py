@@ -1,0 +1,1 @@
+"""Texture atlases: which surface point every texel shows (the texel map), and later the UV plan."""

@@ -1,0 +1,256 @@
+"""What colour the bake gives each surface point: the colour sources of mesh-only mode.
+
+Two sources, chosen by ``bake.source``:
+
+- ``"input"`` (the default): **the input's own texels, levelled and denoised**. The input atlas is the
+  best evidence there is of the surface's colour: a field fitted to renders of it at a ray per several
+  texels is blurrier than it, and switching between the two draws patches. So every valid texel keeps
+  the input's colour, changed only by
+
+  1. the local seam levelling of :func:`scantex.atlas.levelling.seam_offsets`: a smooth additive
+     offset per chart, interpolated from its UV vertices, that makes both sides of every seam agree
+     (it cannot put an edge anywhere but on a seam, where it removes one);
+  2. denoising against the field: the residual ``r = input - field`` (the field seen through the
+     chart's appearance transform, i.e. its prediction of the input) is split into a low-frequency
+     part, its mean over every vertex's faces interpolated over the surface, which is kept (the input's
+     own low frequencies stay the input's: no patch of the field gets in), and the rest, of which the
+     part smaller than ``noise_threshold`` is removed (clipped in magnitude): compression and sensor
+     noise go, detail stronger than the noise stays.
+
+  Holes (untextured faces and the ring of faces whose lookups bleed into them) get a harmonic
+  interpolation over the mesh of the colours around them.
+
+- ``"field"``: the paper's bake: the field's canonical colour on every taught face (optionally mixed
+  with ``detail`` of the input), the canonical input where no training ray reached, hole fill as above.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from scantex.atlas.bake import SurfaceColour
+from scantex.atlas.inpaint import harmonic_vertex_colours
+from scantex.scan import Scan
+from scantex.views.raycast import interpolate
+from scantex.views.render import shade_hits
+
+log = logging.getLogger(__name__)
+
+#: barycentric sample points per face for the residual's vertex means (centre, and inside each corner)
+_FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
+#: points per call of a colour function (bounded memory)
+CHUNK = 65536
+
+
+def estimate_noise(image: np.ndarray, mask: np.ndarray | None = None, *, max_tiles: int = 64,
+                   tile: int = 256) -> float:
+    """Standard deviation (0-1 scale) of the noise in ``image (H, W, C)``, robustly.
+
+    Immerkær's Laplacian-difference operator (zero on planes and linear ramps, 6 sigma on white noise)
+    on the luminance, its median absolute value over ``mask (H, W)`` (texels inside charts, away from
+    their borders) taken as the noise's (Donoho's MAD estimate): edges and texture are a minority of
+    texels and do not move a median. Large images are read in at most ``max_tiles`` tiles of ``tile``²
+    texels spread over the covered area (an 8192² atlas in a fraction of a second).
+    """
+    from scipy import ndimage
+
+    H, W = image.shape[:2]
+    mask = np.ones((H, W), bool) if mask is None else mask
+    ty, tx = max(1, H // tile), max(1, W // tile)
+    th, tw = H // ty, W // tx
+    cover = mask[:ty * th, :tx * tw].reshape(ty, th, tx, tw).mean(axis=(1, 3))
+    candidates = np.flatnonzero(cover.ravel() > 0.5)
+    if candidates.size == 0:
+        candidates = np.flatnonzero(cover.ravel() > 0)
+    if candidates.size > max_tiles:
+        candidates = candidates[np.linspace(0, candidates.size - 1, max_tiles).round().astype(int)]
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    weights = np.array([0.299, 0.587, 0.114], np.float32)
+    responses = []
+    for k in candidates:
+        y, x = divmod(int(k), tx)
+        ys, xs = slice(y * th, (y + 1) * th), slice(x * tw, (x + 1) * tw)
+        img = image[ys, xs].astype(np.float32) / (255.0 if image.dtype == np.uint8 else 1.0)
+        lum = img[..., :3] @ weights if img.ndim == 3 else img
+        response = np.abs(ndimage.convolve(lum, kernel, mode="nearest"))
+        inside = ndimage.binary_erosion(mask[ys, xs], iterations=2)
+        responses.append(response[inside])
+    values = np.concatenate(responses) if responses else np.zeros(0)
+    if values.size == 0:
+        return 0.0
+    return float(np.median(values) / 0.6745 / 6.0)
+
+
+def atlas_noise(scan: Scan, exclude: np.ndarray | None = None) -> float:
+    """The input atlases' noise level (:func:`estimate_noise` over the texels their faces cover,
+    ``exclude`` faces left out), weighted by covered texels; 0 for an untextured scan."""
+    from scantex.atlas.texelmap import texel_map
+
+    total, weight = 0.0, 0
+    for m, material in enumerate(scan.materials):
+        if material.image is None or not scan.has_uvs:
+            continue
+        faces = np.flatnonzero((scan.face_materials == m) & (True if exclude is None else ~exclude))
+        if faces.size == 0:
+            continue
+        H, W = material.image.shape[:2]
+        # a quarter-resolution texel map is enough to say which texels are inside charts
+        h, w = max(1, H // 4), max(1, W // 4)
+        covered = texel_map(scan.triangle_uvs, w, h, faces).mask
+        mask = np.repeat(np.repeat(covered, 4, axis=0), 4, axis=1)[:H, :W]
+        mask = np.pad(mask, ((0, H - mask.shape[0]), (0, W - mask.shape[1])))
+        n = int(mask.sum())
+        if n:
+            total += estimate_noise(material.image, mask) * n
+            weight += n
+    return total / weight if weight else 0.0
+
+
+def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray) -> SurfaceColour:
+    """``base`` outside the ``fill`` faces; inside, a harmonic interpolation over the mesh of ``base``'s
+    colours at the vertices around them (read through a non-fill face each)."""
+    outside = np.flatnonzero(~fill)
+    corner_face = np.full(scan.n_vertices, -1)
+    corner_slot = np.zeros(scan.n_vertices, int)
+    for k in range(3):
+        corner_face[scan.faces[outside, k]] = outside
+        corner_slot[scan.faces[outside, k]] = k
+    known = corner_face >= 0
+    vertex_rgb = np.zeros((scan.n_vertices, 3))
+    idx = np.flatnonzero(known)
+    corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
+    normals = scan.face_normals
+    for s in range(0, idx.size, CHUNK):
+        v = idx[s:s + CHUNK]
+        f = corner_face[v]
+        vertex_rgb[v] = base(scan.positions[v], normals[f], f, corner_bary[corner_slot[v]])
+    if fill.any():
+        vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
+
+    def colour(points, normals, face_ids, bary):
+        rgb = np.empty((len(face_ids), 3), np.float32)
+        hole = fill[face_ids]
+        if (~hole).any():
+            rgb[~hole] = base(points[~hole], normals[~hole], face_ids[~hole], bary[~hole])
+        if hole.any():
+            corners = vertex_rgb[scan.faces[face_ids[hole]]]  # [n, 3, 3]
+            b = bary[hole].astype(np.float64)
+            w = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)
+            rgb[hole] = np.einsum("nk,nkc->nc", w, corners)
+        return rgb
+
+    return colour
+
+
+def field_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device, *,
+                 detail: float = 0.0) -> SurfaceColour:
+    """The paper's bake (``bake.source = "field"``).
+
+    - taught faces: the field's canonical colour, mixed with ``detail`` of the input's own colour brought
+      to the canonical appearance by its chart's inverse transform (``field + detail * (input - field)``);
+    - faces no training ray reached but the input textures: that canonical input colour (a hash grid is
+      noise where nothing taught it);
+    - ``fill`` faces (holes and their border): a harmonic interpolation over the mesh of the colours
+      around them.
+    """
+    import torch
+
+    use_input = fitted.appearance is not None and scan.is_textured
+
+    def base(points, normals, face_ids, bary):
+        rgb = fitted.surface_colour(points, normals, device)
+        if not use_input:
+            return rgb
+        weight = np.where(taught[face_ids], detail, 1.0)[:, None]
+        sel = np.flatnonzero(weight[:, 0] > 0)
+        if sel.size:
+            observed = shade_hits(scan, face_ids[sel], bary[sel])
+            canon = fitted.appearance.canonical(torch.as_tensor(observed, device=device),
+                                                torch.as_tensor(charts[face_ids[sel]], device=device))
+            rgb[sel] = np.clip(rgb[sel] + weight[sel] * (canon.cpu().numpy() - rgb[sel]), 0, 1)
+        return rgb
+
+    return _with_hole_fill(scan, base, fill)
+
+
+def field_prediction(fitted, charts: np.ndarray, device):
+    """The field's prediction of the *input's* colour at surface points: its canonical colour seen
+    through the point's chart's appearance transform (what it was trained to match)."""
+    import torch
+
+    def predict(points, normals, face_ids):
+        rgb = fitted.surface_colour(points, normals, device)
+        if fitted.appearance is None:
+            return rgb
+        with torch.no_grad():
+            seen = fitted.appearance(torch.as_tensor(rgb, device=device),
+                                     torch.as_tensor(charts[face_ids], device=device))
+        return seen.cpu().numpy().astype(np.float32)
+
+    return predict
+
+
+def residual_vertex_means(scan: Scan, predict, usable: np.ndarray) -> np.ndarray:
+    """``(V, 3)`` mean of ``input - prediction`` over sample points of each vertex's ``usable`` faces
+    (0 at vertices with none): the low-frequency part of the residual, interpolated over faces."""
+    faces = np.flatnonzero(usable)
+    V = scan.n_vertices
+    sums = np.zeros((V, 3))
+    counts = np.zeros(V)
+    if faces.size == 0:
+        return sums
+    normals = scan.face_normals
+    S = len(_FACE_SAMPLES)
+    per_chunk = max(1, CHUNK // S)
+    for s in range(0, faces.size, per_chunk):
+        f = np.repeat(faces[s:s + per_chunk], S)
+        bary = np.tile(_FACE_SAMPLES, (len(f) // S, 1))
+        points = interpolate(f, bary, scan.triangles)
+        r = shade_hits(scan, f, bary) - predict(points, normals[f], f)
+        face_mean = r.reshape(-1, S, 3).mean(axis=1)  # [n, 3]
+        corner = scan.faces[faces[s:s + per_chunk]]
+        for k in range(3):
+            np.add.at(sums, corner[:, k], face_mean)
+            np.add.at(counts, corner[:, k], 1.0)
+    return np.divide(sums, counts[:, None], out=np.zeros_like(sums), where=counts[:, None] > 0)
+
+
+def levelled_input_colour(scan: Scan, offsets: np.ndarray, fill: np.ndarray, *, fitted=None,
+                          taught: np.ndarray | None = None, charts: np.ndarray | None = None, device=None,
+                          noise_threshold: float = 0.0) -> SurfaceColour:
+    """The input's texels, levelled and denoised (``bake.source = "input"``; see the module docstring).
+
+    Args:
+        scan: the textured input scan.
+        offsets: ``(T, 3)`` additive offset per UV vertex (:func:`scantex.atlas.levelling.seam_offsets`).
+        fill: ``(F,) bool`` faces given the harmonic hole fill.
+        fitted: the trained field (for denoising; ``None``: no denoising).
+        taught: ``(F,) bool`` faces the field was taught on (only there is it trusted).
+        charts: ``(F,)`` appearance group of every face.
+        noise_threshold: residual magnitude (0-1 RGB) up to which a difference from the field counts as
+            noise and is removed; 0 keeps the input's high frequencies exactly.
+    """
+    corner_offsets = offsets[scan.face_uvs].astype(np.float32)  # [F, 3, 3]
+    denoise = fitted is not None and noise_threshold > 0 and taught is not None and taught.any()
+    if denoise:
+        predict = field_prediction(fitted, charts, device)
+        usable = taught & ~fill
+        low = residual_vertex_means(scan, predict, usable).astype(np.float32)
+        corner_low = low[scan.faces]  # [F, 3, 3]
+
+    def base(points, normals, face_ids, bary):
+        observed = shade_hits(scan, face_ids, bary)
+        rgb = observed + interpolate(face_ids, bary, corner_offsets)
+        if denoise:
+            sel = np.flatnonzero(usable[face_ids])
+            if sel.size:
+                f, b = face_ids[sel], bary[sel]
+                high = observed[sel] - predict(points[sel], normals[sel], f) - interpolate(f, b, corner_low)
+                size = np.linalg.norm(high, axis=1, keepdims=True)
+                # the part of the high-frequency residual within the noise level is noise: remove it
+                rgb[sel] -= high * np.minimum(1.0, noise_threshold / np.maximum(size, 1e-12))
+        return np.clip(rgb, 0, 1)
+
+    return _with_hole_fill(scan, base, fill)

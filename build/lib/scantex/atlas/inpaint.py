@@ -1,0 +1,64 @@
+"""Filling holes on the surface: harmonic interpolation of colour over the mesh.
+
+A hash-grid field is not trustworthy where no ray taught it: its fine levels there read table entries
+trained by other places (hash collisions) and show noise. Hole faces instead get the smoothest colour
+that agrees with the surface around them: vertex colours solving Laplace's equation on the mesh graph
+with the colours of the vertices at the hole's border held fixed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scantex.scan import Scan
+
+
+def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1) -> np.ndarray:
+    """``(F,) bool`` ``faces`` grown by ``rings`` rings of faces that share a vertex with them."""
+    grown = faces.copy()
+    for _ in range(rings):
+        touched = np.zeros(scan.n_vertices, bool)
+        touched[scan.faces[grown].ravel()] = True
+        grown |= touched[scan.faces].any(axis=1)
+    return grown
+
+
+def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray) -> np.ndarray:
+    """Colours ``(V, C)`` at every vertex: ``colours`` where ``known (V,) bool``, harmonic elsewhere.
+
+    Uses the uniform graph Laplacian of the mesh edges. Vertices in a part with no known vertex keep
+    the mean known colour.
+    """
+    from scipy.sparse import coo_matrix, diags
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    V = scan.n_vertices
+    f = scan.faces
+    i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
+    j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
+    keep = i != j
+    A = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(V, V)).tocsr()
+    A.data[:] = 1.0  # duplicate edges count once
+    L = diags(np.asarray(A.sum(axis=1)).ravel()) - A
+    out = np.zeros((V, colours.shape[1]), np.float64)
+    out[known] = colours[known]
+    unknown = ~known
+    unknown &= np.asarray(A.sum(axis=1)).ravel() > 0
+    if not unknown.any():
+        return out
+    # parts of the unknown set that touch no known vertex have nothing to interpolate from
+    n_parts, label = connected_components(A[unknown][:, unknown] + 0, directed=False)
+    u_idx = np.flatnonzero(unknown)
+    touches = np.asarray(A[unknown][:, known].sum(axis=1)).ravel() > 0
+    anchored = np.zeros(n_parts, bool)
+    anchored[np.unique(label[touches])] = True
+    solvable = anchored[label]
+    fallback = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
+    out[u_idx[~solvable]] = fallback
+    s_idx = u_idx[solvable]
+    if s_idx.size:
+        Luu = L[s_idx][:, s_idx].tocsc()
+        rhs = -(L[s_idx][:, known] @ out[known])
+        out[s_idx] = np.column_stack([spsolve(Luu, rhs[:, c]) for c in range(colours.shape[1])])
+    return out

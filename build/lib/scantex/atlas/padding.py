@@ -1,0 +1,39 @@
+"""Gutter padding: fill the texels no chart covers from the nearest covered texel.
+
+Bilinear filtering and mip-mapping read texels just outside a chart; left black, they draw dark lines
+along every seam. Filling all uncovered texels with their nearest chart colour (a Euclidean distance
+transform) removes that for every mip level.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: rows filled at a time (the gathered texels of one strip are the only temporary the size of the image)
+ROWS_PER_STRIP = 512
+
+
+def fill_gutters(image: np.ndarray, covered: np.ndarray) -> None:
+    """Set, in place, every texel of ``image (H, W, C)`` outside ``covered (H, W) bool`` to its nearest covered texel.
+
+    Memory: the distance transform's ``(2, H, W) int32`` nearest-texel indices (0.5 GB at 8192^2) and
+    one strip; no distances and no second image. In place is safe: only covered texels are read.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    if covered.all() or not covered.any():
+        return
+    iy, ix = distance_transform_edt(~covered, return_distances=False, return_indices=True)
+    for y0 in range(0, image.shape[0], ROWS_PER_STRIP):
+        y1 = y0 + ROWS_PER_STRIP
+        gap = ~covered[y0:y1]
+        image[y0:y1][gap] = image[iy[y0:y1][gap], ix[y0:y1][gap]]
+
+
+def pad_gutters(image: np.ndarray, covered: np.ndarray) -> np.ndarray:
+    """``image (H, W, C)`` with every texel outside ``covered (H, W) bool`` set to its nearest covered texel."""
+    if covered.all() or not covered.any():
+        return image
+    out = image.copy()
+    fill_gutters(out, covered)
+    return out

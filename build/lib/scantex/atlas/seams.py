@@ -1,0 +1,148 @@
+"""UV shells (charts) and seams of a scan's texture layout, and how visible the seams are.
+
+A *shell* is a connected set of faces in UV space: faces that share a UV index. A *seam edge* is a
+mesh edge (two faces sharing two positions) whose two faces use different UV indices along it, so the
+same 3D points are looked up at two places in the atlas; where those two places hold different
+colours, a line shows on the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.scan import Scan
+from scantex.views.render import sample_texture
+
+
+def uv_shells(scan: Scan) -> np.ndarray:
+    """``(F,) int`` shell id of every face (faces in different materials never share a shell).
+
+    Untextured scans get one shell per material.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if scan.face_uvs is None:
+        return scan.face_materials.astype(np.int64)
+    F = scan.n_faces
+    # a face and a UV index are linked; (material, UV index) so materials stay apart
+    key = scan.face_uvs.astype(np.int64) * len(scan.materials) + scan.face_materials[:, None]
+    _, node = np.unique(key.ravel(), return_inverse=True)
+    rows = np.repeat(np.arange(F), 3)
+    cols = F + node
+    n = F + node.max() + 1
+    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    _, shell = np.unique(labels[:F], return_inverse=True)
+    return shell
+
+
+@dataclass(frozen=True, eq=False)
+class SeamEdges:
+    """Mesh edges shared by two faces whose UVs differ along the edge.
+
+    Attributes:
+        faces: ``(E, 2) int64`` the two faces of each seam edge.
+        corners: ``(E, 2, 2) int64`` for each face, its local corner indices (0..2) of the edge's two
+            positions, in the same position order for both faces.
+    """
+
+    faces: np.ndarray
+    corners: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.faces)
+
+
+def seam_edges(scan: Scan) -> SeamEdges:
+    """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped)."""
+    if scan.face_uvs is None:
+        return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
+    # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
+    # so the two faces of a seam edge do not share vertex indices (an analysis-only weld)
+    _, weld = np.unique(scan.positions, axis=0, return_inverse=True)
+    f = weld.reshape(-1)[scan.faces]
+    F = len(f)
+    local = np.array([[0, 1], [1, 2], [2, 0]])
+    a = f[:, local[:, 0]].ravel()  # [F*3]
+    b = f[:, local[:, 1]].ravel()
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    face = np.repeat(np.arange(F), 3)
+    # local corner of the smaller / larger position index, so both faces list the edge alike
+    ca = np.tile(local[:, 0], F)
+    cb = np.tile(local[:, 1], F)
+    c_lo = np.where(a <= b, ca, cb)
+    c_hi = np.where(a <= b, cb, ca)
+    order = np.lexsort((hi, lo))
+    lo, hi, face, c_lo, c_hi = lo[order], hi[order], face[order], c_lo[order], c_hi[order]
+    same = (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1])
+    start = np.flatnonzero(same)
+    # keep pairs that are exactly two (not part of a longer run)
+    run_ok = np.ones(len(start), bool)
+    if len(start):
+        prev = np.concatenate([[False], same])[start]
+        nxt = np.concatenate([same, [False]])[start + 1]
+        run_ok = ~prev & ~nxt
+    i, j = start[run_ok], start[run_ok] + 1
+    fi, fj = face[i], face[j]
+    uv_i = np.stack([scan.face_uvs[fi, c_lo[i]], scan.face_uvs[fi, c_hi[i]]], axis=1)
+    uv_j = np.stack([scan.face_uvs[fj, c_lo[j]], scan.face_uvs[fj, c_hi[j]]], axis=1)
+    differs = (uv_i != uv_j).any(axis=1) | (scan.face_materials[fi] != scan.face_materials[fj])
+    # identical UV coordinates under different indices are no seam
+    coords_i = scan.uvs[uv_i]
+    coords_j = scan.uvs[uv_j]
+    differs &= ~np.all(coords_i == coords_j, axis=(1, 2)) | (scan.face_materials[fi] != scan.face_materials[fj])
+    sel = np.flatnonzero(differs)
+    faces = np.stack([fi[sel], fj[sel]], axis=1)
+    corners = np.stack([np.stack([c_lo[i][sel], c_hi[i][sel]], 1), np.stack([c_lo[j][sel], c_hi[j][sel]], 1)], 1)
+    return SeamEdges(faces, corners)
+
+
+def seam_visibility(scan: Scan, edges: SeamEdges | None = None, samples_per_edge: int = 8,
+                    inset_texels: float = 1.0) -> float:
+    """Mean absolute RGB difference (0-255 scale) between the two sides of every seam.
+
+    Points along each seam edge are looked up in the atlas through each of its two faces; each lookup
+    is moved ``inset_texels`` into its own face, perpendicular to the edge, so that it reads the
+    chart's texels, not the gutter.
+    """
+    edges = seam_edges(scan) if edges is None else edges
+    if len(edges) == 0 or not scan.is_textured:
+        return 0.0
+    S = samples_per_edge
+    t = np.tile((np.arange(S) + 0.5) / S, len(edges))  # along each edge
+    sides = []
+    for side in range(2):
+        faces = np.repeat(edges.faces[:, side], S)
+        corners = np.repeat(edges.corners[:, side], S, axis=0)
+        sides.append(seam_side_colours(scan, faces, corners, t, inset_texels))
+    return float(np.abs(sides[0] - sides[1]).mean() * 255.0)
+
+
+def seam_side_colours(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.ndarray,
+                       inset_texels: float) -> np.ndarray:
+    """``(N, 3)`` colour at parameter ``t (N,)`` along each seam edge's UV segment in face ``faces (N,)``,
+    looked up ``inset_texels`` inside the face (away from the gutter)."""
+    rows = np.arange(len(faces))
+    uv_tri = scan.uvs[scan.face_uvs[faces]]  # [N, 3, 2]
+    p0, p1 = uv_tri[rows, corners[:, 0]], uv_tri[rows, corners[:, 1]]
+    opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
+    point = p0 + t[:, None] * (p1 - p0)
+    out = np.zeros((len(faces), 3), np.float32)
+    mat = scan.face_materials[faces]
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(mat == m)
+        if material.image is None or sel.size == 0:
+            continue
+        H, W = material.image.shape[:2]
+        px = np.array([W, H], np.float64)
+        e = (p1[sel] - p0[sel]) * px
+        normal = np.stack([-e[:, 1], e[:, 0]], axis=1)
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
+        step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
+        out[sel] = sample_texture(material.image, point[sel] + normal * step / px)[:, :3]
+    return out

@@ -1,0 +1,133 @@
+"""The texel map: for every texel of an atlas, the face and barycentrics it shows.
+
+Made by rasterising the UV triangles into texel space. The fast path casts one ray per texel centre
+at the UV triangles laid flat in a plane (Embree as a 2D rasteriser: about 4x faster than numpy
+scan-conversion on this machine); :func:`texel_map_reference` is the slow, obviously correct twin
+the tests compare against.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.views.raycast import RayCaster, interpolate
+
+#: texel rows per ray-casting strip (bounded memory for 8192^2 atlases)
+ROWS_PER_STRIP = 512
+
+
+@dataclass(frozen=True, eq=False)
+class TexelMap:
+    """Which surface point each texel of a ``(height, width)`` atlas shows.
+
+    Attributes:
+        face_id: ``(H, W) int32`` face index into the scan, -1 for texels no triangle covers.
+        bary: ``(H, W, 2) float32`` barycentrics ``(u, v)``: point = (1-u-v)·p0 + u·p1 + v·p2.
+    """
+
+    face_id: np.ndarray
+    bary: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.face_id >= 0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.face_id.shape
+
+    def points(self, corner_values: np.ndarray) -> np.ndarray:
+        """Interpolate ``(F, 3, C)`` corner values at the covered texels: ``(N, C)`` in row-major order."""
+        m = self.mask
+        return interpolate(self.face_id[m], self.bary[m], corner_values)
+
+
+def uv_to_pixel(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """UVs to continuous pixel coordinates whose integers are texel centres."""
+    return np.stack([uv[..., 0] * width - 0.5, (1.0 - uv[..., 1]) * height - 0.5], axis=-1)
+
+
+def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None, *,
+                 rows: int | None = None) -> Iterator[tuple[int, TexelMap]]:
+    """Rasterise UV triangles into a ``height x width`` atlas, ``rows`` texel rows at a time.
+
+    Yields ``(y0, strip)``: the :class:`TexelMap` of atlas rows ``y0 .. y0 + strip.shape[0]``, top to
+    bottom. Memory is bounded by one strip whatever the atlas size (the whole map of an 8192^2 atlas
+    is 0.8 GB). Arguments as :func:`texel_map`; ``rows`` defaults to :data:`ROWS_PER_STRIP`.
+    """
+    rows = rows or ROWS_PER_STRIP
+    selected = np.arange(len(triangle_uvs)) if faces is None else np.asarray(faces)
+    caster = None
+    if selected.size:
+        pix = uv_to_pixel(triangle_uvs[selected], width, height)  # [f, 3, 2]
+        flat = np.concatenate([pix.reshape(-1, 2), np.zeros((pix.shape[0] * 3, 1))], axis=1)
+        caster = RayCaster(flat, np.arange(flat.shape[0]).reshape(-1, 3))
+    xs = np.arange(width, dtype=np.float64)
+    for y0 in range(0, height, rows):
+        y1 = min(y0 + rows, height)
+        if caster is None:
+            yield y0, TexelMap(np.full((y1 - y0, width), -1, np.int32), np.zeros((y1 - y0, width, 2), np.float32))
+            continue
+        gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
+        origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+        directions = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
+        hits = caster.intersect(origins, directions)
+        hit = hits.face_id >= 0
+        fid = np.full(hits.face_id.shape, -1, dtype=np.int32)
+        fid[hit] = selected[hits.face_id[hit]]
+        yield y0, TexelMap(fid.reshape(y1 - y0, width), hits.bary.reshape(y1 - y0, width, 2).astype(np.float32, copy=False))
+
+
+def texel_map(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None) -> TexelMap:
+    """Rasterise UV triangles into a ``height x width`` atlas.
+
+    Args:
+        triangle_uvs: ``(F, 3, 2)`` UVs of every face's corners.
+        width, height: atlas size in texels.
+        faces: indices of the faces to rasterise (e.g. one material's); default all.
+
+    Where triangles overlap in UV space, one of them wins (the texel then shows one of the surface
+    points mapped there, as any renderer of that atlas would). The whole map is ``12 * width *
+    height`` bytes: large atlases are better streamed with :func:`texel_strips`.
+    """
+    face_id = np.full((height, width), -1, dtype=np.int32)
+    bary = np.zeros((height, width, 2), dtype=np.float32)
+    for y0, strip in texel_strips(triangle_uvs, width, height, faces):
+        y1 = y0 + strip.shape[0]
+        face_id[y0:y1] = strip.face_id
+        bary[y0:y1] = strip.bary
+    return TexelMap(face_id, bary)
+
+
+def covered_texels(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None) -> np.ndarray:
+    """``(H, W) bool``: the texels some triangle covers (:func:`texel_map`'s mask, streamed: 1 byte a texel)."""
+    mask = np.zeros((height, width), dtype=bool)
+    for y0, strip in texel_strips(triangle_uvs, width, height, faces):
+        mask[y0:y0 + strip.shape[0]] = strip.mask
+    return mask
+
+
+def texel_map_reference(triangle_uvs: np.ndarray, width: int, height: int) -> TexelMap:
+    """Per-triangle loop rasteriser: slow, plainly correct; for tests only."""
+    face_id = np.full((height, width), -1, dtype=np.int32)
+    bary = np.zeros((height, width, 2), dtype=np.float32)
+    pix = uv_to_pixel(triangle_uvs, width, height)
+    for f, (a, b, c) in enumerate(pix):
+        lo = np.maximum(np.floor(np.minimum(np.minimum(a, b), c)), 0).astype(int)
+        hi = np.minimum(np.ceil(np.maximum(np.maximum(a, b), c)), [width - 1, height - 1]).astype(int)
+        if (hi < lo).any():
+            continue
+        ys, xs = np.mgrid[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+        p = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+        m = np.array([b - a, c - a]).T  # columns: edges
+        det = np.linalg.det(m)
+        if abs(det) < 1e-12:
+            continue
+        uv = np.linalg.solve(m, (p - a).T).T  # weights of corners 1 and 2
+        inside = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv.sum(axis=1) <= 1)
+        face_id[ys.ravel()[inside], xs.ravel()[inside]] = f
+        bary[ys.ravel()[inside], xs.ravel()[inside]] = uv[inside]
+    return TexelMap(face_id, bary)

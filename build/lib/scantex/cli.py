@@ -1,0 +1,618 @@
+"""The ``scantex`` command line: parses arguments, calls the library, shows progress.
+
+Every subcommand is a thin wrapper over the public API; errors a user can cause are printed as one
+line (``scantex: error: FILE: problem``) with a non-zero exit, and a traceback only with ``--debug``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import math
+import sys
+from pathlib import Path
+
+from scantex import __version__
+from scantex.errors import ScanError
+
+log = logging.getLogger("scantex")
+
+
+@contextlib.contextmanager
+def progress_bar(description: str, quiet: bool = False):
+    """A rich progress bar; yields a ``(done, total)`` callback for the library's progress hooks."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, \
+        TimeRemainingColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                  transient=False, redirect_stdout=False) as bar:
+        task = bar.add_task(description, total=None)
+
+        def update(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        yield update
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the CLI's one-line error style (``scantex render: error: ...``, exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def whole(lo: int, hi: int | None = None):
+    """An argparse type: a whole number in ``[lo, hi]``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+        if value < lo or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"expected {lo} to {hi}, got {value}" if hi is not None
+                                             else f"expected at least {lo}, got {value}")
+        return value
+    parse.__name__ = "whole number"
+    return parse
+
+
+def real(lo: float, hi: float, *, open_low: bool = False):
+    """An argparse type: a finite number in ``[lo, hi]`` (``(lo, hi]`` with ``open_low``)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
+        if not math.isfinite(value) or value < lo or value > hi or (open_low and value == lo):
+            raise argparse.ArgumentTypeError(f"expected a finite number {'above' if open_low else 'from'} {lo:g} "
+                                             f"up to {hi:g}, got '{text}'")
+        return value
+    parse.__name__ = "number"
+    return parse
+
+
+SEED = whole(0, 2**32 - 1)
+
+
+def _echo(args, message: str) -> None:
+    if not args.quiet:
+        print(message)
+
+
+def cmd_demo_scan(args) -> int:
+    from scantex.io.atomic import atomic_dir
+    from scantex.synth import make_app_wall, make_room, make_wall, write_demo
+
+    check_output_early(args.output, args.overwrite)
+    steps = 3 if args.photos else 2
+    with progress_bar(f"making the {args.variant} demo scan", args.quiet) as update:
+        update(0, steps)
+        make = {"wall": make_wall, "room": make_room, "app": make_app_wall}[args.variant]
+        demo = make(seed=args.seed)
+        update(1, steps)
+        with atomic_dir(args.output, overwrite=args.overwrite) as tmp:
+            write_demo(demo, tmp)
+            update(2, steps)
+            if args.photos:
+                from scantex.synth.photos import PhotoCapture, capture_photos
+
+                capture_photos(demo, tmp / "photos", PhotoCapture(n_photos=args.photos), seed=args.seed,
+                               up=(0.0, 0.0, 1.0))
+                update(3, steps)
+    _echo(args, f"demo scan ({demo.scan.summary()}) written to {args.output}/scan.obj, "
+                f"ground truth to {args.output}/ground_truth.obj"
+                + (f", {args.photos} posed photos to {args.output}/photos/cameras.json" if args.photos else ""))
+    return 0
+
+
+def check_output_early(output: Path, overwrite: bool) -> None:
+    """The checks on an output folder that need no input read: fail before minutes of work."""
+    from scantex.errors import OutputExistsError
+    from scantex.io.atomic import check_output
+
+    check_output(output)
+    if output.exists() and not output.is_dir():
+        raise OutputExistsError(output, "is a file, not a folder: choose another path")
+    if output.exists() and not overwrite:
+        raise OutputExistsError(output, "already exists (pass --overwrite to replace it)")
+
+
+def cmd_render(args) -> int:
+    from scantex.io import load_scan
+    from scantex.io.atomic import atomic_dir, check_output
+    from scantex.views.planning import face_coverage, plan_views
+    from scantex.views.raycast import RayCaster
+    from scantex.views.viewset import render_views, write_views
+
+    check_output_early(args.output, args.overwrite)
+    scan = load_scan(args.mesh)
+    check_output(args.output, scan.inputs)
+    _echo(args, f"{args.mesh}: {scan.summary()}")
+    caster = RayCaster(scan.positions, scan.faces)
+    cameras = plan_views(scan, args.views, mode=args.mode, width=args.width, height=args.height,
+                         fov_deg=args.fov, seed=args.seed, up=up_axis(args.up, args.mesh), caster=caster)
+    coverage = face_coverage(scan, cameras, caster=caster)
+    _echo(args, f"{len(cameras)} views planned ({args.mode}); {coverage.summary()}")
+    with atomic_dir(args.output, overwrite=args.overwrite, inputs=scan.inputs) as tmp:
+        with progress_bar("rendering", args.quiet) as update:
+            views = render_views(scan, cameras, lit=not args.unlit, supersample=args.supersample,
+                                 seed=args.seed, caster=caster, progress=update)
+        write_views(views, tmp)
+    _echo(args, f"{len(cameras)} renders and cameras.json written to {args.output}")
+    return 0
+
+
+AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
+    """The scan's up direction: glTF is y-up by specification; OBJ/PLY scans are usually z-up."""
+    if choice == "auto":
+        choice = "y" if mesh.suffix.lower() in (".glb", ".gltf") else "z"
+    return AXES[choice]
+
+
+def cmd_view(args) -> int:
+    from scantex.deps import require
+    from scantex.inspect.plotly_view import view_html
+    from scantex.io import load_scan
+    from scantex.io.atomic import check_output
+
+    require("plotly", "scantex view")  # before the (possibly long) load
+    scan = load_scan(args.mesh)
+    check_output(args.output, scan.inputs)
+    out = view_html(scan, args.output, max_faces=args.max_faces)
+    _echo(args, f"interactive view of {args.mesh} written to {out}")
+    return 0
+
+
+class BarReporter:
+    """Progress bars for the pipeline's stages (see :class:`scantex.pipeline.enhance.Reporter`)."""
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        with progress_bar(name, self.quiet) as update:
+            yield update
+
+
+def _check_device(name: str) -> None:
+    """A device that cannot be had is the user's error, said before any work is done."""
+    from scantex.field.train import resolve_device
+
+    try:
+        resolve_device(name)
+    except ValueError as e:
+        raise ScanError(None, str(e)) from None
+
+
+def cmd_enhance(args) -> int:
+    from scantex.io.atomic import check_output
+    from scantex.io.discover import find_capture
+    from scantex.pipeline.config import load_config, preset, validate
+    from scantex.pipeline.outputs import work_dir_for
+
+    config = load_config(args.config) if args.config else preset(args.preset)
+    config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
+                                      train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
+                                      photos__holdout=args.holdout, refine__enabled=args.refine,
+                                      photos__check_alignment=False if args.no_alignment_check else None,
+                                      refine__diffusion=True if args.diffusion else None), "the options")
+    check_output_early(args.output, args.overwrite)
+    check_output(work_dir_for(args.output), role="the work folder")
+    _check_device(config.device)
+    with find_capture(args.mesh, photos=not args.no_photos and not args.photos) as capture:
+        return _enhance_capture(args, config, capture)
+
+
+def _enhance_capture(args, config, capture) -> int:
+    from scantex.io import load_scan
+    from scantex.io.atomic import atomic_dir, check_output
+    from scantex.pipeline.enhance import enhance
+    from scantex.pipeline.outputs import remove_work_dir, work_dir_for, write_outputs
+
+    if capture.kind != "file" or capture.photos is not None:
+        _echo(args, capture.describe())
+    scan = load_scan(capture.mesh)
+    truth = load_scan(args.ground_truth) if args.ground_truth else None
+    _echo(args, f"{capture.mesh}: {scan.summary()}")
+    photos = None
+    photos_path = args.photos or capture.photos
+    if photos_path:
+        from scantex.photos import load_photos
+
+        photos = load_photos(photos_path)
+        _echo(args, f"{photos_path}: {len(photos)} photos ({photos.format})")
+    tiles = tile_count(args, scan, photos)
+    work = work_dir_for(args.output)
+    # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the
+    # work folder (which is removed at the end)
+    inputs = list(scan.inputs) + (list(truth.inputs) if truth else []) + ([args.config] if args.config else [])
+    inputs.append(args.mesh)  # the mesh file, or the export's folder or zip as the user named it
+    folders = []
+    if photos is not None:
+        inputs += [*photos.images, *(d for d in photos.depths if d is not None), photos.source]
+        folders.append(photos.source if photos.source.is_dir() else photos.source.parent)
+    check_output(args.output, inputs, folders)
+    check_output(work, inputs, folders, role="the work folder")
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+        if not args.resume:  # a fresh run: a checkpoint left by an earlier one is not this run's state
+            remove_work_dir(work, keep_checkpoint=False, remove_folder=False)
+        if tiles > 1:
+            from scantex.scale.executors import executor
+            from scantex.scale.tiles import TilingConfig, enhance_tiled
+
+            _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
+            result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap),
+                                   ground_truth=truth, runner=executor(args.ray, args.workers),
+                                   reporter=BarReporter(args.quiet))
+        else:
+            if args.ray or args.workers:
+                log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
+            result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
+                             reporter=BarReporter(args.quiet))
+        with atomic_dir(args.output, overwrite=args.overwrite, inputs=inputs, folders=folders) as tmp:
+            write_outputs(result, tmp)
+    except BaseException as e:
+        kept = remove_work_dir(work, keep_checkpoint=True)
+        if kept is not None and not (isinstance(e, ScanError) and e.path == kept):
+            log.warning("kept the checkpoint %s: run the same command with --resume to continue", kept)
+        raise
+    remove_work_dir(work, keep_checkpoint=False)
+    _echo(args, enhance_summary(result.metrics))
+    _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb, "
+                f"metrics.json, config.json, report.html)")
+    return 0
+
+
+def tile_count(args, scan, photos) -> int:
+    """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans
+    in the kept UV layout, without photos; others run whole)."""
+    from scantex.scale.tiles import TilingConfig
+
+    auto = args.tiles == "auto"
+    n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
+    if n <= 1:
+        return 1
+    why = ("photo mode" if photos is not None else "an untextured scan" if not scan.is_textured
+           else f"--uv {args.uv}" if args.uv not in (None, "keep") else None)
+    if why is None:
+        return n
+    if auto:
+        log.warning("%s: %d faces, but %s cannot be tiled: enhancing it whole", args.mesh, scan.n_faces, why)
+        return 1
+    raise ScanError(args.mesh, f"--tiles is not supported with {why} (tiles share the input's UV layout)")
+
+
+def cmd_batch(args) -> int:
+    from scantex.pipeline.config import load_config, preset
+    from scantex.scale.batch import batch
+    from scantex.scale.inputs import collect_inputs
+
+    collect_inputs(args.inputs, exclude=args.output)  # a missing input is reported before any progress bar
+    config = load_config(args.config) if args.config else preset(args.preset)
+    config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
+                             train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine)
+    with progress_bar("enhancing scans", args.quiet) as update:
+        result = batch(args.inputs, args.output, config, ray=args.ray, workers=args.workers,
+                       cpus_per_scan=args.cpus_per_scan, gpus_per_scan=args.gpus_per_scan, overwrite=args.overwrite,
+                       progress=update)
+    reused = sum(bool(r.get("reused")) for r in result.records)
+    _echo(args, f"{len(result.records)} scans: {len(result.done)} done ({reused} from an earlier run), "
+                f"{len(result.failed)} failed, in {result.seconds:.0f} s ({result.executor})")
+    for r in result.failed:
+        print(f"scantex: {r['name']}: {r['error']}", file=sys.stderr)
+    _echo(args, f"summary: {result.index} (+ summary.json, summary.csv)")
+    return 1 if result.failed else 0
+
+
+def enhance_summary(m: dict) -> str:
+    g = m["geometry"]
+    lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
+             f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces; Hausdorff "
+             f"{g['distance']['hausdorff']:.3g}, mean distance {g['distance']['mean']:.3g})",
+             f"seam visibility: {m['seam_visibility']['input']:.2f} -> {m['seam_visibility']['enhanced']:.2f}"]
+    if "held_out_vs_ground_truth" in m:
+        s = m["held_out_vs_ground_truth"]
+        lines.append(f"held-out views vs ground truth: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB, "
+                     f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+        if "hole_psnr" in s["input"]:
+            lines.append(f"holes: PSNR {s['input']['hole_psnr']:.2f} -> {s['enhanced']['hole_psnr']:.2f} dB")
+    elif "held_out_vs_input" in m:
+        s = m["held_out_vs_input"]["enhanced"]
+        lines.append(f"held-out views, enhanced vs input renders (fidelity, not quality): PSNR {s['psnr']:.2f} dB")
+    if "held_out_photos" in m:
+        s, n = m["held_out_photos"], m["held_out_photos"]["input"].get("photos", 0)
+        lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
+                     f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
+                     f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    if "held_out_photos_vs_ground_truth" in m:
+        s = m["held_out_photos_vs_ground_truth"]
+        lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
+                     f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
+        f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
+    return "\n".join(lines)
+
+
+def cmd_compare(args) -> int:
+    import json
+
+    from scantex.io import load_scan
+    from scantex.metrics.compare import compare, read_photos, summary_lines
+
+    a, b = load_scan(args.a), load_scan(args.b)
+    if args.json:
+        from scantex.io.atomic import check_output
+
+        check_output(args.json, [*a.inputs, *b.inputs, *([args.cameras] if args.cameras else [])])
+    photos = read_photos(args.cameras) if args.cameras else None
+    result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
+    if args.json:
+        from scantex.io.atomic import atomic_files
+
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_files() as files:
+            files.path(args.json).write_text(json.dumps(result, indent=2))
+    _echo(args, summary_lines(result))
+    if args.json:
+        _echo(args, f"metrics written to {args.json}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from scantex.io import load_scan
+
+    scan = load_scan(args.mesh)
+    lo, hi = scan.bounds
+    print(f"{args.mesh}: {scan.summary()}")
+    print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
+    print(f"surface area: {scan.face_areas.sum():.4g}")
+    return 0
+
+
+def tiles_arg(text: str):
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of tiles or 'auto', got '{text}'")
+    return n
+
+
+def add_executor_options(p, job: str) -> None:
+    p.add_argument("--ray", metavar="auto|ADDRESS",
+                   help=f"run each {job} as a Ray task declaring its CPUs, GPUs and memory: auto (this machine's "
+                        "cluster, started with 'ray start', or else a new local one) or a cluster address "
+                        "(needs pip install 'scantex[ray]'; default: a local process pool)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help=f"local pool: {job}s at once (default: the cores, fewer when their estimated memory "
+                        "does not fit)")
+    if job == "scan":
+        p.add_argument("--cpus-per-scan", type=int, metavar="N",
+                       help="torch threads per scan, and the CPUs a Ray task declares (default: local, the cores "
+                            "shared among the scans running at once; Ray, 1)")
+        p.add_argument("--gpus-per-scan", type=float, metavar="N",
+                       help="GPUs a Ray task declares (default: 1 with --device cuda, else 0)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(
+        prog="scantex",
+        description="Better textures for LiDAR-scanned meshes; the geometry stays exactly as it was.",
+        epilog="Run 'scantex COMMAND --help' for a command's options.")
+    parser.add_argument("--version", action="version", version=f"scantex {__version__}")
+    common = Parser(add_help=False)
+    common.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
+    common.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=Parser)
+
+    p = sub.add_parser("demo-scan", parents=[common], help="write the built-in synthetic demo scan",
+                       description="Write a procedural LiDAR-like scan with known ground truth: "
+                                   "DIR/scan.obj (degraded atlas: what a capture app gives you) and "
+                                   "DIR/ground_truth.obj (same geometry, ground-truth texture).")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--variant", choices=["wall", "room", "app"], default="wall",
+                   help="wall: a paper-scale brick wall (40k vertices, 79k faces) with a poor 1024² atlas (strong "
+                        "exposure jumps, JPEG q50, blur, 3 %% holes); app: the same wall as a good capture app "
+                        "delivers it (sharp 4096² atlas, exposure within ±8 %%, JPEG q80, a few small holes); "
+                        "room: a small room (default: wall)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed (default: 0)")
+    p.add_argument("--photos", type=whole(0, 10_000), default=0, metavar="N",
+                   help="also take N synthetic posed photos of the true scene (own exposure, blur, noise, JPEG, "
+                        "small pose errors) into DIR/photos, for enhance --photos (default: none)")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=cmd_demo_scan)
+
+    p = sub.add_parser("render", parents=[common], help="render views of a mesh (PNG + cameras.json)",
+                       description="Plan cameras around the mesh (or in front of the side its normals "
+                                   "face, for walls and rooms), ray-cast them with Embree and write "
+                                   "view_NNN.png and cameras.json (OpenCV convention).")
+    p.add_argument("mesh", type=Path, help="mesh file (OBJ, GLB/GLTF, PLY, ...)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--views", type=whole(1, 10_000), default=8, help="number of views (default: 8)")
+    p.add_argument("--mode", choices=["auto", "orbit", "hemisphere", "surface"], default="auto",
+                   help="camera placement: around a closed object, above it, or in front of an open "
+                        "surface; auto picks (default: auto)")
+    p.add_argument("--width", type=whole(8, 8192), default=640, help="image width in pixels (default: 640)")
+    p.add_argument("--height", type=whole(8, 8192), default=480, help="image height in pixels (default: 480)")
+    p.add_argument("--fov", type=real(1, 170), default=60.0,
+                   help="horizontal field of view, degrees, 1 to 170 (default: 60)")
+    p.add_argument("--up", choices=["auto", "x", "y", "z"], default="auto",
+                   help="the scan's up axis; auto: y for GLB/GLTF (the format's rule), z otherwise")
+    p.add_argument("--unlit", action="store_true",
+                   help="plain texture colour instead of the lit preview (directional light + ambient)")
+    p.add_argument("--supersample", type=whole(1, 8), default=2, help="rays per pixel per axis (default: 2)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed for planning and the split")
+    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("enhance", parents=[common], help="enhance a scan's texture (the main job)",
+                       description="Render views of the scan, fit a mesh-guided radiance field to them "
+                                   "(per-chart appearance absorbs exposure seams), bake it back into the "
+                                   "scan's own UV layout at higher resolution, and measure. Vertex "
+                                   "positions and faces are written back unchanged.")
+    p.add_argument("mesh", type=Path, metavar="PATH",
+                   help="the scan: a mesh file (OBJ, GLB/GLTF, PLY with UVs, ...), or a capture app's export "
+                        "as written (a 3D Scanner App folder, a Polycam zip, ...): its mesh is found, and its "
+                        "posed photos are used when it holds them")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
+                   help="speed/quality preset (default: default; ~3 min on a 2-core CPU for an 80k-face scan)")
+    p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
+    p.add_argument("--texture-size", type=whole(16, 16384),
+                   help="output atlas size (default: 2x the input, at most 8192)")
+    p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
+                   help="texture layout: keep the input's (default), optimize it (merge/split charts by "
+                        "stretch, uniform texel density) or unwrap afresh; meshes without UVs are unwrapped")
+    p.add_argument("--views", type=whole(2, 10_000),
+                   help="number of synthetic views, at least 2: one is held out (preset's by default)")
+    p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
+    p.add_argument("--seed", type=SEED, help="random seed (default: 0)")
+    p.add_argument("--ground-truth", type=Path, metavar="MESH",
+                   help="the same geometry with its true texture (synthetic scans): scores held-out views")
+    p.add_argument("--photos", type=Path, metavar="PATH",
+                   help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
+                        "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
+                        "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
+    p.add_argument("--no-photos", action="store_true",
+                   help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
+    p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
+                   help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
+    p.add_argument("--no-alignment-check", action="store_true",
+                   help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
+                        "a mesh moved or turned out of the cameras' frame)")
+    p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="refine views of the field with a Vision Transformer trained self-supervised on the "
+                        "scan's own views (masked completion, cross-view consistency, internal "
+                        "super-resolution) and fuse them back into the atlas (default: on in every preset)")
+    p.add_argument("--diffusion", action="store_true",
+                   help="with the refiner: also denoise the refined views with a small diffusion model "
+                        "trained on them (SDEdit-style partial noising; off by default: it removes detail "
+                        "along with noise on the demo scans)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from its field checkpoint in DIR.partial (kept by a run "
+                        "that was killed or failed after a checkpoint; refused if it is of another input or "
+                        "other settings)")
+    p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
+                   help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
+                        "or Ray tasks with --ray) and fuse them with smooth weights; auto: one tile per "
+                        "--tile-faces faces (default: auto)")
+    p.add_argument("--tile-faces", type=int, default=1_000_000, metavar="F",
+                   help="--tiles auto: the most faces one tile holds (default: 1000000)")
+    p.add_argument("--tile-overlap", type=float, default=0.15, metavar="X",
+                   help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
+    add_executor_options(p, "tile")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it exists (never an input: DIR may not be or hold the scan, its "
+                        "textures, the photos or the config)")
+    p.set_defaults(func=cmd_enhance)
+
+    p = sub.add_parser("batch", parents=[common], help="enhance many scans: a local process pool or a Ray cluster",
+                       description="Enhance every scan of INPUTS with one config into OUTDIR/<name>/ (the files of "
+                                   "'scantex enhance'). One scan's failure is recorded and never stops the others; "
+                                   "a rerun skips the scans already finished and retries the rest. OUTDIR/index.html, "
+                                   "summary.json and summary.csv list every scan with its status, held-out scores, "
+                                   "time, peak memory and a link to its report. Exit status 1 if a scan failed.",
+                       epilog="Manifests: .json ([{\"mesh\": ..., \"photos\": ..., \"ground_truth\": ..., \"name\": ...}]), "
+                              ".csv (a header row with those columns) or .txt (one 'mesh [photos]' per line); paths "
+                              "relative to the manifest. In a folder, every mesh file below it is a scan, and one named "
+                              "ground_truth.* is the ground truth of the scans beside it. With --ray, every node must "
+                              "see INPUTS and OUTDIR at the same paths (a shared filesystem) and have scantex installed.")
+    p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
+                   help="mesh files, folders of them, or manifests (.json, .csv, .txt) listing scans and their photos")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR", help="the batch's output folder")
+    p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
+                   help="speed/quality preset for every scan (default: default)")
+    p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
+    p.add_argument("--texture-size", type=int, help="output atlas size (default: 2x the input, at most 8192)")
+    p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
+    p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
+    p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
+                   help="the ViT refinement stage (default: on in every preset)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
+    p.add_argument("--seed", type=int, help="random seed (default: 0)")
+    add_executor_options(p, "scan")
+    p.add_argument("--overwrite", action="store_true",
+                   help="redo the scans finished by an earlier run (and accept a config other than OUTDIR's first)")
+    p.set_defaults(func=cmd_batch)
+
+    p = sub.add_parser("view", parents=[common], help="write an interactive 3D view (self-contained HTML)",
+                       description="An offline Plotly 3D view of the mesh, coloured from its texture.")
+    p.add_argument("mesh", type=Path, help="mesh file")
+    p.add_argument("-o", "--output", type=Path, default=Path("view.html"), help="HTML file (default: view.html)")
+    p.add_argument("--max-faces", type=whole(1), default=200_000,
+                   help="show a random subset of faces above this count (display only; default 200000)")
+    p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("compare", parents=[common], help="geometry and texture metrics between two meshes",
+                       description="Measure B against A: vertex/face counts, volume, Hausdorff and mean "
+                                   "point-to-mesh distance both ways; seam visibility, texel density and "
+                                   "coverage of each atlas; atlas-space PSNR/SSIM when the UV layouts match; "
+                                   "and render PSNR/SSIM, against photos when --cameras is given, else of "
+                                   "B's renders against A's.")
+    p.add_argument("a", type=Path, help="the reference mesh (e.g. the input scan, or a ground truth)")
+    p.add_argument("b", type=Path, help="the mesh measured against it (e.g. enhanced.obj)")
+    p.add_argument("--cameras", type=Path, metavar="JSON",
+                   help="cameras.json with photos (frames of image, width, height, K, world_to_camera): "
+                        "both meshes' renders are scored against the photos")
+    p.add_argument("--views", type=whole(1, 10_000), default=8,
+                   help="views planned on A when there are no photos (default: 8)")
+    p.add_argument("--samples", type=whole(1, 100_000_000), default=100_000,
+                   help="surface points per direction for the distances, besides every vertex (default: 100000)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed for samples and views (default: 0)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="also write every metric to this JSON file")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("info", parents=[common], help="print what a mesh file holds")
+    p.add_argument("mesh", type=Path, help="mesh file")
+    p.set_defaults(func=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.debug else logging.ERROR if args.quiet else logging.WARNING,
+                        format="%(levelname)s: %(message)s")
+    try:
+        return args.func(args)
+    except ScanError as e:
+        if args.debug:
+            raise
+        print(f"scantex: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("scantex: interrupted", file=sys.stderr)
+        return 130
+    except ImportError as e:
+        from scantex.deps import MissingDependency
+
+        if args.debug or not isinstance(e, MissingDependency):
+            raise
+        print(f"scantex: error: {e}", file=sys.stderr)  # names the pip install that provides it
+        return 1
+    except OSError as e:  # the system refused a read or write: a full disk, a read-only folder, a long name
+        if args.debug:
+            raise
+        where = e.filename or getattr(args, "output", None) or getattr(args, "mesh", None)
+        problem = e.strerror or (str(e).strip().splitlines() or [type(e).__name__])[0]
+        print(f"scantex: error: {where}: {problem}" if where else f"scantex: error: {problem}", file=sys.stderr)
+        return 2
+    except Exception as e:  # anything else is a bug: one line, the traceback with --debug
+        if args.debug:
+            raise
+        print(f"scantex: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1

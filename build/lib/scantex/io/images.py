@@ -1,0 +1,110 @@
+"""Texture images in and out, with errors that name the file.
+
+Every image scantex reads (textures, photos, depth maps) is opened through :func:`open_image`, which
+checks the size the file's header claims before anything is decoded: a few hundred bytes of PNG can
+claim 100000 x 100000 pixels (a decompression bomb) and would otherwise ask for tens of GB.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+
+#: largest image accepted, in pixels: a 16k x 16k atlas (scan atlases reach 16k; photos are far smaller)
+MAX_IMAGE_PIXELS = 16384 * 16384
+
+
+def check_image_size(image, where, what: str = "image") -> None:
+    """Refuse an opened (not yet decoded) Pillow image whose header claims more than
+    :data:`MAX_IMAGE_PIXELS` pixels, or no pixels at all."""
+    w, h = image.size
+    if w <= 0 or h <= 0:
+        raise ScanError(where, f"{what} has no pixels ({w}x{h})")
+    if w * h > MAX_IMAGE_PIXELS:
+        raise ScanError(where, f"{what} claims {w}x{h} pixels, more than scantex reads "
+                               f"({MAX_IMAGE_PIXELS:,} pixels: a 16384x16384 atlas)")
+
+
+@contextlib.contextmanager
+def open_image(path: str | Path, what: str = "image"):
+    """``with open_image(path, "texture") as im:`` a Pillow image whose size was checked; errors while
+    opening or decoding inside the block become one-line :class:`ScanError` naming the file."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ScanError(path, f"{what} file not found")
+    # our own limit is checked below from the header; Pillow's guard would stop at ~89 Mpx
+    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, MAX_IMAGE_PIXELS + 1)
+    try:
+        im = Image.open(path)
+    except UnidentifiedImageError:
+        raise ScanError(path, f"{what} is not an image Pillow can read") from None
+    except Image.DecompressionBombError:
+        raise ScanError(path, f"{what} claims more pixels than scantex reads") from None
+    except (OSError, SyntaxError, ValueError) as e:
+        raise ScanError(path, f"cannot read the {what} ({_first_line(e)})") from None
+    try:
+        with im:
+            check_image_size(im, path, what)
+            yield im
+    except Image.DecompressionBombError:
+        raise ScanError(path, f"{what} claims more pixels than scantex reads") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as e:
+        raise ScanError(path, f"{what} is damaged or truncated ({_first_line(e)})") from None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0][:120] if text else type(e).__name__
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB of an image file (alpha dropped: scan textures are opaque)."""
+    with open_image(path, "texture") as im:
+        return np.asarray(im.convert("RGB"))
+
+
+def image_from_pil(image, where) -> np.ndarray:
+    from PIL import Image
+
+    check_image_size(image, where, "embedded texture image")
+    try:
+        return np.asarray(image.convert("RGB"))
+    except Image.DecompressionBombError:
+        raise ScanError(where, "embedded texture image claims more pixels than scantex reads") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as e:
+        raise ScanError(where, f"embedded texture image is damaged ({_first_line(e)})") from None
+
+
+#: zlib level of the PNGs written: 1 encodes an 8192^2 atlas several times faster than the default 6 for
+#: files about 10 % larger (bench/bench_io.py)
+PNG_COMPRESS_LEVEL = 1
+
+#: ``id(image) -> (image, PNG bytes)``: lets the OBJ and the GLB of one output share one encoding (the
+#: image is held so that its id is not reused while the cache lives)
+PngCache = dict
+
+
+def png_bytes(image: np.ndarray, cache: PngCache | None = None) -> bytes:
+    """``image (H, W, C) uint8`` as PNG file bytes; with ``cache``, each image is encoded once."""
+    import io
+
+    from PIL import Image
+
+    if cache is not None and id(image) in cache:
+        return cache[id(image)][1]
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
+    data = buffer.getvalue()
+    if cache is not None:
+        cache[id(image)] = (image, data)
+    return data
+
+
+def write_png(path: str | Path, image: np.ndarray, cache: PngCache | None = None) -> None:
+    Path(path).write_bytes(png_bytes(image, cache))

@@ -1,0 +1,355 @@
+"""Wavefront OBJ + MTL, read and written without touching the geometry.
+
+trimesh's OBJ loader merges each (position, UV, normal) index triple into one vertex, so a 77k-vertex
+scan comes back with more, re-indexed vertices, and its exporter writes that merged form. scantex's
+contract is that positions and triangles come out exactly as they went in, so this module keeps OBJ's
+separate ``v``/``vt``/``vn`` index spaces: it parses the few statements that carry geometry and texture
+(``v vt vn f usemtl mtllib``) itself and writes them back in the same order, with floats written in
+shortest round-trip form (``repr``), so every coordinate survives bit for bit.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.io.images import read_image, write_png
+from scantex.scan import Material, Scan
+
+log = logging.getLogger(__name__)
+
+
+def _floats(path: Path, rows: list[str], width: int, kind: str, line_of: list[int]) -> np.ndarray:
+    """Parse ``rows`` (the text after the keyword) into ``(N, width)`` floats, extra columns dropped."""
+    if not rows:
+        return np.zeros((0, width))
+    try:
+        flat = np.array(" ".join(rows).split(), dtype=np.float64)
+        if flat.size == len(rows) * width:
+            return flat.reshape(-1, width)
+    except ValueError:
+        pass
+    out = np.empty((len(rows), width))
+    for i, row in enumerate(rows):  # uneven rows (vertex colours, 3-component vt) or a bad number
+        parts = row.split()
+        try:
+            if len(parts) < width:
+                raise ValueError
+            out[i] = [float(p) for p in parts[:width]]
+        except ValueError:
+            raise ScanError(path, f"line {line_of[i]}: cannot read {kind} '{row.strip()[:60]}'") from None
+    return out
+
+
+def _vertex_colors(rows: list[str]) -> np.ndarray | None:
+    """``v x y z r g b`` (an extension several scanners write) → ``(V, 4) uint8``, else None."""
+    if not rows or len(rows[0].split()) < 6:
+        return None
+    try:
+        rgb = np.array([r.split()[3:6] for r in rows], dtype=np.float64)
+    except ValueError:
+        return None
+    if rgb.max(initial=0) > 1.0:
+        rgb = rgb / 255.0
+    rgba = np.concatenate([np.clip(np.rint(rgb * 255), 0, 255), np.full((len(rgb), 1), 255)], axis=1)
+    return rgba.astype(np.uint8)
+
+
+#: MTL texture options and how many arguments each takes (``-o``, ``-s``, ``-t`` take 1 to 3 numbers)
+MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1, "-mm": 2,
+               "-texres": 1, "-bm": 1, "-type": 1, "-o": 3, "-s": 3, "-t": 3}
+
+
+def map_file_name(rest: str) -> str:
+    """The file name of a ``map_Kd`` statement's arguments, options before it skipped:
+    ``-clamp on -s 1 1 1 -bm 0.5 texture name.png`` -> ``texture name.png`` (names may hold spaces)."""
+    rest = rest.strip()
+    while rest.startswith("-"):
+        option, _, rest = rest.partition(" ")
+        rest = rest.lstrip()
+        n = MAP_OPTIONS.get(option.lower())
+        if n is None:
+            break  # not an option scantex knows: take the rest as the name
+        variable = option.lower() in ("-o", "-s", "-t")
+        for k in range(n):
+            arg, _, after = rest.partition(" ")
+            if variable and k > 0 and not re.fullmatch(r"[-+]?[\d.]+(?:[eE][-+]?\d+)?", arg):
+                break  # -o/-s/-t take one to three numbers
+            rest = after.lstrip()
+    return rest
+
+
+def _mtl_numbers(path: Path, line: str, rest: str, lo: int, hi: int) -> list[float]:
+    try:
+        values = [float(x) for x in rest.split()[:hi]]
+    except ValueError:
+        values = []
+    if len(values) < lo or not np.isfinite(values).all():
+        raise ScanError(path, f"cannot read '{line[:60]}' (expected {lo} to {hi} numbers)")
+    return values
+
+
+def parse_mtl(path: Path) -> dict[str, dict]:
+    """Materials of an MTL file: ``{name: {"diffuse": (r, g, b, a), "map_Kd": Path | None}}``."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise ScanError(path, f"cannot read material library ({e.strerror})") from None
+    materials: dict[str, dict] = {}
+    current = None
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        key, rest = (line.split(None, 1) + [""])[:2]
+        rest = rest.strip()
+        if key == "newmtl":
+            current = materials.setdefault(rest, {"diffuse": [1.0, 1.0, 1.0, 1.0], "map_Kd": None})
+        elif current is None:
+            continue
+        elif key == "Kd":
+            rgb = _mtl_numbers(path, line, rest, 1, 3)
+            current["diffuse"][:3] = rgb if len(rgb) == 3 else [rgb[0]] * 3  # 'Kd r': g = b = r
+        elif key == "d":
+            current["diffuse"][3] = _mtl_numbers(path, line, rest, 1, 1)[0]
+        elif key.lower() == "map_kd":
+            name = map_file_name(rest)
+            current["map_Kd"] = (path.parent / name.replace("\\", "/")) if name else None
+    return materials
+
+
+def mtllib_paths(obj_path: Path, rest: str) -> list[Path]:
+    """The files of an ``mtllib`` statement: several names separated by spaces, or one name with spaces
+    when a file of that whole name exists."""
+    whole = obj_path.parent / rest.strip().replace("\\", "/")
+    if whole.is_file() or len(rest.split()) < 2:
+        return [whole]
+    return [obj_path.parent / name.replace("\\", "/") for name in rest.split()]
+
+
+def read_obj(path: str | Path) -> Scan:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ScanError(path, f"cannot read file ({e.strerror})") from None
+    if b"\x00" in data[:4096]:
+        raise ScanError(path, "not a text OBJ file (binary data)")
+    text = data.decode("utf-8", errors="replace")
+
+    v_rows, vt_rows, vn_rows = [], [], []
+    v_lines, vt_lines, vn_lines = [], [], []
+    corner_v, corner_t, corner_n, face_mat = [], [], [], []
+    mtllibs: list[str] = []
+    mat_names: list[str] = []
+    mat_index: dict[str, int] = {}
+    current = -1  # faces before any usemtl use an implicit default material
+    n_ngons = 0
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if line[:1] in (" ", "\t"):
+            line = line.lstrip()
+        head = line[:3]
+        if head.startswith("v ") or head.startswith("v\t"):
+            v_rows.append(line[2:])
+            v_lines.append(lineno)
+        elif head == "vt " or head == "vt\t":
+            vt_rows.append(line[3:])
+            vt_lines.append(lineno)
+        elif head == "vn " or head == "vn\t":
+            vn_rows.append(line[3:])
+            vn_lines.append(lineno)
+        elif head.startswith("f ") or head.startswith("f\t"):
+            parts = line.split()[1:]
+            if len(parts) < 3:
+                raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}' "
+                                      "(fewer than 3 corners: is the file truncated?)")
+            try:
+                ids = [p.split("/") for p in parts]
+                vi = [int(p[0]) for p in ids]
+                ti = [int(p[1]) if len(p) > 1 and p[1] else 0 for p in ids]
+                ni = [int(p[2]) if len(p) > 2 and p[2] else 0 for p in ids]
+            except ValueError:
+                raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}'") from None
+            nv, nt, nn = len(v_rows), len(vt_rows), len(vn_rows)
+            # OBJ indices are 1-based; negative ones count back from the latest element. BAD marks an
+            # index that points before the first element (0, or too negative): refused below
+            vi = [i - 1 if i > 0 else nv + i if -nv <= i < 0 else BAD for i in vi]
+            ti = [i - 1 if i > 0 else nt + i if -nt <= i < 0 else -1 if i == 0 else BAD for i in ti]
+            ni = [i - 1 if i > 0 else nn + i if -nn <= i < 0 else -1 if i == 0 else BAD for i in ni]
+            if BAD in vi or BAD in ti or BAD in ni:
+                raise ScanError(path, f"line {lineno}: face '{line.strip()[:60]}' has an index of 0 or one "
+                                      "before the first element (OBJ indices start at 1)")
+            if max(vi + ti + ni) > MAX_INDEX:
+                raise ScanError(path, f"line {lineno}: face index too large '{line.strip()[:60]}'")
+            if len(parts) > 3:
+                n_ngons += 1
+            for k in range(1, len(parts) - 1):  # fan triangulation, as trimesh does
+                corner_v.append((vi[0], vi[k], vi[k + 1]))
+                corner_t.append((ti[0], ti[k], ti[k + 1]))
+                corner_n.append((ni[0], ni[k], ni[k + 1]))
+                face_mat.append(current)
+        elif line.startswith("usemtl") and line[6:7] in (" ", "\t"):
+            name = line[6:].strip()
+            if name not in mat_index:
+                mat_index[name] = len(mat_names)
+                mat_names.append(name)
+            current = mat_index[name]
+        elif line.startswith("mtllib") and line[6:7] in (" ", "\t"):
+            mtllibs.append(line[6:].strip())
+
+    positions = _floats(path, v_rows, 3, "vertex", v_lines)
+    if not corner_v:
+        raise ScanError(path, "the mesh has no faces" if v_rows else "no vertices or faces: not an OBJ mesh")
+    faces = np.array(corner_v, dtype=np.int64)
+    vertex_colors = _vertex_colors(v_rows)
+    uvs = _floats(path, vt_rows, 2, "texture coordinate", vt_lines) if vt_rows else None
+    face_uvs = np.array(corner_t, dtype=np.int64) if uvs is not None else None
+    if face_uvs is not None and (face_uvs < 0).any():
+        # some faces have no vt: give them a UV (0, 0) of their own so indexing stays uniform
+        missing = int((face_uvs < 0).any(axis=1).sum())
+        log.warning("%s: %d faces have no texture coordinates", path, missing)
+        uvs = np.concatenate([uvs, np.zeros((1, 2))])
+        face_uvs = np.where(face_uvs < 0, len(uvs) - 1, face_uvs)
+    normals = _floats(path, vn_rows, 3, "normal", vn_lines) if vn_rows else None
+    face_normals_idx = np.array(corner_n, dtype=np.int64) if normals is not None else None
+    if face_normals_idx is not None and (face_normals_idx < 0).any():
+        normals, face_normals_idx = None, None  # partial normals are of no use; shading recomputes them
+
+    inputs = [path]
+    materials, face_materials = _materials(path, mtllibs, mat_names, np.array(face_mat, dtype=np.int32),
+                                           inputs)
+    if n_ngons:
+        log.info("%s: %d polygons with more than 3 corners were fan-triangulated", path, n_ngons)
+    return Scan(positions, faces, uvs, face_uvs, face_materials, materials,
+                vertex_colors=vertex_colors, normals=normals, face_normals_idx=face_normals_idx,
+                source=path, inputs=tuple(inputs))
+
+
+#: index of a face corner that points before the first element (refused once the file is read)
+BAD = -(1 << 62)
+#: largest index kept (beyond int64 a numpy array cannot hold it; no file has that many elements)
+MAX_INDEX = (1 << 62) - 1
+
+
+def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.ndarray, inputs: list[Path]):
+    library: dict[str, dict] = {}
+    for lib in mtllibs:
+        for lib_path in mtllib_paths(path, lib):
+            if not lib_path.is_file():
+                raise ScanError(lib_path, f"material library named by {path.name} not found")
+            library.update(parse_mtl(lib_path))
+            inputs.append(lib_path)
+    materials = []
+    images: dict[Path, np.ndarray] = {}
+    for name in names:
+        spec = library.get(name)
+        if spec is None:
+            if mtllibs:
+                log.warning("%s: material '%s' is not defined in %s", path, name, ", ".join(mtllibs))
+            materials.append(Material(name, diffuse=(0.7, 0.7, 0.7, 1.0)))
+            continue
+        image = None
+        tex = spec["map_Kd"]
+        if tex is not None:
+            if not tex.is_file():  # apps' exports lose textures (a partial copy): keep the mesh, say so
+                log.warning("%s: texture named by material '%s' not found: the material is read untextured",
+                            tex, name)
+                materials.append(Material(name, None, tuple(spec["diffuse"])))
+                continue
+            if tex not in images:
+                images[tex] = read_image(tex)
+                inputs.append(tex)
+            image = images[tex]
+        materials.append(Material(name, image, tuple(spec["diffuse"]), image_name=tex.name if tex else None))
+    if (face_mat < 0).any():
+        materials.append(Material("default", diffuse=(0.7, 0.7, 0.7, 1.0)))
+        face_mat = np.where(face_mat < 0, len(materials) - 1, face_mat)
+    if not materials:
+        materials = [Material("default", diffuse=(0.7, 0.7, 0.7, 1.0))]
+    return tuple(materials), face_mat
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+
+def _rows(prefix: str, values: np.ndarray) -> str:
+    # repr() is the shortest string that reads back to the same float64: coordinates round-trip exactly
+    return "".join(prefix + " ".join(map(repr, row)) + "\n" for row in values.tolist())
+
+
+def texture_names(scan: Scan, stem: str) -> list[str | None]:
+    """File name of each material's texture: its own name if it has one, else ``stem_material.png``.
+
+    Names are made unique and always end in .png (textures are written losslessly).
+    """
+    names, used = [], set()
+    for m in scan.materials:
+        if m.image is None:
+            names.append(None)
+            continue
+        base = Path(m.image_name).stem if m.image_name else f"{stem}_{m.name}"
+        base = re.sub(r"[^\w.-]+", "_", base)
+        name, k = f"{base}.png", 1
+        while name in used:
+            name, k = f"{base}_{k}.png", k + 1
+        used.add(name)
+        names.append(name)
+    return names
+
+
+def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) -> None:
+    """Write ``scan`` as OBJ + MTL + PNG textures next to ``obj_path``.
+
+    Args:
+        files: an :class:`~scantex.io.atomic.AtomicFiles` that hands out temporary paths.
+        png_cache: see :func:`scantex.io.images.png_bytes`.
+    """
+    stem = obj_path.stem
+    mtl_path = obj_path.with_suffix(".mtl")
+    tex_names = texture_names(scan, stem)
+    mat_names = [re.sub(r"\s+", "_", m.name) or f"material_{i}" for i, m in enumerate(scan.materials)]
+
+    mtl = ["# written by scantex\n"]
+    for m, name, tex in zip(scan.materials, mat_names, tex_names):
+        r, g, b, a = m.diffuse
+        mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")
+        if tex:
+            mtl.append(f"map_Kd {tex}\n")
+            write_png(files.path(obj_path.parent / tex), m.image, png_cache)
+        mtl.append("\n")
+    mtl_tmp = files.path(mtl_path)
+    mtl_tmp.write_text("".join(mtl), encoding="utf-8")
+
+    parts = [f"# written by scantex: {scan.n_vertices} vertices, {scan.n_faces} faces\n",
+             f"mtllib {mtl_path.name}\n"]
+    if scan.vertex_colors is not None:
+        rgb = scan.vertex_colors[:, :3].astype(np.float64) / 255.0
+        parts.append(_rows("v ", np.concatenate([scan.positions, rgb], axis=1)))
+    else:
+        parts.append(_rows("v ", scan.positions))
+    if scan.uvs is not None:
+        parts.append(_rows("vt ", scan.uvs))
+    if scan.normals is not None:
+        parts.append(_rows("vn ", scan.normals))
+    corners = [scan.faces + 1]
+    if scan.uvs is not None:
+        corners.append(scan.face_uvs + 1)
+    if scan.normals is not None:
+        if scan.uvs is None:
+            corners.append(np.zeros_like(scan.faces))  # 'v//vn'
+        corners.append(scan.face_normals_idx + 1)
+    stacked = np.stack(corners, axis=-1).tolist()  # [F, 3, k]
+    sep = "/"
+    # keep the file's face order: a usemtl line wherever the material changes
+    fm = scan.face_materials
+    change = np.flatnonzero(np.diff(fm, prepend=-1) != 0).tolist() + [scan.n_faces]
+    for start, stop in zip(change[:-1], change[1:]):
+        parts.append(f"usemtl {mat_names[fm[start]]}\n")
+        parts.append("".join(
+            "f " + " ".join(sep.join(str(i) if i else "" for i in c) for c in face) + "\n"
+            for face in stacked[start:stop]))
+    files.path(obj_path).write_text("".join(parts), encoding="utf-8")

@@ -1,0 +1,1 @@
+"""Measuring what scantex did: geometry kept (it must be exactly), texture against a reference."""

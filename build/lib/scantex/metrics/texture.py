@@ -1,0 +1,173 @@
+"""Texture metrics: atlas-space scores where two layouts match, renders against a reference, and the
+atlas's own properties (texel density per chart, coverage, seam visibility).
+
+Render scores are the ones that mean something to a user: an atlas can differ from the truth's in its
+gutters and still look identical on the model. Atlas-space scores are offered where both scans share a
+UV layout (an enhanced scan and its input or ground truth), over covered texels only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.atlas.texelmap import covered_texels
+from scantex.metrics.image import mse, psnr, ssim
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from scantex.views.render import render, sample_texture
+
+#: reference view: camera -> (image (H, W, 3) float32 in [0, 1], mask (H, W) bool of pixels to score)
+Reference = Callable[[Camera], tuple[np.ndarray, np.ndarray]]
+
+
+def layouts_match(a: Scan, b: Scan) -> bool:
+    """True when both scans map the same faces to the same UVs in the same materials."""
+    return (a.has_uvs and b.has_uvs and a.n_faces == b.n_faces and len(a.materials) == len(b.materials)
+            and np.array_equal(a.face_materials, b.face_materials)
+            and np.array_equal(a.uvs[a.face_uvs], b.uvs[b.face_uvs]))
+
+
+def atlas_scores(test: Scan, reference: Scan) -> dict:
+    """MSE, PSNR and SSIM of ``test``'s atlases against ``reference``'s, over covered texels.
+
+    Compared at the reference's resolution: ``test``'s atlas is read at the reference's texel centres
+    with the renderer's own bilinear lookup, so a smaller atlas is judged as a viewer would show it.
+    Materials without an image on either side are skipped.
+
+    Raises:
+        ValueError: the layouts differ (see :func:`layouts_match`): texel-by-texel scores are then
+            meaningless; use render scores.
+    """
+    if not layouts_match(test, reference):
+        raise ValueError("atlas-space scores need the same UV layout on both scans")
+    tri_uv = reference.triangle_uvs
+    totals = {"mse": 0.0, "ssim": 0.0, "texels": 0}
+    for m, (mt, mr) in enumerate(zip(test.materials, reference.materials)):
+        faces = np.flatnonzero(reference.face_materials == m)
+        if mt.image is None or mr.image is None or faces.size == 0:
+            continue
+        H, W = mr.image.shape[:2]
+        covered = covered_texels(tri_uv, W, H, faces)
+        ref = mr.image[..., :3].astype(np.float32) / 255.0
+        if mt.image.shape[:2] == (H, W):
+            img = mt.image[..., :3].astype(np.float32) / 255.0
+        else:
+            ys, xs = np.mgrid[0:H, 0:W]
+            uv = np.stack([(xs.ravel() + 0.5) / W, 1.0 - (ys.ravel() + 0.5) / H], axis=1)
+            img = sample_texture(mt.image, uv)[:, :3].reshape(H, W, 3)
+        n = int(covered.sum())
+        if n == 0:
+            continue
+        totals["mse"] += mse(img, ref, covered) * n
+        totals["ssim"] += ssim(img, ref, covered) * n
+        totals["texels"] += n
+    n = totals["texels"]
+    if n == 0:
+        return {"mse": float("nan"), "psnr": float("nan"), "ssim": float("nan"), "texels": 0}
+    e = totals["mse"] / n
+    return {"mse": e, "psnr": float("inf") if e == 0 else float(10 * np.log10(1 / e)),
+            "ssim": totals["ssim"] / n, "texels": n}
+
+
+def chart_texel_density(scan: Scan, unit_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Texels per centimetre of every chart: ``(density (C,), area_m2 (C,))``.
+
+    A chart's density is ``sqrt(texel area / surface area in cm²)``: the side of a texel, inverted.
+    ``unit_m`` is the length of one scan unit in metres (1 for the metre-scaled exports of phone apps).
+    Charts without an image get density 0.
+    """
+    charts = uv_shells(scan)
+    C = int(charts.max()) + 1
+    area_cm2 = scan.face_areas * (unit_m * 100.0) ** 2
+    texels = np.zeros(scan.n_faces)
+    if scan.has_uvs:
+        uv = scan.triangle_uvs
+        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        size = np.array([m.image.shape[0] * m.image.shape[1] if m.image is not None else 0
+                         for m in scan.materials], np.float64)
+        texels = uv_area * size[scan.face_materials]
+    chart_texels = np.bincount(charts, texels, C)
+    chart_area = np.bincount(charts, area_cm2, C)
+    density = np.sqrt(np.divide(chart_texels, chart_area, out=np.zeros(C), where=chart_area > 0))
+    return density, chart_area / 1e4
+
+
+def texel_density(scan: Scan, unit_m: float = 1.0) -> dict:
+    """Summary of :func:`chart_texel_density` in texels per cm: area-weighted mean, median, spread."""
+    density, area = chart_texel_density(scan, unit_m)
+    if area.sum() <= 0:
+        return {"px_per_cm_mean": 0.0, "px_per_cm_median": 0.0, "px_per_cm_min": 0.0, "px_per_cm_max": 0.0,
+                "charts": len(density)}
+    return {"px_per_cm_mean": float(np.average(density, weights=area)),
+            "px_per_cm_median": float(np.median(density)),
+            "px_per_cm_min": float(density.min()), "px_per_cm_max": float(density.max()),
+            "charts": len(density)}
+
+
+def coverage(scan: Scan) -> dict:
+    """How much of the atlas the charts use, and how much of the surface has colour.
+
+    ``atlas_used``: summed UV triangle area over the atlas area (overlapping charts count twice, so it
+    can pass 1); ``textured_area_share``: surface area not left black (see
+    :func:`scantex.atlas.holes.untextured_faces`).
+    """
+    area = scan.face_areas
+    holes = untextured_faces(scan)
+    out = {"textured_area_share": float(1.0 - area[holes].sum() / max(area.sum(), 1e-300)),
+           "hole_faces": int(holes.sum())}
+    if scan.has_uvs:
+        uv = scan.triangle_uvs
+        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        used = [m for m in range(len(scan.materials)) if scan.materials[m].image is not None]
+        out["atlas_used"] = float(uv_area.sum() / max(len(used), 1))
+    return out
+
+
+def texture_summary(scan: Scan, unit_m: float = 1.0) -> dict:
+    """The atlas's own properties: charts, seams and how visible they are, texel density, coverage."""
+    edges = seam_edges(scan)
+    return {"charts": int(uv_shells(scan).max()) + 1, "seam_edges": len(edges),
+            "seam_visibility": round(seam_visibility(scan, edges), 3),
+            "texel_density": texel_density(scan, unit_m), "coverage": coverage(scan),
+            "atlas_sizes": [list(m.image.shape[:2]) if m.image is not None else None for m in scan.materials]}
+
+
+def render_reference(scan: Scan, supersample: int = 2) -> Reference:
+    """Renders of ``scan`` as the reference (e.g. a ground truth), scored where it covers pixels fully."""
+    caster = RayCaster(scan.positions, scan.faces)
+
+    def reference(camera: Camera):
+        image, alpha = render(scan, camera, caster, supersample=supersample)
+        return image, alpha >= 0.999
+
+    return reference
+
+
+def render_scores(reference: Reference, scans: dict[str, Scan], cameras: Sequence[Camera],
+                  supersample: int = 2) -> dict:
+    """Mean PSNR / SSIM / MSE over ``cameras`` of each scan's unlit renders against ``reference``.
+
+    Unlike :func:`scantex.metrics.views.score_views`, each scan is ray-cast on its own, so the scans
+    may differ in geometry; a pixel counts where the reference's mask says so (a scan that does not
+    cover it there is scored against its black background).
+    """
+    casters = {name: RayCaster(s.positions, s.faces) for name, s in scans.items()}
+    out: dict[str, dict[str, list]] = {name: {"psnr": [], "ssim": [], "mse": []} for name in scans}
+    for cam in cameras:
+        ref, mask = reference(cam)
+        if not mask.any():
+            continue
+        for name, scan in scans.items():
+            img, _ = render(scan, cam, casters[name], supersample=supersample)
+            out[name]["psnr"].append(psnr(img, ref, mask))
+            out[name]["ssim"].append(ssim(img, ref, mask))
+            out[name]["mse"].append(mse(img, ref, mask))
+    return {name: {k: float(np.mean(v)) if v else float("nan") for k, v in d.items()} | {"views": len(d["psnr"])}
+            for name, d in out.items()}

@@ -1,0 +1,55 @@
+"""Scoring renders of scans at held-out views against reference renders (ground truth or photos)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from scantex.metrics.image import psnr, ssim
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.render import render
+
+
+def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], scans: dict[str, Scan],
+                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = 2) -> dict:
+    """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
+
+    Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
+    one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
+    has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
+
+    Returns:
+        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...]}}}``:
+        means over the views, and each view's own PSNR and SSIM in the order of ``cameras`` (the report
+        shows them next to each view).
+    """
+    from scantex.metrics.patches import patch_score
+
+    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": [], "hole_psnr": []}
+                            for name in scans}
+    hole_pixels = {name: [] for name in scans}
+    for cam in cameras:
+        ref, ref_alpha = reference(cam)
+        mask = ref_alpha >= 0.999
+        g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
+        holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
+        for name, scan in scans.items():
+            img, _ = render(scan, cam, caster, supersample=supersample)
+            out[name]["psnr"].append(psnr(img, ref, mask))
+            out[name]["ssim"].append(ssim(img, ref, mask))
+            out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))
+            out[name]["patches"].append(patch_score(img, ref, mask))
+            if holes.any():
+                hole_pixels[name].append(((img - ref) ** 2)[holes])
+    result = {}
+    for name in scans:
+        r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
+        r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim")}
+        if hole_pixels[name]:
+            e = float(np.concatenate(hole_pixels[name]).mean())
+            r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")
+        result[name] = r
+    return result

@@ -1,0 +1,37 @@
+"""The capture's own photos: importers for the usual posed-photo formats, writers to convert between
+them, and a check that the mesh sits where the cameras see it.
+
+Every importer returns a :class:`PhotoSet` whose cameras follow scantex's one convention (OpenCV,
+world frame = the mesh's); each format's module docstring says exactly how it is converted:
+
+- :mod:`~scantex.photos.nerfstudio` ``transforms.json``,
+- :mod:`~scantex.photos.colmap` ``cameras``/``images`` ``.txt`` and ``.bin``,
+- :mod:`~scantex.photos.scannerapp` 3D Scanner App "All Data" frames,
+- :mod:`~scantex.photos.polycam` Polycam raw keyframes,
+- :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
+
+::
+
+    photos = load_photos("capture/")          # any of the above
+    require_alignment(scan, photos)           # ScanError when the mesh is not in the cameras' frame
+    write_colmap_binary(photos, "as_colmap/")  # convert
+"""
+
+from scantex.photos.alignment import (
+           AlignmentReport,
+           PhotoAlignment,
+           check_alignment,
+           require_alignment,
+)
+from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
+from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
+from scantex.photos.load import detect_format, load_photos
+from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
+from scantex.photos.photoset import Distortion, PhotoSet
+from scantex.photos.polycam import load_polycam, write_polycam
+from scantex.photos.scannerapp import load_3dscannerapp, write_3dscannerapp
+
+__all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment",
+           "detect_format", "load_3dscannerapp", "load_cameras_json", "load_colmap", "load_nerfstudio",
+           "load_photos", "load_polycam", "require_alignment", "write_3dscannerapp", "write_cameras_json",
+           "write_colmap_binary", "write_colmap_text", "write_nerfstudio", "write_polycam"]

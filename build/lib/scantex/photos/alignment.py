@@ -1,0 +1,609 @@
+"""Does the mesh sit where the photos' cameras see it? A check before training on the photos.
+
+A mesh and its photos come from one capture but often not in one frame: an app that re-centres or
+re-orients the mesh on export, a nerfstudio file whose world was rotated to z-up, a COLMAP model in
+its own arbitrary frame. Trained through such cameras, a texture would come out as a smear. The check
+renders the mesh (by ray casting) from a few photos' cameras at a reduced size and compares *edges*,
+keeping only render edges that can be an edge in the photo:
+
+- occluding contours (silhouette and depth discontinuities), **except where the mesh simply ends**: a
+  partial scan's ragged open border draws a silhouette where the real surface goes on (the wall
+  continues, the façade's roof meets the sky at another place than the scan stopped), so contour
+  pixels within ``BORDER_PX`` of a projected open boundary edge of the (position-welded) mesh are
+  dropped;
+- creases: visible mesh edges whose faces meet at more than ``CREASE_DEG`` (shading changes there);
+- texture edges of a textured mesh, after fitting the render's exposure to the photo (a per-channel
+  gain and offset), inside the mesh's image, away from its open border, from untextured holes and from
+  UV chart borders (where a capture app's atlas jumps in exposure: an edge no photo has);
+- the photo's edges: Sobel gradient after a Gaussian blur, thinned by non-maximum suppression and
+  thresholded (a light Canny without hysteresis).
+
+Two measures follow:
+
+- ``edge_distance_px``: the mean distance (working pixels) from a render edge pixel to the nearest
+  photo edge, each capped at ``DISTANCE_CAP`` (5 %) of the image side (a one-sided truncated chamfer
+  distance), and ``baseline_px``, the same for the render's edges moved by a tenth of the image in 8
+  directions: what unrelated edges score. Their ratio says whether the edges match at all;
+- **the rigid motion that best brings the mesh onto the photos**: the render edges' 3D surface points
+  are moved by a rotation about their centroid and a translation, chosen by robust least squares on
+  their distance to the photos' edges over all checked photos (Gauss-Newton steps of scipy's
+  ``least_squares`` on the photos' edge distance transforms). It says by how much the mesh is off:
+  ``offset_m`` and ``turn_deg``, and ``displacement``, the median image motion of the mesh's edge
+  points that this correction makes, as a share of the photo's longer side.
+
+The set is judged misaligned when the mesh covers less than 1 % of most checked photos; when even
+after the best rigid correction the edges match no better than ``MAX_EDGE_RATIO`` (0.5) of unrelated
+edges; or when the correction moves the mesh's image by more than ``MAX_DISPLACEMENT`` of the image
+side (real captures' poses are off by 1-5 px, about 0.1-0.4 %, per photo; a correction shared by all
+photos averages those out). Measured values are in ``bench/RESULTS.md`` ("alignment").
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.photoset import PhotoSet
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+#: a photo the mesh covers less of than this does not count as seeing it
+MIN_COVERAGE = 0.01
+#: edge distance / random-offset distance above which the mesh is judged misaligned
+MAX_EDGE_RATIO = 0.5
+#: image motion (share of the longer image side) of the best rigid correction above which the mesh is
+#: judged to be off, when the correction is also a real turn or shift (below)
+MAX_DISPLACEMENT = 0.006
+#: the correction must also turn the mesh by more than this, or shift it by more than ``MAX_SHIFT`` of the
+#: scene's size, to refuse: the estimate's own wander on aligned synthetic captures moved their image by up
+#: to 1 % (the demo room: 1.0 cm in a 5 m room, 0.0 degrees; four toy photos of a cube: 1.1 degrees)
+MAX_TURN_DEG = 2.0
+MAX_SHIFT = 0.02
+#: fewest render edge pixels for a photo's edge distance to count
+MIN_EDGE_PIXELS = 20
+#: edge distances are capped at this share of the longer image side (a truncated chamfer distance:
+#: one render edge with no counterpart in the photo, a cable or a shadow, must not dominate)
+DISTANCE_CAP = 0.05
+#: relative depth jump between neighbouring pixels that makes an occluding contour
+DEPTH_JUMP = 0.1
+#: dihedral angle (degrees) above which a mesh edge is a crease that shows in a photo
+CREASE_DEG = 40.0
+#: contour pixels this close (working pixels) to a projected open boundary edge are the scan's end,
+#: not an edge of the real surface
+BORDER_PX = 3
+#: typical size of the rigid correction's parameters (rotation vector: 3 degrees; translation: 5 % of the
+#: edge points' spread), the unit of the weak prior towards no motion
+PRIOR_SCALE = np.array([np.radians(3.0)] * 3 + [0.05] * 3)
+#: most edge points per photo used to estimate the rigid correction
+MAX_FIT_POINTS = 3000
+
+
+@dataclass(frozen=True)
+class PhotoAlignment:
+    """How one photo agrees with the mesh rendered through its camera.
+
+    Attributes:
+        index: the photo's index in the :class:`PhotoSet`.
+        image: its file.
+        size: ``(width, height)`` the comparison ran at.
+        coverage: share of the photo's pixels that see the mesh.
+        edge_distance_px: mean distance (pixels at ``size``, each capped at ``DISTANCE_CAP`` of the
+            longer side) from the render's edges to the photo's nearest edge; NaN when the render has fewer
+            than ``MIN_EDGE_PIXELS`` edge pixels.
+        baseline_px: the same for the render's edges moved by a tenth of the image (8 directions).
+        n_edges: number of render edge pixels.
+        corrected_distance_px: ``edge_distance_px`` with the mesh moved by the best rigid correction.
+        n_border: contour pixels dropped because the mesh ends there (open border).
+    """
+
+    index: int
+    image: Path
+    size: tuple[int, int]
+    coverage: float
+    edge_distance_px: float
+    baseline_px: float
+    n_edges: int
+    corrected_distance_px: float = float("nan")
+    n_border: int = 0
+
+    @property
+    def ratio(self) -> float:
+        """``edge_distance_px / baseline_px``: about 0 aligned, about 1 unrelated."""
+        return _ratio(self.edge_distance_px, self.baseline_px)
+
+    @property
+    def corrected_ratio(self) -> float:
+        """The ratio after the best rigid correction."""
+        return _ratio(self.corrected_distance_px, self.baseline_px)
+
+
+@dataclass(frozen=True)
+class AlignmentReport:
+    """The verdict of :func:`check_alignment`.
+
+    Attributes:
+        photos: per checked photo.
+        ok: False when the mesh is clearly not in the cameras' frame.
+        problem: what is wrong when not ``ok`` (one clause), else ``None``.
+        offset_m: length of the translation of the best rigid correction (scene units, metres).
+        turn_deg: angle of its rotation (about the centroid of the mesh's edge points).
+        displacement: median image motion of the edge points under that correction, as a share of the
+            longer image side (multiply by a photo's longer side for pixels).
+        scene_size_m: diagonal of the mesh's bounding box, for scale.
+    """
+
+    photos: tuple[PhotoAlignment, ...]
+    ok: bool
+    problem: str | None
+    offset_m: float = float("nan")
+    turn_deg: float = float("nan")
+    displacement: float = float("nan")
+    scene_size_m: float = float("nan")
+
+    @property
+    def edge_distance_px(self) -> float:
+        """Median over photos of their edge distance (NaN when no photo has render edges)."""
+        return _nanmedian([p.edge_distance_px for p in self.photos])
+
+    @property
+    def baseline_px(self) -> float:
+        return _nanmedian([p.baseline_px for p in self.photos])
+
+    @property
+    def ratio(self) -> float:
+        return _nanmedian([p.ratio for p in self.photos])
+
+    @property
+    def corrected_ratio(self) -> float:
+        return _nanmedian([p.corrected_ratio for p in self.photos])
+
+    @property
+    def coverage(self) -> float:
+        return float(np.median([p.coverage for p in self.photos]))
+
+    def summary(self) -> str:
+        size = max(self.photos[0].size) if self.photos else 0
+        verdict = "aligned" if self.ok else f"NOT aligned: {self.problem}"
+        return (f"mesh and photos {verdict}; median edge distance {self.edge_distance_px:.1f} px "
+                f"(random offsets: {self.baseline_px:.1f} px, ratio {self.ratio:.2f}; "
+                f"{self.corrected_ratio:.2f} after the best rigid correction: {_amount(self)}), mesh covers "
+                f"{100 * self.coverage:.0f} % of the photo; {len(self.photos)} photos at {size} px")
+
+
+@dataclass(frozen=True, eq=False)
+class _EdgeSample:
+    """Render edges of one checked photo, for fitting the rigid correction."""
+
+    camera: Camera  # at the working size
+    points: np.ndarray  # (n, 3) world points of the render's edge pixels
+    distance: np.ndarray  # (h, w) float32 distance (px) to the photo's nearest edge
+
+
+def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_side: int = 480,
+                    caster=None) -> AlignmentReport:
+    """Reproject ``scan`` into ``n_photos`` evenly spread photos and measure how well its edges meet the
+    photos' edges, and which rigid motion of the mesh would make them meet best (see the module
+    docstring).
+
+    Args:
+        scan: the mesh, in the frame it will be textured in.
+        photos: the posed photos.
+        n_photos: how many photos to check.
+        max_side: the longer image side the comparison runs at.
+        caster: a prebuilt :class:`~scantex.views.raycast.RayCaster` of ``scan`` (built when ``None``).
+    """
+    from scantex.views.raycast import RayCaster
+
+    if len(photos) == 0:
+        raise ValueError("no photos to check")
+    caster = caster or RayCaster(scan.positions, scan.faces)
+    edges = _MeshEdges.of(scan)
+    picks = np.unique(np.linspace(0, len(photos) - 1, min(n_photos, len(photos))).round().astype(int))
+    checked = [_check_photo(scan, photos, int(i), max_side, caster, edges) for i in picks]
+    results = [c[0] for c in checked]
+    covered = [k for k, p in enumerate(results) if p.coverage >= MIN_COVERAGE]
+    size = float(np.linalg.norm(np.ptp(scan.positions, axis=0)))
+    problem = None
+    offset = turn = displacement = float("nan")
+    if 2 * len(covered) <= len(results):
+        problem = (f"it projects outside {len(results) - len(covered)} of the {len(results)} photos "
+                   f"checked (covers {100 * float(np.median([p.coverage for p in results])):.1f} % of "
+                   "a photo on median)")
+    else:
+        samples = [checked[k][1] for k in covered if checked[k][1] is not None]
+        if not samples or not np.isfinite(_nanmedian([results[k].ratio for k in covered])):
+            problem = "the rendered mesh shows no edges to compare with the photos"
+        else:
+            R, t, centre = fit_rigid_correction(samples)
+            offset = float(np.linalg.norm(t))
+            turn = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+            moves = []
+            for k in covered:
+                sample = checked[k][1]
+                if sample is None:
+                    continue
+                moved = (sample.points - centre) @ R.T + centre + t
+                p0, _ = sample.camera.project(sample.points)
+                p1, _ = sample.camera.project(moved)
+                side = max(sample.camera.width, sample.camera.height)
+                moves.append(float(np.median(np.linalg.norm(p1 - p0, axis=1))) / side)
+                w, h = results[k].size
+                corrected = _chamfer(_lookup(sample.distance, p1), DISTANCE_CAP * max(w, h))
+                results[k] = _replace(results[k], corrected_distance_px=corrected)
+            displacement = float(np.median(moves))
+            # the better of as-is and corrected: the fit minimises a robust cost, not this ratio
+            fitted = min(_nanmedian([results[k].corrected_ratio for k in covered]),
+                         _nanmedian([results[k].ratio for k in covered]))
+            if not fitted <= MAX_EDGE_RATIO:
+                problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
+                           f"moved at random, even after the best small correction; aligned data gives "
+                           f"< {MAX_EDGE_RATIO})")
+            elif displacement > MAX_DISPLACEMENT and (turn > MAX_TURN_DEG or offset > MAX_SHIFT * size):
+                problem = (f"it sits about {_length(offset)} and {turn:.1f} degrees away from where the "
+                           f"photos see it (its image would move {100 * displacement:.1f} % of the photo "
+                           f"side to match)")
+    report = AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size)
+    log.info("%s", report.summary())
+    return report
+
+
+def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport:
+    """:func:`check_alignment`, raising when the mesh is clearly not in the cameras' frame.
+
+    Raises:
+        ScanError: naming ``photos.source``: "the mesh is not in the cameras' frame: ... (median edge
+            distance N px ...)"; ``--no-alignment-check`` (``photos.check_alignment``) skips the check.
+    """
+    report = check_alignment(scan, photos, **kwargs)
+    if not report.ok:
+        distance = report.edge_distance_px
+        detail = (f"median edge distance {distance:.1f} px at {max(report.photos[0].size)} px"
+                  if np.isfinite(distance) else "median edge distance: no mesh edges in the photos")
+        raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; "
+                                       "--no-alignment-check to go on anyway)")
+    return report
+
+
+def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rigid motion ``X -> R (X - centre) + centre + t`` of the edge points that brings them closest
+    to the photos' edges, over all ``samples`` (robust least squares, soft-L1 loss at 2 px).
+
+    Returns:
+        ``(R (3, 3), t (3,), centre (3,))``.
+    """
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    centre = np.concatenate([s.points for s in samples]).mean(axis=0)
+    sharp = samples
+    spread = max(float(np.linalg.norm(np.concatenate([s.points for s in samples]).std(axis=0))), 1e-9)
+
+    def residuals(x):
+        R = Rotation.from_rotvec(x[:3]).as_matrix()
+        t = x[3:] * spread
+        out = []
+        for s in samples:
+            pix, z = s.camera.project((s.points - centre) @ R.T + centre + t)
+            pix[z <= 0] = np.nan
+            out.append(_lookup(s.distance, pix))
+        return np.concatenate(out)
+
+    # start from the translation that best explains each photo's own best image shift (a brute-force
+    # search, which repeated structure such as a façade's windows cannot trap the way it traps a local
+    # fit), then settle the translation alone, then all six parameters, on sharper distance fields
+    def sharp_cost(x):
+        r = residuals(x) / 2.0
+        return float(np.mean(2 * (np.sqrt(1 + r * r) - 1)))
+
+    prior = 0.05 * np.sqrt(sum(len(s.points) for s in sharp))
+    x = np.zeros(6)
+    start = x.copy()
+    start[3:] = _translation_from_shifts(sharp, centre) / spread
+    if sharp_cost(start) < sharp_cost(x):
+        x = start
+    for sigma, free in ((3.0, slice(3, 6)), (3.0, slice(0, 6)), (1.0, slice(0, 6))):
+        samples = [_blur(s, sigma) for s in sharp]
+
+        def partial(y, free=free):
+            full = x.copy()
+            full[free] = y
+            # a weak prior towards no motion: with few edges (a small or flat mesh) a fit may otherwise
+            # trade a turn against a shift that the edges hardly tell apart
+            return np.concatenate([residuals(full), prior * full / PRIOR_SCALE])
+
+        fit = least_squares(partial, x[free], loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=40)
+        trial = x.copy()
+        trial[free] = fit.x
+        samples = sharp
+        # keep a step only when the sharp edges agree better: a blurred field can pull a sparse set of
+        # edge points off a perfect fit
+        if sharp_cost(trial) < 0.97 * sharp_cost(x):  # a real improvement, not noise
+            x = trial
+    samples = sharp
+    return Rotation.from_rotvec(x[:3]).as_matrix(), x[3:] * spread, centre
+
+
+def _translation_from_shifts(samples: list[_EdgeSample], centre: np.ndarray) -> np.ndarray:
+    """``(3,)`` the translation whose image motion best matches (least squares over the photos) each
+    photo's best integer shift of its edge points (searched over +-6 % of the image side)."""
+    rows, rhs = [], []
+    for s in samples:
+        pix, _ = s.camera.project(s.points)
+        H, W = s.distance.shape
+        r = max(2, round(0.06 * max(H, W)))
+        step = max(1, r // 12)
+        best, shift = np.inf, (0.0, 0.0)
+        field = _blur(s, 2.0).distance
+        for dy in range(-r, r + 1, step):
+            for dx in range(-r, r + 1, step):
+                cost = float(_lookup(field, pix + (dx, dy)).mean())
+                if cost < best - 1e-9 or (abs(cost - best) < 1e-9 and dx * dx + dy * dy < sum(v * v for v in shift)):
+                    best, shift = cost, (float(dx), float(dy))
+        # image motion of the centre under a small translation: d pix = J dt (finite differences)
+        p0 = s.camera.project(centre[None])[0][0]
+        h = 1e-4 * max(1.0, float(np.linalg.norm(centre - s.camera.center)))
+        J = np.stack([(s.camera.project((centre + h * e)[None])[0][0] - p0) / h for e in np.eye(3)], axis=1)
+        rows.append(J)
+        rhs.append(shift)
+    A, b = np.concatenate(rows), np.concatenate(rhs)
+    # a little ridge: depth along the view is barely observed by near-parallel views
+    lam = 1e-3 * float(np.trace(A.T @ A)) / 3
+    return np.linalg.solve(A.T @ A + lam * np.eye(3), A.T @ b)
+
+
+def _blur(sample: _EdgeSample, sigma: float) -> _EdgeSample:
+    from scipy import ndimage
+
+    return _EdgeSample(sample.camera, sample.points, ndimage.gaussian_filter(sample.distance, sigma))
+
+
+@dataclass(frozen=True, eq=False)
+class _MeshEdges:
+    """The mesh's open boundary edges and creases, on positions welded by value (an OBJ repeats a
+    position at every UV seam; those are no borders)."""
+
+    border: np.ndarray  # (B, 2, 3) end points of open boundary edges
+    creases: np.ndarray  # (C, 2, 3) end points of crease edges
+    holes: np.ndarray  # (F,) bool faces whose texture edges are no photo's: untextured, or touching another
+    # UV chart (a capture app's atlas jumps in exposure there)
+
+    @classmethod
+    def of(cls, scan: Scan) -> _MeshEdges:
+        _, weld = np.unique(scan.positions, axis=0, return_inverse=True)
+        faces = weld.reshape(-1)[scan.faces]
+        e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        owner = np.tile(np.arange(len(faces)), 3)
+        key = np.sort(e, axis=1)
+        keep = key[:, 0] != key[:, 1]
+        key, owner = key[keep], owner[keep]
+        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        inverse = inverse.reshape(-1)
+        border = key[counts[inverse] == 1]
+        # creases: edges with exactly two faces whose normals differ by more than CREASE_DEG
+        two = np.flatnonzero(counts[inverse] == 2)
+        order = two[np.argsort(inverse[two], kind="stable")]
+        pairs = order.reshape(-1, 2)
+        n = scan.face_normals
+        cos = np.einsum("ij,ij->i", n[owner[pairs[:, 0]]], n[owner[pairs[:, 1]]])
+        crease = key[pairs[cos < np.cos(np.radians(CREASE_DEG)), 0]]
+        P = scan.positions
+        first = np.zeros(weld.max() + 1 if weld.size else 0, int)
+        first[weld.reshape(-1)[::-1]] = np.arange(len(P))[::-1]
+        from scantex.photos.poses import reference_faces
+
+        return cls(P[first[border]], P[first[crease]],
+                   ~reference_faces(scan) if scan.is_textured else np.zeros(scan.n_faces, bool))
+
+
+def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None) -> np.ndarray:
+    """``(H, W) bool`` pixels that ``segments (S, 2, 3)`` project to (sampled about every half pixel);
+    with ``depth``, only the samples no nearer surface hides."""
+    H, W = camera.height, camera.width
+    out = np.zeros((H, W), bool)
+    if len(segments) == 0:
+        return out
+    ends = camera.project(segments.reshape(-1, 3))[0].reshape(-1, 2, 2)
+    length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0)
+    steps = np.clip(np.ceil(2 * length), 1, 2 * max(H, W)).astype(int)
+    seg = np.repeat(np.arange(len(segments)), steps + 1)
+    frac = np.concatenate([np.linspace(0, 1, k + 1) for k in steps])
+    X = segments[seg, 0] + frac[:, None] * (segments[seg, 1] - segments[seg, 0])
+    pix, z = camera.project(X)
+    ok = np.isfinite(pix).all(axis=1) & (z > 0)
+    x, y = np.round(pix[ok, 0]).astype(int), np.round(pix[ok, 1]).astype(int)
+    z = z[ok]
+    inside = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+    x, y, z = x[inside], y[inside], z[inside]
+    if depth is not None:
+        seen = z <= depth[y, x] * 1.01 + 1e-6
+        x, y = x[seen], y[seen]
+    out[y, x] = True
+    return out
+
+
+def _check_photo(scan: Scan, photos: PhotoSet, i: int, max_side: int, caster,
+                 mesh_edges: _MeshEdges) -> tuple[PhotoAlignment, _EdgeSample | None]:
+    from PIL import Image
+    from scipy import ndimage
+
+    from scantex.views.raycast import cast_gbuffer
+    from scantex.views.render import render_gbuffer
+
+    cam = photos.cameras[i]
+    factor = min(1.0, max_side / max(cam.width, cam.height))
+    w, h = max(1, round(cam.width * factor)), max(1, round(cam.height * factor))
+    small = resized_camera(cam, w, h)
+    photo = photos.load_image(i)
+    if (w, h) != (cam.width, cam.height):
+        photo = np.asarray(Image.fromarray(photo).resize((w, h), Image.Resampling.BOX))
+    photo = photo.astype(np.float32) / 255.0
+    photo_edges = edge_map(_gray(photo))
+
+    g = cast_gbuffer(caster, small, scan.face_normals)
+    mask = g.mask
+    border = ndimage.binary_dilation(_edge_pixels(mesh_edges.border, small, None), iterations=BORDER_PX)
+    contours = contour_map(mask, g.depth)
+    n_border = int((contours & border).sum())
+    render_edges = (contours & ~border) | (_edge_pixels(mesh_edges.creases, small, g.depth) & mask)
+    inside = ndimage.binary_erosion(mask, iterations=2) & ~border
+    if scan.is_textured:
+        holes = mesh_edges.holes
+        if holes.any():
+            inside &= ~ndimage.binary_dilation(mask & holes[np.where(mask, g.face_id, 0)], iterations=2)
+        colour = fit_exposure(render_gbuffer(scan, g), photo, inside)
+        render_edges |= edge_map(_gray(colour)) & inside
+    elif render_edges.sum() < MIN_EDGE_PIXELS:
+        render_edges |= edge_map(_gray(render_gbuffer(scan, g))) & inside
+    render_edges &= mask
+
+    ys, xs = np.nonzero(render_edges)
+    n = len(ys)
+    sample = None
+    if n < MIN_EDGE_PIXELS or not photo_edges.any():
+        distance = baseline = float("nan")
+    else:
+        dt = ndimage.distance_transform_edt(~photo_edges).astype(np.float32)
+        cap = DISTANCE_CAP * max(w, h)
+        distance = _chamfer(dt[ys, xs], cap)
+        r = max(2, round(0.1 * max(w, h)))
+        shifted = []
+        for angle in np.arange(8) * np.pi / 4:
+            dy, dx = round(r * np.sin(angle)), round(r * np.cos(angle))
+            y, x = ys + dy, xs + dx
+            ok = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+            if ok.sum() >= MIN_EDGE_PIXELS:
+                shifted.append(_chamfer(dt[y[ok], x[ok]], cap))
+        baseline = float(np.median(shifted)) if shifted else float("nan")
+        pick = np.random.default_rng(i).permutation(n)[:MAX_FIT_POINTS]
+        points = g.points(scan.positions, scan.faces)[ys[pick], xs[pick]]
+        sample = _EdgeSample(small, points, np.minimum(dt, cap))
+    result = PhotoAlignment(i, photos.images[i], (w, h), float(mask.mean()), distance, baseline, n,
+                            n_border=n_border)
+    return result, sample
+
+
+def fit_exposure(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``render (H, W, 3)`` brought to ``photo``'s exposure over ``mask``: per channel, the gain and offset
+    that give it the photo's mean and spread there, clipped to [0, 1]. Moments, not a regression: a
+    regression's gain falls to zero when the render is misaligned, which would hide the very edges
+    that show the misalignment."""
+    out = render.copy()
+    for c in range(3):
+        x, y = render[..., c][mask], photo[..., c][mask]
+        if x.size < 2 or np.std(x) < 1e-5:
+            continue
+        gain = np.std(y) / np.std(x)
+        out[..., c] = gain * render[..., c] + (y.mean() - gain * x.mean())
+    return np.clip(out, 0, 1)
+
+
+def resized_camera(camera: Camera, width: int, height: int) -> Camera:
+    """``camera`` for its image resized to ``width x height`` (corners kept: pixel centres move as in
+    :meth:`Camera.scaled`, per axis)."""
+    sx, sy = width / camera.width, height / camera.height
+    K = camera.K.copy()
+    K[0, 0] *= sx
+    K[0, 1] *= sx
+    K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+    K[1, 1] *= sy
+    K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+    return Camera(K, camera.world_to_camera, width, height)
+
+
+def edge_map(gray: np.ndarray, sigma: float = 1.0, min_gradient: float = 0.02) -> np.ndarray:
+    """``(H, W) bool`` thin edges of ``gray (H, W)`` in [0, 1]: Gaussian blur, Sobel, non-maximum
+    suppression across the edge, and the maxima above ``min_gradient`` (intensity change per pixel)."""
+    from scipy import ndimage
+
+    g = ndimage.gaussian_filter(gray.astype(np.float32), sigma)
+    gx = ndimage.sobel(g, axis=1) / 8.0
+    gy = ndimage.sobel(g, axis=0) / 8.0
+    mag = np.hypot(gx, gy)
+    # non-maximum suppression along the gradient, quantised to 0, 45, 90, 135 degrees
+    angle = (np.round(np.arctan2(gy, gx) / (np.pi / 4)) % 4).astype(np.int8)
+    padded = np.pad(mag, 1)
+    H, W = mag.shape
+    is_max = np.zeros_like(mag, dtype=bool)
+    for k, (dy, dx) in enumerate(((0, 1), (1, 1), (1, 0), (1, -1))):
+        ahead = padded[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+        behind = padded[1 - dy:1 - dy + H, 1 - dx:1 - dx + W]
+        is_max |= (angle == k) & (mag >= ahead) & (mag >= behind)
+    return is_max & (mag > min_gradient)
+
+
+def contour_map(mask: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """``(H, W) bool`` occluding contours of a render: pixels that see the mesh next to one that does
+    not (the silhouette), or next to one more than ``DEPTH_JUMP`` (relative) farther away."""
+    edges = np.zeros_like(mask)
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(None, -1), slice(1, None)
+        ma, mb = mask[tuple(a)], mask[tuple(b)]
+        da, db = depth[tuple(a)], depth[tuple(b)]
+        with np.errstate(invalid="ignore"):
+            jump = ma & mb & (np.abs(da - db) > DEPTH_JUMP * np.minimum(da, db))
+        # mark the nearer side: the contour belongs to the occluding surface
+        edges[tuple(a)] |= (ma & ~mb) | (jump & (da < db))
+        edges[tuple(b)] |= (mb & ~ma) | (jump & (db < da))
+    return edges
+
+
+def _chamfer(distances: np.ndarray, cap: float) -> float:
+    return float(np.minimum(distances, cap).mean())
+
+
+def _gray(rgb: np.ndarray) -> np.ndarray:
+    return rgb[..., :3] @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+
+
+def _nanmedian(values) -> float:
+    values = np.asarray(values, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    return float(np.median(values)) if values.size else float("nan")
+
+
+def _ratio(distance: float, baseline: float) -> float:
+    if not np.isfinite(distance) or not baseline > 0:
+        return float("nan")
+    return distance / baseline
+
+
+def _lookup(field: np.ndarray, pix: np.ndarray, outside: float | None = None) -> np.ndarray:
+    """Bilinear samples of ``field (H, W)`` at pixels ``pix (n, 2)``; pixels off the image (or NaN)
+    read ``outside`` (default: the field's largest value), so that no fit gains by leaving the image."""
+    H, W = field.shape
+    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
+    off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
+    x = np.clip(p[:, 0], 0, W - 1.001)
+    y = np.clip(p[:, 1], 0, H - 1.001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    out = ((1 - fy) * ((1 - fx) * field[y0, x0] + fx * field[y0, x0 + 1])
+           + fy * ((1 - fx) * field[y0 + 1, x0] + fx * field[y0 + 1, x0 + 1]))
+    out[off] = float(field.max()) if outside is None else outside
+    return out
+
+
+def _replace(p: PhotoAlignment, **changes) -> PhotoAlignment:
+    import dataclasses
+
+    return dataclasses.replace(p, **changes)
+
+
+def _length(metres: float) -> str:
+    return f"{100 * metres:.1f} cm" if metres < 1 else f"{metres:.2f} m"
+
+
+def _amount(report: AlignmentReport) -> str:
+    if not np.isfinite(report.offset_m):
+        return "none found"
+    return (f"moved {_length(report.offset_m)} ({100 * report.offset_m / report.scene_size_m:.1f} % of the "
+            f"mesh's size), turned {report.turn_deg:.1f} degrees, image motion "
+            f"{100 * report.displacement:.2f} % of the photo side")

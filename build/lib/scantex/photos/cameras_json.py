@@ -1,0 +1,130 @@
+"""scantex's own ``cameras.json`` (written by :func:`scantex.views.viewset.write_views`), also the shape
+of the bolster RGB-D demo's poses.
+
+``{"frames": [{"image", "width", "height", "K", "world_to_camera", "depth"?, "distortion"?}, ...]}``
+
+Conventions: scantex's own, so no conversion at all.
+
+- ``world_to_camera``: 4x4, ``x_cam = R X + t``, OpenCV axes (+x right, +y down, +z forward).
+- ``K``: 3x3 in pixels, OpenCV's pixel convention: ``(0, 0)`` is the centre of the top-left pixel (a
+  1920-pixel-wide Kinect calibration has ``cx = 959.5``). OpenCV's calibration uses this convention, so
+  a K from ``cv2.calibrateCamera`` goes in unchanged; a principal point from COLMAP, nerfstudio or ARKit
+  would need ``- 0.5``.
+- ``image`` and ``depth`` paths are absolute or relative to the file; ``depth`` is a uint16 PNG in
+  millimetres. ``width``/``height`` default to the image's size.
+- ``distortion`` (optional, written by :func:`write_cameras_json` when a photo has one): ``{"model",
+  "radial", "tangential", "radial_denominator"}`` as in :class:`~scantex.photos.photoset.Distortion`.
+- Other keys (``split``, the bolster's ``R`` and ``C``, ...) are ignored.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.io.atomic import atomic_files
+from scantex.photos.conventions import (
+    MAX_DISTORTION_PX,
+    accept_distortion,
+    check_intrinsics,
+    check_pose,
+)
+from scantex.photos.files import load_frames_file, check_sizes, copy_into, need, resolve_file
+from scantex.photos.photoset import Distortion, PhotoSet, image_size
+from scantex.views.camera import Camera
+
+FORMAT = "cameras.json"
+CONVENTION = ("OpenCV: x_cam = R X + t, +x right, +y down, +z forward; pixel = K x_cam / z with (0, 0) "
+              "the centre of the top-left pixel; depth PNG uint16 millimetres")
+
+
+def is_cameras_json(doc) -> bool:
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    return isinstance(frames, list) and bool(frames) and isinstance(frames[0], dict) \
+        and "world_to_camera" in frames[0]
+
+
+def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+    """Read a ``cameras.json`` (or the folder holding one); conventions in the module docstring.
+
+    Raises:
+        ScanError: missing or malformed file, missing images, non-finite or non-rigid poses.
+    """
+    path, doc, frames = load_frames_file(path, "cameras.json", "")
+    base = path.parent
+    cameras, images, depths, distortions = [], [], [], []
+    for i, frame in enumerate(frames):
+        what = f"frame {i}"
+        image = resolve_file(base, str(need(frame, "image", path, what)), path, f"{what}'s image")
+        w2c = check_pose(need(frame, "world_to_camera", path, what), path, what)
+        try:
+            K = np.asarray(need(frame, "K", path, what), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ScanError(path, f"{what}: K is not a matrix of numbers") from None
+        if K.shape != (3, 3):
+            raise ScanError(path, f"{what}: K has shape {K.shape}, expected 3x3")
+        if "width" in frame and "height" in frame:
+            width, height = frame["width"], frame["height"]
+        else:
+            width, height = image_size(image)
+        width, height = check_intrinsics(K, width, height, path, what)
+        camera = Camera(K, w2c, width, height)
+        distortion = _distortion(frame.get("distortion"), path, what)
+        distortions.append(accept_distortion(distortion, camera, max_distortion_px, path, what))
+        cameras.append(camera)
+        images.append(image)
+        depth = frame.get("depth")
+        depths.append(None if depth is None else resolve_file(base, str(depth), path, f"{what}'s depth"))
+    check_sizes(cameras, images, path)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=path,
+                    format=FORMAT, distortions=tuple(distortions))
+
+
+def _distortion(d, where: Path, what: str) -> Distortion | None:
+    if d is None:
+        return None
+    try:
+        return Distortion(str(d["model"]), tuple(float(v) for v in d.get("radial", ())),
+                          tuple(float(v) for v in d.get("tangential", (0.0, 0.0))),
+                          tuple(float(v) for v in d.get("radial_denominator", ())))
+    except (TypeError, ValueError, KeyError, AttributeError):
+        raise ScanError(where, f"{what}: distortion is not {{model, radial, tangential, "
+                               "radial_denominator}") from None
+
+
+def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bool = True) -> Path:
+    """Write ``out_dir/cameras.json``; returns its path.
+
+    Args:
+        photos: the photos.
+        out_dir: the folder.
+        copy_images: copy the photos (and depth maps) next to the file as ``photo_000.<ext>``
+            (``depth_000.png``) and refer to them by name; else refer to the originals by absolute path.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    frames = []
+    with atomic_files() as files:
+        for i, (cam, image, depth) in enumerate(zip(photos.cameras, photos.images, photos.depths)):
+            if copy_images:
+                name = f"photo_{i:03d}{image.suffix.lower()}"
+                copy_into(files, image, out_dir / name)
+            else:
+                name = str(image.resolve())
+            frame = {"image": name, **cam.to_dict()}
+            if depth is not None:
+                frame["depth"] = f"depth_{i:03d}.png" if copy_images else str(depth.resolve())
+                if copy_images:
+                    copy_into(files, depth, out_dir / frame["depth"])
+            distortion = photos.distortions[i]
+            if distortion is not None and not distortion.is_zero:
+                frame["distortion"] = {"model": distortion.model, "radial": list(distortion.radial),
+                                       "tangential": list(distortion.tangential),
+                                       "radial_denominator": list(distortion.radial_denominator)}
+            frames.append(frame)
+        doc = {"convention": CONVENTION, "frames": frames}
+        files.path(out_dir / "cameras.json").write_text(json.dumps(doc, indent=1))
+    return out_dir / "cameras.json"

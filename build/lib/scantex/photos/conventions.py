@@ -1,0 +1,144 @@
+"""The conversions between the formats' camera conventions and scantex's, in one place.
+
+scantex (and OpenCV): ``x_cam = R X + t``; camera +x right, +y down, +z forward; pixel ``(0, 0)`` is the
+centre of the top-left pixel, so an image ``W`` pixels wide spans ``x`` in ``[-0.5, W - 0.5]``.
+
+- **Camera axes.** OpenGL, Blender, nerfstudio and ARKit (3D Scanner App, Polycam) cameras look down -z
+  with +y up. The same camera in OpenCV axes is the OpenGL camera-to-world with its y and z columns
+  negated (``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)``); the world frame is untouched, so the mesh stays
+  where it is.
+- **Pixel centres.** COLMAP, nerfstudio and ARKit measure the principal point from the image's corner
+  (the centre of the top-left pixel is ``(0.5, 0.5)``; COLMAP documents it, nerfstudio casts rays
+  through ``pixel + 0.5``, Apple: "offsets of the principal point from the top-left corner of the
+  image frame"): scantex's ``cx = cx_format - 0.5``. OpenCV's calibration (and scantex's own
+  ``cameras.json``) already uses pixel centres: no shift.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.photoset import Distortion
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+#: largest pixel shift of a lens distortion that importers ignore (with a warning) by default
+MAX_DISTORTION_PX = 1.0
+
+#: OpenGL/ARKit camera axes (+x right, +y up, looking down -z) to OpenCV's (+y down, +z forward), and
+#: back: the same diagonal flip both ways
+FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
+
+#: where the centre of the top-left pixel lies in COLMAP, nerfstudio and ARKit pixel coordinates
+CORNER_CONVENTION = 0.5
+#: ... and in OpenCV's and scantex's
+CENTRE_CONVENTION = 0.0
+
+
+def check_pose(matrix, where: Path, what: str) -> np.ndarray:
+    """A ``(4, 4) float64`` rigid transform from a ``(4, 4)`` or ``(3, 4)`` array-like, or a ScanError.
+
+    The rotation must be orthonormal with determinant +1 (to 1e-3): scaled or mirrored poses are
+    refused rather than silently misread.
+    """
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ScanError(where, f"{what}: pose is not a matrix of numbers") from None
+    if m.shape == (16,):
+        m = m.reshape(4, 4)
+    if m.shape == (12,):
+        m = m.reshape(3, 4)
+    if m.shape == (3, 4):
+        m = np.vstack([m, [0.0, 0.0, 0.0, 1.0]])
+    if m.shape != (4, 4):
+        raise ScanError(where, f"{what}: pose has shape {m.shape}, expected 4x4 or 3x4")
+    if not np.isfinite(m).all():
+        raise ScanError(where, f"{what}: pose has non-finite values")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        raise ScanError(where, f"{what}: pose's last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
+    R = m[:3, :3]
+    if np.abs(R).max() > 2 or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+        raise ScanError(where, f"{what}: pose's rotation is not a rotation (scaled or mirrored poses "
+                               "are not supported)")
+    return m
+
+
+#: largest photo side accepted, pixels (a 100-megapixel sensor is about 12000 wide)
+MAX_PHOTO_SIDE = 65536
+
+
+def pixel_count(value, key: str, where: Path, what: str) -> int:
+    """``value`` as a positive whole number of pixels (at most :data:`MAX_PHOTO_SIDE`), else a ScanError."""
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ScanError(where, f"{what}: '{key}' is not a number of pixels ({str(value)[:40]!r})")
+    if not np.isfinite(value) or value != int(value):
+        raise ScanError(where, f"{what}: '{key}' is not a whole number of pixels ({value!r})")
+    if not 0 < value <= MAX_PHOTO_SIDE:
+        raise ScanError(where, f"{what}: '{key}' is {int(value)}, expected 1 to {MAX_PHOTO_SIDE} pixels")
+    return int(value)
+
+
+def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tuple[int, int]:
+    """Check a pinhole camera's ``K`` and image size; returns ``(width, height)`` as ints."""
+    width = pixel_count(width, "width", where, what)
+    height = pixel_count(height, "height", where, what)
+    K = np.asarray(K, dtype=np.float64)
+    if not np.isfinite(K).all():
+        raise ScanError(where, f"{what}: intrinsics have non-finite values")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ScanError(where, f"{what}: focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
+        raise ScanError(where, f"{what}: intrinsics {K.tolist()} are not of the form "
+                               "[[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    return width, height
+
+
+def intrinsics(fx, fy, cx, cy, *, pixel_centre: float) -> np.ndarray:
+    """``(3, 3)`` K in scantex's convention from a principal point given in a convention where the
+    centre of the top-left pixel is ``(pixel_centre, pixel_centre)``: 0.5 for COLMAP, nerfstudio and
+    ARKit (coordinates from the image's corner), 0 for OpenCV and scantex."""
+    return np.array([[fx, 0.0, cx - pixel_centre], [0.0, fy, cy - pixel_centre], [0.0, 0.0, 1.0]],
+                    dtype=np.float64)
+
+
+def principal_point(K: np.ndarray, *, pixel_centre: float) -> tuple[float, float]:
+    """The inverse of :func:`intrinsics`' shift: ``(cx, cy)`` in a format's own convention."""
+    return float(K[0, 2] + pixel_centre), float(K[1, 2] + pixel_centre)
+
+
+def world_to_camera_from_opengl(camera_to_world_gl: np.ndarray) -> np.ndarray:
+    """``(4, 4)`` OpenCV world-to-camera from an OpenGL/ARKit camera-to-world (camera looks down -z,
+    +y up): flip the camera's y and z axes (columns 1 and 2), then invert."""
+    return np.linalg.inv(camera_to_world_gl @ FLIP_YZ)
+
+
+def opengl_camera_to_world(camera: Camera) -> np.ndarray:
+    """The inverse of :func:`world_to_camera_from_opengl`: ``(4, 4)`` OpenGL/ARKit camera-to-world."""
+    return np.linalg.inv(camera.world_to_camera) @ FLIP_YZ
+
+
+def accept_distortion(distortion: Distortion | None, camera: Camera, max_px: float, where: Path,
+                      what: str) -> Distortion | None:
+    """``distortion`` if it is small enough to ignore (warning when it is not zero), else a ScanError."""
+    if distortion is None or distortion.is_zero:
+        return distortion
+    shift = distortion.max_shift_px(camera)
+    if shift > max_px:
+        raise ScanError(where, f"{what}: lens distortion ({distortion.model}) moves pixels by up to "
+                               f"{shift:.1f} px; scantex needs undistorted photos (e.g. `colmap "
+                               f"image_undistorter`), or pass max_distortion_px={np.ceil(shift):.0f} "
+                               "to ignore it")
+    log.warning("%s: %s: ignoring a small lens distortion (%s, at most %.2f px)", where, what,
+                distortion.model, shift)
+    return distortion

@@ -1,0 +1,86 @@
+"""Reading the importers' files with errors that name the file and the frame."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.photoset import image_size
+from scantex.views.camera import Camera
+
+
+def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
+    """``name`` relative to ``base`` (absolute names kept); a ScanError when there is no such file."""
+    path = Path(name)
+    path = path if path.is_absolute() else base / path
+    if not path.is_file():
+        raise ScanError(where, f"{what}: {path} does not exist")
+    return path
+
+
+def load_frames_file(path: Path, default_name: str, what: str = "") -> tuple[Path, dict, list]:
+    """The file (``default_name`` inside a folder), its JSON document and its non-empty ``frames`` list.
+
+    ``what`` is appended to the error for a document without frames (e.g. ": not a transforms.json").
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / default_name
+    if not path.is_file():
+        raise ScanError(path, "no such file")
+    doc = load_json(path)
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if not isinstance(frames, list) or not frames:
+        raise ScanError(path, f"has no 'frames' list{what}")
+    return path, doc, frames
+
+
+def load_json(path: Path):
+    import json
+
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ScanError(path, f"not valid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
+    except UnicodeDecodeError:
+        raise ScanError(path, "not valid JSON (not UTF-8 text)") from None
+    except RecursionError:
+        raise ScanError(path, "not a camera file (JSON nested too deeply)") from None
+    except OSError as e:
+        raise ScanError(path, f"cannot read the file ({e.strerror})") from None
+
+
+def check_sizes(cameras: Sequence[Camera], images: Sequence[Path], where: Path) -> None:
+    """Every image's header size equals its camera's (a downscaled copy would silently misalign)."""
+    for i, (cam, path) in enumerate(zip(cameras, images)):
+        w, h = image_size(path)
+        if (w, h) != (cam.width, cam.height):
+            raise ScanError(where, f"frame {i}: {path.name} is {w}x{h} but its camera is "
+                                   f"{cam.width}x{cam.height}")
+
+
+def need(d: dict, key: str, where: Path, what: str):
+    if not isinstance(d, dict) or key not in d:
+        raise ScanError(where, f"{what}: missing '{key}'")
+    return d[key]
+
+
+def number(d: dict, key: str, where: Path, what: str) -> float:
+    value = need(d, key, where, what)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ScanError(where, f"{what}: '{key}' is not a number ({value!r})") from None
+    if not np.isfinite(value):
+        raise ScanError(where, f"{what}: '{key}' is not finite")
+    return value
+
+
+def copy_into(files, src: Path, dst: Path) -> None:
+    """Copy ``src`` to ``dst`` through an :class:`~scantex.io.atomic.AtomicFiles` group."""
+    import shutil
+
+    shutil.copyfile(src, files.path(dst))

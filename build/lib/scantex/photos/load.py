@@ -1,0 +1,79 @@
+"""One entry point for every photo format: :func:`load_photos` finds the layout and calls its importer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from scantex.errors import ScanError
+from scantex.photos import cameras_json, colmap, nerfstudio, polycam, scannerapp
+from scantex.photos.conventions import MAX_DISTORTION_PX
+from scantex.photos.files import load_json
+from scantex.photos.photoset import PhotoSet
+
+LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
+           "also under sparse/0), keyframes/ (Polycam raw data) or frame_*.json (3D Scanner App)")
+
+
+def detect_format(path: str | Path) -> tuple[str, Path]:
+    """``(format, path to hand to its importer)`` for a file or folder; formats as in
+    :attr:`PhotoSet.format` (``"colmap"`` for either COLMAP kind).
+
+    Raises:
+        ScanError: the path does not exist or holds none of the known layouts.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ScanError(path, "no such file or folder")
+    if path.is_file():
+        name = path.name.lower()
+        if name in ("cameras.txt", "images.txt", "points3d.txt", "cameras.bin", "images.bin",
+                    "points3d.bin"):
+            return "colmap", path
+        if path.suffix.lower() != ".json":
+            raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
+        if scannerapp.FRAME.match(path.name):
+            return scannerapp.FORMAT, path.parent
+        if polycam.keyframes_folder(path) is not None:
+            return polycam.FORMAT, polycam.keyframes_folder(path)
+        doc = load_json(path)
+        if cameras_json.is_cameras_json(doc):
+            return cameras_json.FORMAT, path
+        frames = doc.get("frames") if isinstance(doc, dict) else None
+        if name == "transforms.json" or (isinstance(frames, list) and frames
+                                         and isinstance(frames[0], dict) and "transform_matrix" in frames[0]):
+            return nerfstudio.FORMAT, path
+        raise ScanError(path, f"a JSON file of no known camera layout: expected {LAYOUTS}")
+    if (path / "transforms.json").is_file():
+        return nerfstudio.FORMAT, path / "transforms.json"
+    if (path / "cameras.json").is_file():
+        return cameras_json.FORMAT, path / "cameras.json"
+    model = colmap.find_model(path)
+    if model is not None:
+        return "colmap", model
+    keyframes = polycam.keyframes_folder(path)
+    if keyframes is not None:
+        return polycam.FORMAT, keyframes
+    if scannerapp.frame_files(path):
+        return scannerapp.FORMAT, path
+    raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
+
+
+def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+    """Read posed photos in any supported format (see :data:`LAYOUTS`), as a :class:`PhotoSet` in
+    scantex's camera convention.
+
+    Args:
+        path: a camera file (``transforms.json``, ``cameras.json``, ``images.bin``, ``frame_00000.json``,
+            ...) or a folder that holds one.
+        max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; stronger
+            ones are refused (scantex needs undistorted photos).
+
+    Raises:
+        ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
+            JSON or binary, non-finite poses, unsupported camera models.
+    """
+    fmt, target = detect_format(path)
+    loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
+               cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
+               scannerapp.FORMAT: scannerapp.load_3dscannerapp}
+    return loaders[fmt](target, max_distortion_px=max_distortion_px)

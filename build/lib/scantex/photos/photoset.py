@@ -1,0 +1,169 @@
+"""The capture's own photos with their cameras, whatever format they came in.
+
+Every importer in :mod:`scantex.photos` returns a :class:`PhotoSet`: pinhole cameras in scantex's one
+convention (OpenCV, see :mod:`scantex.views.camera`: ``x_cam = R X + t``, +x right, +y down, +z
+forward, pixel ``(0, 0)`` = the centre of the top-left pixel) in the *mesh's* world frame, and the
+paths of the images (and, optionally, of depth maps). Images are read only when asked for.
+
+Lens distortion, where a format stores it, is kept in :class:`Distortion`; the cameras themselves are
+pinholes. Importers accept a distortion only when it moves no pixel by more than ``max_distortion_px``
+(default 1 px, logged as a warning and then ignored) and refuse larger ones with a :class:`ScanError`
+asking for undistorted photos: a texture fitted to distorted photos through pinhole cameras would be
+smeared by exactly that many pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.io.images import open_image
+from scantex.views.camera import Camera
+
+#: metres per depth-map unit in every format scantex reads: uint16 PNG in millimetres
+DEPTH_SCALE_MM = 0.001
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """Lens distortion of normalised camera coordinates ``(x, y) = (X/Z, Y/Z)`` (OpenCV's model).
+
+    ``r2 = x^2 + y^2``, ``radial = (1 + k1 r2 + k2 r2^2 + ...) / (1 + d1 r2 + d2 r2^2 + ...)``,
+    ``x_d = x radial + 2 p1 x y + p2 (r2 + 2 x^2)``, ``y_d = y radial + p1 (r2 + 2 y^2) + 2 p2 x y``.
+
+    Attributes:
+        model: the format's own name for it (``"OPENCV"``, ``"SIMPLE_RADIAL"``, ...).
+        radial: ``(k1, k2, ...)`` polynomial radial coefficients.
+        tangential: ``(p1, p2)``.
+        radial_denominator: ``(k4, k5, k6)`` of OpenCV's rational model (COLMAP ``FULL_OPENCV``), else empty.
+    """
+
+    model: str
+    radial: tuple[float, ...] = ()
+    tangential: tuple[float, float] = (0.0, 0.0)
+    radial_denominator: tuple[float, ...] = ()
+
+    @property
+    def is_zero(self) -> bool:
+        return not any(self.radial) and not any(self.tangential) and not any(self.radial_denominator)
+
+    def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distorted normalised coordinates of undistorted ``x, y`` (any shape)."""
+        r2 = x * x + y * y
+        num = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial))
+        den = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial_denominator))
+        radial = num / den
+        p1, p2 = self.tangential
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return xd, yd
+
+    def max_shift_px(self, camera: Camera) -> float:
+        """Largest distance in pixels that the distortion moves a pixel of ``camera``'s image
+        (sampled on a 33 x 33 grid that includes the border and the corners)."""
+        K = camera.K
+        u, v = np.meshgrid(np.linspace(0, camera.width - 1, 33), np.linspace(0, camera.height - 1, 33))
+        x = (u - K[0, 2] - K[0, 1] * (v - K[1, 2]) / K[1, 1]) / K[0, 0]
+        y = (v - K[1, 2]) / K[1, 1]
+        xd, yd = self.distort(x, y)
+        du = K[0, 0] * (xd - x) + K[0, 1] * (yd - y)
+        dv = K[1, 1] * (yd - y)
+        return float(np.sqrt(du * du + dv * dv).max())
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PhotoSet:
+    """Posed photos of one capture.
+
+    Attributes:
+        cameras: one pinhole :class:`Camera` per photo, OpenCV convention, world frame = the mesh's.
+        images: ``(N,)`` image files (any format Pillow reads); read by :meth:`load_image`.
+        depths: ``(N,)`` depth maps (uint16 PNG, ``depth_scale`` metres per unit) or ``None`` per photo.
+            A depth map may have another size than its photo (phones and the Kinect record depth at a
+            lower resolution): :meth:`load_depth` returns it as stored and resizing it is the caller's
+            business (it covers the same field of view, so its intrinsics are the photo's scaled by
+            ``depth width / image width``, pixel centres kept consistent as in :meth:`Camera.scaled`).
+        depth_scale: metres per depth-map unit (0.001: millimetres).
+        source: the file or folder the set was read from.
+        format: the format it was read from (``"nerfstudio"``, ``"colmap-text"``, ``"colmap-binary"``,
+            ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``), or any label for sets made in code.
+        distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
+            cameras ignore it (importers refuse distortions that move pixels by more than a limit).
+    """
+
+    cameras: tuple[Camera, ...]
+    images: tuple[Path, ...]
+    depths: tuple[Path | None, ...] = ()
+    depth_scale: float = DEPTH_SCALE_MM
+    source: Path
+    format: str
+    distortions: tuple[Distortion | None, ...] = ()
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        n = len(self.cameras)
+        set_(self, "cameras", tuple(self.cameras))
+        set_(self, "images", tuple(Path(p) for p in self.images))
+        set_(self, "depths", tuple(None if p is None else Path(p) for p in self.depths) or (None,) * n)
+        set_(self, "distortions", tuple(self.distortions) or (None,) * n)
+        set_(self, "source", Path(self.source))
+        for name in ("images", "depths", "distortions"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    @property
+    def has_depth(self) -> bool:
+        return any(d is not None for d in self.depths)
+
+    def subset(self, indices: Sequence[int]) -> PhotoSet:
+        """The photos at ``indices``, in that order."""
+        idx = [int(i) for i in indices]
+        return dataclasses.replace(self, cameras=tuple(self.cameras[i] for i in idx),
+                                   images=tuple(self.images[i] for i in idx),
+                                   depths=tuple(self.depths[i] for i in idx),
+                                   distortions=tuple(self.distortions[i] for i in idx))
+
+    def load_image(self, i: int) -> np.ndarray:
+        """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras
+        describe the sensor's pixel grid).
+
+        Raises:
+            ScanError: the file is missing, not an image, or not of its camera's size.
+        """
+        path = self.images[i]
+        with open_image(path, "photo") as im:
+            size = im.size
+            cam = self.cameras[i]
+            if size != (cam.width, cam.height):
+                raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
+                                      f"{cam.width}x{cam.height}")
+            return np.asarray(im.convert("RGB"))
+
+    def load_depth(self, i: int) -> np.ndarray | None:
+        """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,
+        stored as 0), at the depth map's own size; ``None`` when the photo has no depth map."""
+        path = self.depths[i]
+        if path is None:
+            return None
+        with open_image(path, "depth map") as im:
+            im.load()  # decode inside the block: a truncated file becomes a clean error
+            raw = np.asarray(im)
+        if raw.ndim != 2 or raw.dtype.kind not in "ui":
+            raise ScanError(path, f"depth map is not a single-channel integer image (mode {im.mode})")
+        depth = raw.astype(np.float32) * np.float32(self.depth_scale)
+        depth[raw == 0] = np.nan
+        return depth
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """``(width, height)`` of an image file, from its header (checked against the size limit)."""
+    with open_image(path, "photo") as im:
+        return im.size

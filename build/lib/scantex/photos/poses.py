@@ -1,0 +1,257 @@
+"""Per-photo pose refinement: small 6-DoF and focal corrections that make each photo agree with the mesh.
+
+Real captures' recorded poses are off by 1-5 px (tracking drift, rolling shutter, a LiDAR frame a few
+milliseconds from the colour frame). A texture sampled or fitted through such poses is blurred and
+ghosted by exactly that much. Each photo's pose is refined by *direct photometric alignment* against a
+reference colour of the surface (the input texture, which is in the mesh's frame):
+
+- the mesh is ray cast once through the recorded camera at a working size; the surface points of
+  usable pixels (clean hits, not grazing, away from contours), weighted towards pixels with texture
+  gradient, and their reference colours ``c(X)`` are fixed;
+- the photo is sampled where each point projects under a perturbed camera ``x' = dR (R X + t) + dt``,
+  ``f' = f (1 + df)`` (rotation about the camera centre, translation in camera coordinates scaled by the
+  median depth, a focal scale): residual ``photo(pi(X)) - (a c(X) + b)`` per channel, the gain ``a`` and
+  offset ``b`` (the photo's exposure) re-fitted in closed form at every evaluation;
+- robust least squares (soft-L1), coarse to fine over blurred copies of the photo (sigma 3, then 1 working
+  pixel), a step kept only when the sharp photo agrees better.
+
+The correction is reported per photo (rotation in degrees, translation in metres, focal scale, the
+photometric error before and after), and photos whose correction is implausibly large (more than
+``max_rotation_deg`` or ``max_translation`` of the depth) keep their recorded pose.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.photos.photoset import PhotoSet
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+#: typical size of each correction parameter (rotation vector in radians: 0.5 degrees; translation as a
+#: share of the depth: 1 %; focal change: 1 %), the unit of the prior towards the recorded pose
+PRIOR_SCALE = np.array([np.radians(0.5)] * 3 + [0.01] * 3 + [0.01])
+
+#: ``colour(face_ids (n,), bary (n, 2)) -> (n, 3)`` reference colour of surface points
+Reference = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class PoseSettings:
+    """How poses are refined."""
+
+    max_side: int = 480
+    """longer image side the alignment runs at"""
+    n_points: int = 3000
+    """surface points per photo"""
+    max_rotation_deg: float = 3.0
+    """a larger correction is implausible: the recorded pose is kept"""
+    max_translation: float = 0.05
+    """the same for the translation, as a share of the median depth"""
+    refine_focal: bool = True
+    """also correct the focal length (a scale)"""
+
+
+@dataclass(frozen=True)
+class PoseCorrection:
+    """One photo's refined pose.
+
+    Attributes:
+        index: the photo's index in its :class:`PhotoSet`.
+        camera: the refined camera at the photo's full size.
+        rotation_deg: angle of the rotation correction.
+        translation_m: length of the camera centre's move.
+        focal_scale: refined focal / recorded focal.
+        error_before, error_after: robust photometric error (mean soft-L1 of the residuals, [0, 1] colour
+            units) at the recorded and the refined pose, on the sharp photo.
+        applied: False when the correction was rejected as implausible or not an improvement.
+    """
+
+    index: int
+    camera: Camera
+    rotation_deg: float
+    translation_m: float
+    focal_scale: float
+    error_before: float
+    error_after: float
+    applied: bool
+
+    def to_dict(self) -> dict:
+        return {"photo": self.index, "rotation_deg": round(float(self.rotation_deg), 3),
+                "translation_mm": round(1000 * float(self.translation_m), 2),
+                "focal_scale": round(float(self.focal_scale), 5),
+                "error_before": round(float(self.error_before), 5), "error_after": round(float(self.error_after), 5),
+                "applied": self.applied}
+
+
+def perturbed_camera(camera: Camera, x: np.ndarray, depth_scale: float) -> Camera:
+    """``camera`` with the correction ``x = (rotvec (3), translation / depth_scale (3), focal change)``
+    applied: ``x_cam' = dR x_cam + dt``, ``f' = f (1 + df)`` (principal point kept)."""
+    from scipy.spatial.transform import Rotation
+
+    dR = Rotation.from_rotvec(x[:3]).as_matrix()
+    w2c = camera.world_to_camera.copy()
+    w2c[:3, :3] = dR @ camera.R
+    w2c[:3, 3] = dR @ camera.t + x[3:6] * depth_scale
+    K = camera.K.copy()
+    K[0, 0] *= 1 + x[6]
+    K[1, 1] *= 1 + x[6]
+    K[0, 1] *= 1 + x[6]
+    return Camera(K, w2c, camera.width, camera.height)
+
+
+def refine_pose(scan: Scan, photos: PhotoSet, i: int, reference: Reference, caster,
+                settings: PoseSettings = PoseSettings(), faces: np.ndarray | None = None) -> PoseCorrection:
+    """Refine photo ``i``'s pose against ``reference`` (see the module docstring); only surface points on
+    ``faces`` (``(F,) bool``, default all) are used."""
+    from PIL import Image
+    from scipy import ndimage
+    from scipy.optimize import least_squares
+
+    from scantex.photos.alignment import _lookup, contour_map
+    from scantex.photos.training import working_camera
+    from scantex.views.raycast import cast_gbuffer
+
+    recorded = photos.cameras[i]
+    cam = working_camera(recorded, settings.max_side)
+    photo = photos.load_image(i)
+    if (cam.width, cam.height) != (recorded.width, recorded.height):
+        photo = np.asarray(Image.fromarray(photo).resize((cam.width, cam.height), Image.Resampling.BOX))
+    photo = photo.astype(np.float32) / 255.0
+
+    g = cast_gbuffer(caster, cam, scan.face_normals)
+    mask = g.mask
+    usable = ndimage.binary_erosion(mask, iterations=3) & ~ndimage.binary_dilation(
+        contour_map(mask, g.depth), iterations=3)
+    _, directions = cam.pixel_rays()
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    cos = np.abs(np.einsum("ij,ij->i", d, g.normal.reshape(-1, 3))).reshape(mask.shape)
+    usable &= cos > 0.3
+    if faces is not None:
+        usable &= faces[np.where(mask, g.face_id, 0)]
+    ys, xs = np.nonzero(usable)
+    identity = PoseCorrection(i, recorded, 0.0, 0.0, 1.0, float("nan"), float("nan"), False)
+    if ys.size < 200:
+        return identity
+    fid, bary = g.face_id[ys, xs], g.bary[ys, xs]
+    ref = np.asarray(reference(fid, bary), np.float32)
+    # favour textured pixels (they carry the pose), keep some flat ones (they carry the exposure)
+    grad = np.hypot(*np.gradient(ndimage.gaussian_filter(_rgb_to_grey_image(ref, ys, xs, mask.shape), 1.0)))
+    strength = grad[ys, xs] + 1e-3
+    rng = np.random.default_rng(i)
+    n = min(settings.n_points, ys.size)
+    pick = rng.choice(ys.size, n, replace=False, p=strength / strength.sum())
+    points = g.points(scan.positions, scan.faces)[ys[pick], xs[pick]]
+    ref = ref[pick]
+    depth_scale = float(np.median(g.depth[ys, xs]))
+    levels = {s: np.stack([ndimage.gaussian_filter(photo[..., c], s) for c in range(3)], -1) for s in (3.0, 1.0)}
+    design = np.concatenate([ref, np.ones((n, 1), np.float32)], axis=1)  # [n, 4]
+
+    def residuals(x, image):
+        c = perturbed_camera(cam, x, depth_scale)
+        pix, z = c.project(points)
+        pix[z <= 0] = np.nan
+        observed = np.stack([_lookup(image[..., k], pix, outside=np.nan) for k in range(3)], axis=1)
+        ok = np.isfinite(observed).all(axis=1)
+        # exposure: the best affine map of the reference colours onto the observed ones, per channel
+        coef, *_ = np.linalg.lstsq(design[ok], observed[ok], rcond=None)
+        r = observed - design @ coef
+        r[~ok] = 0.25  # a point leaving the image costs a fixed amount, no gradient
+        return r.reshape(-1)
+
+    def cost(x):
+        r = residuals(x, levels[1.0]) / 0.05
+        return float(np.mean(2 * (np.sqrt(1 + r * r) - 1)))
+
+    n_params = 7 if settings.refine_focal else 6
+    prior = 0.01 * np.sqrt(n)
+    x = np.zeros(7)
+    before = best = cost(x)
+    for sigma in (3.0, 1.0):
+        def partial(y, sigma=sigma):
+            full = x.copy()
+            full[:n_params] = y
+            # a weak prior towards the recorded pose: a rotation and a sideways move look alike through
+            # a narrow lens, and the prior picks the smaller of the two
+            return np.concatenate([residuals(full, levels[sigma]), prior * y / PRIOR_SCALE[:n_params]])
+
+        fit = least_squares(partial, x[:n_params], loss="soft_l1", f_scale=0.05, diff_step=1e-4,
+                            x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20)
+        trial = x.copy()
+        trial[:n_params] = fit.x
+        c = cost(trial)
+        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s)", i, sigma, best, c, np.round(trial, 5), fit.message)
+        if c < best:
+            x, best = trial, c
+    rotation = float(np.degrees(np.linalg.norm(x[:3])))
+    refined_small = perturbed_camera(cam, x, depth_scale)
+    moved = float(np.linalg.norm(refined_small.center - cam.center))
+    plausible = rotation <= settings.max_rotation_deg and moved <= settings.max_translation * depth_scale
+    applied = plausible and best < before
+    full = perturbed_camera(recorded, x, depth_scale) if applied else recorded
+    return PoseCorrection(i, full, rotation if applied else 0.0, moved if applied else 0.0,
+                          1 + x[6] if applied else 1.0, before, best if applied else before, applied)
+
+
+def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, caster,
+                 settings: PoseSettings = PoseSettings(),
+                 update: Callable[[int, int], None] | None = None) -> tuple[PhotoSet, list[PoseCorrection]]:
+    """``photos`` with the cameras at ``indices`` refined (the others as recorded), and the corrections."""
+    cameras = list(photos.cameras)
+    corrections = []
+    faces = reference_faces(scan) if scan.is_textured else None
+    for k, i in enumerate(indices):
+        c = refine_pose(scan, photos, int(i), reference, caster, settings, faces)
+        cameras[int(i)] = c.camera
+        corrections.append(c)
+        log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (error %.4f -> %.4f)%s", c.index,
+                 c.rotation_deg, 1000 * c.translation_m, c.focal_scale, c.error_before, c.error_after,
+                 "" if c.applied else " (kept as recorded)")
+        if update:
+            update(k + 1, len(indices))
+    return dataclasses.replace(photos, cameras=tuple(cameras)), corrections
+
+
+def reference_faces(scan: Scan) -> np.ndarray:
+    """``(F,) bool`` faces whose input texture can serve as the photometric reference: not untextured
+    (black holes) and not touching another UV chart (a capture app's atlas jumps in exposure there,
+    an edge no photo has)."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.seams import uv_shells
+
+    charts = uv_shells(scan)
+    lo = np.full(scan.n_vertices, np.iinfo(np.int64).max)
+    hi = np.full(scan.n_vertices, -1)
+    for k in range(3):
+        np.minimum.at(lo, scan.faces[:, k], charts)
+        np.maximum.at(hi, scan.faces[:, k], charts)
+    border = (lo[scan.faces] != hi[scan.faces]).any(axis=1)
+    return ~untextured_faces(scan) & ~border
+
+
+def reprojection_error(scan: Scan, estimated: Camera, truth: Camera, caster, n: int = 5000) -> float:
+    """Mean distance (pixels) between where ``estimated`` and ``truth`` project the surface points
+    ``truth`` sees (a grid of its pixels' hits)."""
+    from scantex.views.raycast import cast_gbuffer
+
+    small = truth.scaled(min(1.0, 160 / max(truth.width, truth.height)))
+    g = cast_gbuffer(caster, small, scan.face_normals)
+    points = g.points(scan.positions, scan.faces)[g.mask]
+    if len(points) > n:
+        points = points[np.random.default_rng(0).choice(len(points), n, replace=False)]
+    a, _ = estimated.project(points)
+    b, _ = truth.project(points)
+    return float(np.linalg.norm(a - b, axis=1).mean())
+
+
+def _rgb_to_grey_image(rgb: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape) -> np.ndarray:
+    out = np.zeros(shape, np.float32)
+    out[ys, xs] = rgb @ np.array([0.299, 0.587, 0.114], np.float32)
+    return out

@@ -1,0 +1,175 @@
+"""Projective texturing: every texel sampled directly from the photos that see it best.
+
+A field fitted to the photos is limited by its capacity and by the working resolution it was trained
+at; the photos themselves hold the detail. This colour source gives each surface point a smooth,
+weighted blend of the training photos' pixels at the photos' **full resolution**:
+
+- **visibility**: a photo may give a point its colour only where the point projects into its image,
+  the photo's G-buffer at the working resolution (:class:`~scantex.photos.training.PhotoView`) says the
+  pixel is usable (clean, not grazing, away from occluding contours, depth map agreeing) and sees the
+  point itself (depth test against the G-buffer's depth: nothing nearer hides it);
+- **quality** of a photo for a point: ``log cos(angle) + log(pixels per metre on the surface) +
+  log(relative sharpness of the photo)``; the weights are a softmax of the quality over the photos
+  with ``temperature`` (the best view dominates, but the weights are continuous: no per-face switch,
+  no hard seam where the best view changes);
+- **feathering**: each photo's weight fades to zero over ``feather_px`` working pixels towards the
+  edge of its usable region (image border, contours, rejected pixels), so a photo's coverage ends
+  without a step;
+- **appearance**: each photo's sample is brought to the canonical appearance by the inverse of the
+  per-photo affine colour transform the field learned (``canonicalise``);
+- **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
+  smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.photos.photoset import PhotoSet
+from scantex.photos.training import PhotoView
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+#: ``colour(points (n, 3), normals (n, 3), face_ids (n,), bary (n, 2)) -> (n, 3) float`` in [0, 1]
+SurfaceColour = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ProjectiveSettings:
+    """How texels are sampled from the photos."""
+
+    temperature: float = 0.15
+    """softmax temperature on the view quality (log units): lower picks the best view more sharply"""
+    feather_px: float = 6.0
+    """a photo's weight fades in over this many working pixels from the edge of its usable region"""
+    depth_tolerance: float = 0.02
+    """relative depth difference beyond which a point counts as hidden in a photo"""
+    max_side: int = 0
+    """longest side the photos are sampled at (0: full resolution)"""
+
+
+@dataclass(frozen=True, eq=False)
+class _Source:
+    camera: Camera  # at the sampling resolution
+    image: np.ndarray  # (H, W, 3) uint8 at the sampling resolution
+    view: PhotoView  # working-resolution G-buffer and usable mask
+    feather: np.ndarray  # (h, w) float32 in [0, 1] at the working resolution
+    log_sharpness: float
+    group: int
+
+
+def photo_sharpness(image: np.ndarray) -> float:
+    """Variance of the Laplacian of ``image (H, W, 3) float`` (a standard focus measure)."""
+    from scipy import ndimage
+
+    gray = image[..., :3].mean(axis=2)
+    return float(ndimage.laplace(gray).var())
+
+
+def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequence[int],
+                      canonicalise: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+                      fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings()
+                      ) -> tuple[SurfaceColour, dict]:
+    """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
+
+    Args:
+        photos: the posed photos (full-resolution images and cameras).
+        views: the training photos' working-resolution G-buffers (their ``index`` into ``photos``).
+        groups: each view's appearance group (for ``canonicalise``).
+        canonicalise: ``(rgb (n, 3), group (n,)) -> (n, 3)``: a photo's colours brought to the canonical
+            appearance; ``None`` leaves them as they are.
+        fallback: the colour where no photo sees a point.
+
+    Returns:
+        ``(colour, report)``: the colour function and a small dict for the metrics.
+    """
+    from PIL import Image
+    from scipy import ndimage
+
+    sources = []
+    for view, group in zip(views, groups):
+        cam = photos.cameras[view.index]
+        image = photos.load_image(view.index)
+        if settings.max_side and max(cam.width, cam.height) > settings.max_side:
+            from scantex.photos.training import working_camera
+
+            cam = working_camera(cam, settings.max_side)
+            image = np.asarray(Image.fromarray(image).resize((cam.width, cam.height), Image.Resampling.BOX))
+        inside = np.pad(view.valid, 1)  # the image border ends the usable region too
+        distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
+        feather = np.clip(distance / max(settings.feather_px, 1e-6), 0, 1).astype(np.float32)
+        sources.append(_Source(cam, image, view, feather, float(np.log(photo_sharpness(view.image) + 1e-8)),
+                               int(group)))
+    if sources:
+        mean_sharp = float(np.median([s.log_sharpness for s in sources]))
+        sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
+    report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources[:1]],
+              "temperature": settings.temperature}
+
+    def colour(points, normals, face_ids, bary):
+        base = np.asarray(fallback(points, normals, face_ids, bary), np.float32)
+        n = len(points)
+        if not sources or n == 0:
+            return base
+        P = len(sources)
+        quality = np.full((P, n), -np.inf, np.float32)
+        feather = np.zeros((P, n), np.float32)
+        samples = np.zeros((P, n, 3), np.float32)
+        for k, s in enumerate(sources):
+            view = s.view
+            pix, z = view.camera.project(points)
+            ok = np.isfinite(pix).all(axis=1) & (z > 0)
+            h, w = view.valid.shape
+            x = np.round(np.nan_to_num(pix[:, 0], nan=-1)).astype(int)
+            y = np.round(np.nan_to_num(pix[:, 1], nan=-1)).astype(int)
+            ok &= (x >= 0) & (x < w) & (y >= 0) & (y < h)
+            idx = np.flatnonzero(ok)
+            xi, yi = x[idx], y[idx]
+            seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z[idx]) < settings.depth_tolerance * z[idx])
+            idx, xi, yi = idx[seen], xi[seen], yi[seen]
+            if idx.size == 0:
+                continue
+            ray = points[idx] - view.camera.center
+            ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+            cos = np.abs(np.einsum("ij,ij->i", ray, normals[idx]))
+            px_per_m = s.camera.K[0, 0] / z[idx]
+            quality[k, idx] = (np.log(np.maximum(cos, 1e-3)) + np.log(px_per_m) + s.log_sharpness)
+            feather[k, idx] = s.feather[yi, xi]
+            full, _ = s.camera.project(points[idx])
+            rgb = _bilinear(s.image, full).astype(np.float32) / 255.0
+            if canonicalise is not None:
+                rgb = canonicalise(rgb, np.full(len(idx), s.group))
+            samples[k, idx] = rgb
+        best = quality.max(axis=0)
+        seen_any = np.isfinite(best)
+        weights = np.where(np.isfinite(quality), np.exp((quality - np.where(seen_any, best, 0)) /
+                                                        settings.temperature), 0) * feather
+        total = weights.sum(axis=0)
+        blend = np.einsum("pn,pnc->nc", weights, samples) / np.maximum(total, 1e-12)[:, None]
+        alpha = np.clip(feather.max(axis=0), 0, 1)[:, None]
+        return np.clip(np.where(total[:, None] > 0, alpha * blend + (1 - alpha) * base, base), 0, 1)
+
+    return colour, report
+
+
+def _replace_sharpness(s: _Source, value: float) -> _Source:
+    import dataclasses
+
+    return dataclasses.replace(s, log_sharpness=value)
+
+
+def _bilinear(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """``(n, 3) float32`` bilinear samples of ``image (H, W, 3)`` at pixel centres ``pix (n, 2)``."""
+    H, W = image.shape[:2]
+    x = np.clip(pix[:, 0], 0, W - 1.001)
+    y = np.clip(pix[:, 1], 0, H - 1.001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    a, b = image[y0, x0].astype(np.float32), image[y0, x0 + 1].astype(np.float32)
+    c, d = image[y0 + 1, x0].astype(np.float32), image[y0 + 1, x0 + 1].astype(np.float32)
+    return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d)

@@ -1,0 +1,240 @@
+"""Photos as training data: which photo pixels may teach which surface point, and held-out scoring.
+
+A photo pixel teaches the field only where the mesh says what it sees, and only when that is certain:
+
+- the mesh is ray cast through the photo's camera at the working resolution with ``supersample``
+  sub-samples per pixel; a pixel counts when all its sub-samples hit the mesh at nearly one depth
+  (no silhouette, no depth discontinuity inside the pixel);
+- pixels within ``edge_margin_px`` of an occluding contour (silhouette or a relative depth jump
+  between neighbours) do not count: a pose that is off by a pixel would paint the background onto
+  the object's rim, or the front object onto what it hides;
+- grazing pixels (surface normal more than ``max_angle_deg`` away from the ray) do not count: their
+  footprint on the surface is long and smeared;
+- where the capture recorded a depth map, the pixel counts only when the measured depth agrees with
+  the mesh's depth within ``depth_tolerance`` (relative): a person or a door that moved between the
+  LiDAR scan and the photo, or a mesh that is locally wrong, is then left out. Pixels the depth map has
+  no measurement for are kept (phones drop depth on dark and shiny surfaces).
+
+Held-out photos are scored by rendering a scan through their cameras and comparing it with the
+photo on the pixels that pass the same test. A held-out photo's exposure is unknown to any texture,
+so besides the raw score the *colour-matched* score first fits a per-channel gain and offset from the
+render to the photo (least squares, 6 numbers per photo, the same for every scan compared): it
+measures texture detail and alignment rather than a photo's exposure.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.photos.alignment import contour_map, resized_camera
+from scantex.photos.photoset import PhotoSet
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster, cast_gbuffer
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class VisibilitySettings:
+    """How strict the photo-pixel visibility test is (see the module docstring)."""
+
+    supersample: int = 2
+    edge_margin_px: int = 2
+    max_angle_deg: float = 75.0
+    depth_tolerance: float = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class PhotoView:
+    """One photo at the working resolution with what the mesh says each pixel sees.
+
+    Attributes:
+        index: the photo's index in its :class:`PhotoSet`.
+        camera: its camera for the working resolution.
+        image: ``(H, W, 3) float32`` in [0, 1], box-filtered down from the photo.
+        face_id: ``(H, W) int32`` face at the pixel centre, -1 for none.
+        depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z).
+        valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed).
+        rejected: pixels that hit the mesh but failed the test, by reason (for the report).
+    """
+
+    index: int
+    camera: Camera
+    image: np.ndarray
+    face_id: np.ndarray
+    depth: np.ndarray
+    valid: np.ndarray
+    rejected: dict
+
+
+def working_camera(camera: Camera, max_side: int) -> Camera:
+    """``camera`` for its photo box-filtered down so its longer side is at most ``max_side``."""
+    factor = min(1.0, max_side / max(camera.width, camera.height))
+    w, h = max(1, round(camera.width * factor)), max(1, round(camera.height * factor))
+    return camera if (w, h) == (camera.width, camera.height) else resized_camera(camera, w, h)
+
+
+def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A depth map at ``width x height`` by nearest sampling at the same relative positions (a depth
+    map must not be averaged across an object's edge); NaN stays NaN."""
+    h, w = depth.shape
+    ys = np.clip(((np.arange(height) + 0.5) * h / height).astype(int), 0, h - 1)
+    xs = np.clip(((np.arange(width) + 0.5) * w / width).astype(int), 0, w - 1)
+    return depth[ys[:, None], xs[None, :]]
+
+
+def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_side: int,
+                  settings: VisibilitySettings = VisibilitySettings()) -> PhotoView:
+    """Photo ``i`` at the working resolution, ray cast and tested for visibility."""
+    from PIL import Image
+    from scipy import ndimage
+
+    cam = working_camera(photos.cameras[i], max_side)
+    W, H = cam.width, cam.height
+    photo = photos.load_image(i)
+    if (W, H) != photo.shape[1::-1]:
+        photo = np.asarray(Image.fromarray(photo).resize((W, H), Image.Resampling.BOX))
+    image = photo.astype(np.float32) / 255.0
+
+    s = max(1, settings.supersample)
+    g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, scan.face_normals)
+    fid = g.face_id.reshape(H, s, W, s)
+    hit = fid >= 0
+    depth = g.depth.reshape(H, s, W, s)
+    n_hit = hit.sum(axis=(1, 3))
+    mean_depth = (np.where(hit, depth, 0).sum(axis=(1, 3)) / np.maximum(n_hit, 1)).astype(np.float32)
+    spread = np.where(hit, depth, -np.inf).max(axis=(1, 3)) - np.where(hit, depth, np.inf).min(axis=(1, 3))
+    centre = fid[:, s // 2, :, s // 2]
+    any_hit = n_hit > 0
+    clean = hit.all(axis=(1, 3)) & (spread < 0.02 * mean_depth)
+
+    contours = contour_map(any_hit, np.where(any_hit, mean_depth, np.inf))
+    if settings.edge_margin_px > 0:
+        near_edge = ndimage.binary_dilation(contours | (any_hit & ~clean), iterations=settings.edge_margin_px)
+    else:
+        near_edge = contours
+    near_edge &= any_hit
+
+    _, directions = cam.pixel_rays()
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    n = scan.face_normals[np.where(centre >= 0, centre, 0).reshape(-1)]
+    cos = np.abs(np.einsum("ij,ij->i", d, n)).reshape(H, W)
+    grazing = any_hit & (cos < np.cos(np.radians(settings.max_angle_deg)))
+
+    measured = photos.load_depth(i)
+    if measured is not None:
+        measured = resize_depth(measured, W, H)
+        disagree = any_hit & np.isfinite(measured) & (
+            np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
+    else:
+        disagree = np.zeros_like(any_hit)
+
+    valid = clean & ~near_edge & ~grazing & ~disagree & (centre >= 0)
+    rejected = {"edge": int((any_hit & near_edge).sum()), "grazing": int((grazing & ~near_edge).sum()),
+                "depth_map": int((disagree & ~near_edge & ~grazing).sum())}
+    return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected)
+
+
+def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster: RayCaster, max_side: int,
+                   settings: VisibilitySettings = VisibilitySettings(),
+                   update: Callable[[int, int], None] | None = None) -> list[PhotoView]:
+    views = []
+    for k, i in enumerate(indices):
+        views.append(prepare_photo(scan, photos, int(i), caster, max_side, settings))
+        if update:
+            update(k + 1, len(indices))
+    return views
+
+
+def split_photos(n: int, holdout: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(train, held_out)`` photo indices: ``ceil(holdout * n)`` photos spread evenly over the
+    capture (neighbouring photos nearly repeat each other, so an even spread is the fair test), never
+    all of them. ``holdout`` >= 1 is a count."""
+    if n < 2 or holdout <= 0:
+        return np.arange(n), np.arange(0)
+    k = int(holdout) if holdout >= 1 else int(np.ceil(holdout * n))
+    k = min(max(k, 1), n - 1)
+    offset = np.random.default_rng(seed).uniform(0, n / k)
+    held = np.unique(np.floor(offset + np.arange(k) * n / k).astype(int) % n)
+    train = np.setdiff1d(np.arange(n), held)
+    return train, held
+
+
+def photo_rays(views: Sequence[PhotoView], groups: Sequence[int]):
+    """Training rays of photo views, each ray's appearance group its photo's ``groups[k]``."""
+    from scantex.field.train import RayDataset
+
+    parts = []
+    for view, group in zip(views, groups):
+        _, directions = view.camera.pixel_rays()
+        valid = view.valid.reshape(-1)
+        m = int(valid.sum())
+        parts.append(RayDataset(
+            origins=np.broadcast_to(view.camera.center.astype(np.float32), (m, 3)).copy(),
+            directions=directions[valid],
+            depth=view.depth.reshape(-1)[valid],
+            rgb=view.image.reshape(-1, 3)[valid],
+            chart=np.full(m, group, np.int64),
+        ))
+    return RayDataset.concatenate(parts)
+
+
+def taught_by_photos(views: Sequence[PhotoView], n_faces: int, min_rays: int = 4) -> np.ndarray:
+    """``(F,) bool`` faces that at least ``min_rays`` valid photo pixels see."""
+    if not views:
+        return np.zeros(n_faces, bool)
+    hits = np.concatenate([v.face_id[v.valid] for v in views])
+    return np.bincount(hits, minlength=n_faces) >= min_rays
+
+
+def colour_match(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``render`` with the per-channel gain and offset that best map it onto ``photo`` over ``mask``
+    (least squares; a flat render gets the photo's mean)."""
+    out = render.copy()
+    for c in range(3):
+        x, y = render[..., c][mask], photo[..., c][mask]
+        if x.size < 2 or np.var(x) < 1e-10:
+            out[..., c] = y.mean() if y.size else out[..., c]
+            continue
+        gain = np.cov(x, y, bias=True)[0, 1] / np.var(x)
+        out[..., c] = gain * render[..., c] + (y.mean() - gain * x.mean())
+    return np.clip(out, 0, 1)
+
+
+def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: RayCaster,
+                 supersample: int = 2, images: dict | None = None) -> dict:
+    """PSNR / SSIM of each scan rendered through held-out photos' cameras, raw and colour-matched,
+    over the pixels that pass the visibility test (averaged over photos).
+
+    Args:
+        images: if given, receives for each scored photo (by its index in the set) one
+            ``(H, W * (1 + len(scans)), 3) float32`` image: the photo, then each scan's render through its
+            camera, side by side (for people to look at).
+    """
+    from scantex.metrics.image import psnr, ssim
+    from scantex.views.render import render
+
+    scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
+    for view in views:
+        mask = view.valid
+        if mask.sum() < 64:
+            continue
+        row = [view.image]
+        for name, scan in scans.items():
+            img, _ = render(scan, view.camera, caster, supersample=supersample)
+            row.append(img)
+            matched = colour_match(img, view.image, mask)
+            s = scores[name]
+            s["psnr"].append(psnr(img, view.image, mask))
+            s["ssim"].append(ssim(img, view.image, mask))
+            s["psnr_matched"].append(psnr(matched, view.image, mask))
+            s["ssim_matched"].append(ssim(matched, view.image, mask))
+        if images is not None:
+            images[view.index] = np.concatenate(row, axis=1)
+    return {name: {k: float(np.mean(v)) for k, v in s.items() if v} | {"photos": len(s["psnr"])}
+            for name, s in scores.items()}

@@ -1,0 +1,1 @@
+"""The enhance pipeline: configuration and the orchestration that wires the stages together."""

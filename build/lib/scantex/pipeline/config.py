@@ -1,0 +1,333 @@
+"""One config dataclass per stage, composed into :class:`EnhanceConfig`; named presets.
+
+Every field's docstring (the string right after it) is the ``--help`` text of the matching option.
+The resolved config is written as ``config.json`` next to every output and loads back with
+:func:`load_config` (plain JSON; nothing executable).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from dataclasses import field as default
+from pathlib import Path
+
+from scantex.errors import ScanError
+from scantex.refine.config import RefineConfig
+
+
+@dataclass(frozen=True)
+class ViewsConfig:
+    n_views: int = 24
+    """number of synthetic views rendered from the scan (80 % train, 20 % held out)"""
+    width: int = 320
+    """render width in pixels"""
+    height: int = 240
+    """render height in pixels"""
+    fov_deg: float = 60.0
+    """horizontal field of view of the views, degrees"""
+    mode: str = "auto"
+    """camera placement: auto, orbit, hemisphere or surface"""
+    up: str = "auto"
+    """the scan's up axis (x, y, z); auto: y for glTF, z otherwise"""
+    supersample: int = 2
+    """rays per pixel per axis when rendering the training views"""
+    test_fraction: float = 0.2
+    """share of views held out for scoring"""
+    adaptive: bool = True
+    """add views where per-face coverage is low (the paper's future work)"""
+
+
+@dataclass(frozen=True)
+class FieldSettings:
+    encoding: str = "hash"
+    """positional encoding of the field: hash (multiresolution hash grid) or frequency (the paper's)"""
+    hidden: int = 64
+    """width of the field's MLP"""
+    n_layers: int = 3
+    """layers of the field's MLP (a skip connection re-injects the encoding)"""
+    log2_table_size: int = 19
+    """hash grid: log2 of entries per level"""
+    n_levels: int = 16
+    """hash grid: resolution levels"""
+    max_resolution: int = 2048
+    """hash grid: finest grid resolution over the scan's bounding box"""
+    n_freqs: int = 10
+    """frequency encoding: octaves"""
+    use_viewdirs: bool = False
+    """feed the view direction to the colour head (textures are view-independent; off by default)"""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    steps: int = 800
+    """optimisation steps"""
+    batch_rays: int = 16384
+    """rays per step"""
+    lr: float = 1e-2
+    """Adam learning rate of the field"""
+    n_samples: int = 1
+    """samples per ray inside the band around the surface (1: a surface colour field)"""
+    band_width: float = 0.01
+    """width of the sampling band around the mesh surface, as a share of the bounding-box diagonal"""
+    appearance: bool = True
+    """learn a per-chart affine colour transform so exposure jumps between charts stay out of the field"""
+    appearance_lr: float = 2e-3
+    """Adam learning rate of the per-chart colour transforms"""
+    appearance_reg: float = 1.0
+    """weight keeping the charts' mean gain at 1 and mean offset at 0"""
+    seam_levelling: bool = False
+    """start every chart's transform at the exposure its seams imply (off: measured to hurt the room)"""
+    coarse_to_fine: float = 0.3
+    """share of the steps over which hash-grid levels are switched on, coarse first (0: all at once)"""
+    start_levels: int = 4
+    """hash-grid levels active at the first step"""
+    checkpoint_every: int = 250
+    """steps between checkpoints (for --resume)"""
+
+
+@dataclass(frozen=True)
+class UVConfig:
+    mode: str = "keep"
+    """texture layout: keep the input's, optimize it (merge/split shells by stretch), or unwrap afresh"""
+    threshold: float = 1.1
+    """largest per-chart L2 stretch allowed when merging/splitting/unwrapping (1 = no distortion)"""
+    time_budget_s: float = 60.0
+    """time allowed for optimize/unwrap"""
+    blend_seams: bool = True
+    """after baking, give texels on both sides of every seam the same colour (no line when filtered)"""
+    band_texels: float = 3.0
+    """width of the seam-blending band, texels"""
+
+
+@dataclass(frozen=True)
+class BakeConfig:
+    texture_size: int = 0
+    """output atlas size in texels (0: twice the input atlas, at most 8192)"""
+    chunk: int = 16384
+    """texels evaluated per field call (bounded memory)"""
+    source: str = "input"
+    """mesh-only colour source: input (the input's own texels, seam-levelled and denoised against the
+    field; holes filled) or field (the paper's: the field's colour replaces every taught texel)"""
+    levelling: bool = True
+    """source input: smooth per-chart offsets that make both sides of every seam agree (local seam levelling)"""
+    denoise: float = 1.0
+    """source input: differences from the field up to this many times the input's estimated noise level
+    are removed as noise (0: keep the input's texels exactly)"""
+    detail: float = 0.0
+    """source field: share of the input's own detail put back: field + detail x (input through its chart's
+    inverse colour transform - field); 0 bakes the field alone"""
+
+
+@dataclass(frozen=True)
+class PhotosConfig:
+    holdout: float = 0.1
+    """photos held out for scoring: a share of them (rounded up, spread over the capture), or a count if >= 1"""
+    max_side: int = 640
+    """photos are box-filtered down to this longer side for training and scoring"""
+    synthetic_weight: float = 0.1
+    """weight of the synthetic views of the input texture relative to the photos (they teach what no photo sees)"""
+    edge_margin_px: int = 2
+    """photo pixels this close to a silhouette or depth discontinuity teach nothing"""
+    max_angle_deg: float = 75.0
+    """photo pixels seeing the surface more obliquely than this teach nothing"""
+    depth_tolerance: float = 0.05
+    """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
+    check_alignment: bool = True
+    """refuse to train when the mesh is clearly not in the photos' frame"""
+    refine_poses: bool = False
+    """refine each training photo's pose (small rotation, translation, focal) photometrically against the input texture (textured scans; off: not yet reliable, see bench/RESULTS.md)"""
+    texturing: str = "projective"
+    """texel colours: projective (sampled from the photos that see them best, at full resolution, blended smoothly; the field fills the rest) or field (the field's colour everywhere)"""
+    temperature: float = 0.15
+    """projective texturing: softmax temperature on the view quality (lower: the best view dominates more)"""
+    canonical: str = "input"
+    """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
+
+
+@dataclass(frozen=True)
+class EnhanceConfig:
+    preset: str = "default"
+    """the preset these settings started from"""
+    seed: int = 0
+    """random seed (views, split, training)"""
+    device: str = "auto"
+    """torch device: auto (CUDA when present), cpu or cuda"""
+    threads: int = 0
+    """CPU threads for torch (0: all cores)"""
+    views: ViewsConfig = default(default_factory=ViewsConfig)
+    field: FieldSettings = default(default_factory=FieldSettings)
+    train: TrainConfig = default(default_factory=TrainConfig)
+    uv: UVConfig = default(default_factory=UVConfig)
+    bake: BakeConfig = default(default_factory=BakeConfig)
+    photos: PhotosConfig = default(default_factory=PhotosConfig)
+    refine: RefineConfig = default(default_factory=RefineConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
+        """The config a ``config.json`` document describes; every value is checked (:func:`validate`).
+
+        Raises:
+            ScanError: an unknown key, or a value of the wrong type or out of its range.
+        """
+        subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
+                "bake": BakeConfig, "photos": PhotosConfig,
+                "refine": RefineConfig}
+        if not isinstance(d, dict):
+            raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
+        kwargs = {}
+        for key, value in d.items():
+            if key in subs:
+                kwargs[key] = _build(subs[key], value, where, key)
+            elif key in {f.name for f in dataclasses.fields(cls)}:
+                kwargs[key] = value
+            else:
+                raise ScanError(where, f"unknown config key '{key}'")
+        return validate(cls(**kwargs), where)
+
+    def override(self, **dotted) -> EnhanceConfig:
+        """A copy with ``section__name=value`` (or top-level ``name=value``) settings changed."""
+        cfg = self
+        for key, value in dotted.items():
+            if value is None:
+                continue
+            section, _, name = key.partition("__")
+            if name:
+                cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(getattr(cfg, section), **{name: value})})
+            else:
+                cfg = dataclasses.replace(cfg, **{section: value})
+        return cfg
+
+
+def _build(cls, values: dict, where, section: str):
+    if not isinstance(values, dict):
+        raise ScanError(where, f"config '{section}' must be an object of settings, not {str(values)[:40]!r}")
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        raise ScanError(where, f"unknown config key '{section}.{sorted(unknown)[0]}'")
+    return cls(**values)
+
+
+PRESETS: dict[str, EnhanceConfig] = {
+    "fast": EnhanceConfig(
+        preset="fast",
+        views=ViewsConfig(n_views=16, width=256, height=192, adaptive=False),
+        field=FieldSettings(hidden=32, n_layers=2, n_levels=12, log2_table_size=18),
+        train=TrainConfig(steps=500, batch_rays=8192),
+    ),
+    "default": EnhanceConfig(),
+    "best": EnhanceConfig(
+        preset="best",
+        views=ViewsConfig(n_views=40, width=480, height=360),
+        field=FieldSettings(hidden=64, n_layers=3, log2_table_size=20, max_resolution=4096),
+        train=TrainConfig(steps=5000, batch_rays=16384),
+    ),
+}
+
+
+def preset(name: str) -> EnhanceConfig:
+    if name not in PRESETS:
+        raise ScanError(None, f"unknown preset '{name}' (choose from {', '.join(PRESETS)})")
+    return PRESETS[name]
+
+
+def load_config(path: str | Path) -> EnhanceConfig:
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScanError(path, "config file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ScanError(path, f"not a JSON config ({e})") from None
+    except RecursionError:
+        raise ScanError(path, "not a config (JSON nested too deeply)") from None
+    except OSError as e:
+        raise ScanError(path, f"cannot read the config ({e.strerror})") from None
+    return EnhanceConfig.from_dict(d, path)
+
+
+def save_config(config: EnhanceConfig, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(config.to_dict(), indent=2))
+
+
+# -- validation ---------------------------------------------------------------------------------
+
+#: allowed values of every setting that is not free: ``(low, high)`` inclusive bounds for numbers
+#: (``None``: unbounded), or a tuple of choices for strings. Types come from the dataclasses' annotations.
+BIG = 1 << 31
+RANGES: dict[str, tuple] = {
+    "seed": (0, 2**32 - 1), "threads": (0, 4096), "device": ("auto", "cpu", "cuda"),
+    "views.n_views": (2, 10_000), "views.width": (8, 8192), "views.height": (8, 8192),
+    "views.fov_deg": (1.0, 170.0), "views.mode": ("auto", "orbit", "hemisphere", "surface"),
+    "views.up": ("auto", "x", "y", "z"), "views.supersample": (1, 8), "views.test_fraction": (0.01, 0.9),
+    "field.encoding": ("hash", "frequency"), "field.hidden": (1, 4096), "field.n_layers": (1, 32),
+    "field.log2_table_size": (4, 26), "field.n_levels": (1, 32), "field.max_resolution": (2, 1 << 20),
+    "field.n_freqs": (1, 24),
+    "train.steps": (1, BIG), "train.batch_rays": (1, 1 << 24), "train.lr": (1e-12, 100.0),
+    "train.n_samples": (1, 256), "train.band_width": (1e-9, 1.0), "train.appearance_lr": (0.0, 100.0),
+    "train.appearance_reg": (0.0, 1e9), "train.coarse_to_fine": (0.0, 1.0), "train.start_levels": (1, 32),
+    "train.checkpoint_every": (1, BIG),
+    "uv.mode": ("keep", "optimize", "unwrap"), "uv.threshold": (1.0, 1e6), "uv.time_budget_s": (0.0, 1e9),
+    "uv.band_texels": (0.0, 1024.0),
+    "bake.texture_size": (0, 16384), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
+    "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
+    "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
+    "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
+    "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
+    "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
+    "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),
+    "refine.view_scale": (1.0, 8.0), "refine.max_views": (1, 10_000), "refine.diffusion_strength": (0.0, 1.0),
+    "refine.diffusion_steps": (1, BIG),
+}
+
+
+def validate(config: EnhanceConfig, where=None) -> EnhanceConfig:
+    """Return ``config`` when every setting has its field's type (int, float, bool, str) and lies in its
+    range (:data:`RANGES`), else raise a one-line :class:`ScanError` naming the setting.
+
+    Driven by the dataclasses' own annotations, so a new field is type-checked without being listed.
+    """
+    import math
+    import typing
+
+    def check(obj, prefix: str) -> None:
+        hints = typing.get_type_hints(type(obj))
+        for f in dataclasses.fields(obj):
+            name, value, kind = prefix + f.name, getattr(obj, f.name), hints[f.name]
+            if dataclasses.is_dataclass(kind):
+                check(value, name + ".")
+                continue
+            bad = f"config '{name}' is {repr(value)[:40]}, expected"
+            if kind is bool:
+                if not isinstance(value, bool):
+                    raise ScanError(where, f"{bad} true or false")
+            elif kind is int:
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ScanError(where, f"{bad} a whole number")
+            elif kind is float:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ScanError(where, f"{bad} a finite number")
+            elif kind is str and not isinstance(value, str):
+                raise ScanError(where, f"{bad} a string")
+            allowed = RANGES.get(name)
+            if allowed is None:
+                continue
+            if isinstance(allowed[0], str):
+                if value not in allowed:
+                    raise ScanError(where, f"{bad} one of {', '.join(allowed)}")
+            elif not allowed[0] <= value <= allowed[1]:
+                raise ScanError(where, f"{bad} {allowed[0]!r} to {allowed[1]!r}")
+
+    check(config, "")
+    if config.train.start_levels > config.field.n_levels:
+        raise ScanError(where, f"config 'train.start_levels' ({config.train.start_levels}) is more than "
+                               f"'field.n_levels' ({config.field.n_levels})")
+    if config.refine.crop % config.refine.patch:
+        raise ScanError(where, f"config 'refine.crop' ({config.refine.crop}) is not a multiple of "
+                               f"'refine.patch' ({config.refine.patch})")
+    return config

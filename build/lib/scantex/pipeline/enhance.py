@@ -1,0 +1,571 @@
+"""``enhance``: the whole pipeline, stage after stage, on one scan.
+
+views (plan, ray-cast, render, split 80/20) -> rays -> field (fit) -> bake into the scan's own UV
+layout -> metrics. Each stage is a function of its own module; this one only wires them and times them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scantex.atlas.bake import SurfaceColour, bake, output_size
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.inpaint import grow_faces
+from scantex.atlas.levelling import chart_gains
+from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.metrics.geometry import geometry_metrics
+from scantex.metrics.views import score_views
+from scantex.photos.photoset import PhotoSet
+from scantex.photos.training import PhotoView
+from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
+from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.render import downsample, render, render_gbuffer, shade_hits
+from scantex.views.viewset import ViewSet, split_train_test
+
+log = logging.getLogger(__name__)
+
+Update = Callable[[int, int], None]
+
+
+class Reporter:
+    """How the pipeline reports progress: one ``stage`` context per stage, yielding an update callback.
+
+    The default reports nothing; the CLI passes one that draws progress bars.
+    """
+
+    @contextlib.contextmanager
+    def stage(self, name: str) -> Iterator[Update]:
+        yield lambda done, total: None
+
+
+@dataclass(frozen=True, eq=False)
+class TrainingViews:
+    """Rendered views with what training needs from their G-buffers."""
+
+    views: ViewSet
+    face_id: np.ndarray  # [N, H, W] int32 centre-sample face, -1 where unusable
+    depth: np.ndarray  # [N, H, W] float32 mean depth of the sub-samples
+    valid: np.ndarray  # [N, H, W] bool: every sub-sample sees the same usable surface
+
+
+@dataclass(frozen=True, eq=False)
+class EnhanceResult:
+    """What ``enhance`` made: the new scan (same geometry), its metrics and the renders used."""
+
+    scan: Scan
+    metrics: dict
+    config: EnhanceConfig
+    views: TrainingViews
+    comparisons: dict[str, np.ndarray] = field(default_factory=dict)
+    """images for people to look at, by name (photo mode: each held-out photo | the input | the result)"""
+    input_scan: Scan | None = None
+    """the scan that was enhanced (for the report's before/after)"""
+    ground_truth: Scan | None = None
+    """the ground truth it was scored against, if any"""
+
+
+def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
+    axes = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+    if choice == "auto":
+        suffix = Path(scan.source).suffix.lower() if scan.source else ""
+        choice = "y" if suffix in (".glb", ".gltf") else "z"  # glTF is y-up by specification
+    return axes[choice]
+
+
+def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray, supersample: int,
+                          caster: RayCaster, test_fraction: float, seed: int,
+                          update: Update) -> TrainingViews:
+    """Unlit renders (box-filtered supersamples) plus per-pixel validity for training."""
+    s = supersample
+    images, alpha, fids, depths, valids = [], [], [], [], []
+    normals = scan.face_normals
+    for i, cam in enumerate(cameras):
+        g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, normals)
+        rgb = render_gbuffer(scan, g)
+        H, W = cam.height, cam.width
+        fid = g.face_id.reshape(H, s, W, s)
+        ok = fid >= 0
+        ok &= usable[np.where(fid >= 0, fid, 0)]
+        hit = g.mask.reshape(H, s, W, s)
+        depth = g.depth.reshape(H, s, W, s)
+        n_hit = hit.sum(axis=(1, 3))
+        mean_depth = np.where(hit, depth, 0).sum(axis=(1, 3)) / np.maximum(n_hit, 1)
+        spread = np.where(hit, depth, -np.inf).max(axis=(1, 3)) - np.where(hit, depth, np.inf).min(axis=(1, 3))
+        # a pixel is a clean sample of one surface when all its sub-samples hit usable faces at
+        # nearly the same depth (no silhouette, no hole border)
+        valid = ok.all(axis=(1, 3)) & (spread < 0.02 * mean_depth)
+        images.append(downsample(rgb, s))
+        alpha.append(downsample(g.mask.astype(np.float32)[..., None], s)[..., 0])
+        fids.append(fid[:, s // 2, :, s // 2])
+        depths.append(mean_depth.astype(np.float32))
+        valids.append(valid)
+        update(i + 1, len(cameras))
+    train, test = split_train_test(len(cameras), test_fraction, seed)
+    views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test)
+    return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
+
+
+def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarray):
+    """Training rays of the views ``indices`` (see :class:`scantex.field.train.RayDataset`)."""
+    from scantex.field.train import RayDataset
+
+    parts = []
+    for i in indices:
+        cam = tv.views.cameras[i]
+        _, directions = cam.pixel_rays()
+        valid = tv.valid[i].reshape(-1)
+        n = int(valid.sum())
+        parts.append(RayDataset(
+            origins=np.broadcast_to(cam.center.astype(np.float32), (n, 3)).copy(),
+            directions=directions[valid],
+            depth=tv.depth[i].reshape(-1)[valid],
+            rgb=tv.views.images[i].reshape(-1, 3)[valid].astype(np.float32),
+            chart=chart_of_face[tv.face_id[i].reshape(-1)[valid]].astype(np.int64),
+        ))
+    return RayDataset.concatenate(parts)
+
+
+def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarray:
+    """``(F,) bool`` faces that at least ``min_rays`` training rays landed on."""
+    train = tv.views.train
+    hit = tv.face_id[train][tv.valid[train]]
+    return np.bincount(hit, minlength=n_faces) >= min_rays
+
+
+def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
+                     config: BakeConfig) -> tuple[SurfaceColour, dict]:
+    """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report."""
+    from scantex.atlas.colour import atlas_noise, field_colour, levelled_input_colour
+    from scantex.atlas.levelling import seam_offsets
+
+    if config.source not in ("input", "field"):
+        from scantex.errors import ScanError
+
+        raise ScanError(None, f"bake.source must be 'input' or 'field', not '{config.source}'")
+    if config.source == "field" or not scan.is_textured:
+        return field_colour(scan, fitted, fill, taught, charts, device, detail=config.detail), {"source": "field"}
+    offsets = seam_offsets(scan, exclude=fill) if config.levelling else np.zeros((len(scan.uvs), 3))
+    noise = atlas_noise(scan, exclude=fill)
+    colour = levelled_input_colour(scan, offsets, fill, fitted=fitted, taught=taught, charts=charts, device=device,
+                                   noise_threshold=config.denoise * noise)
+    return colour, {"source": "input", "noise_level": round(noise, 5),
+                    "noise_threshold": round(config.denoise * noise, 5),
+                    "levelling_offset_mean": round(float(np.abs(offsets).mean()) if offsets.size else 0.0, 5),
+                    "levelling_offset_max": round(float(np.abs(offsets).max()) if offsets.size else 0.0, 5)}
+
+
+@dataclass(frozen=True, eq=False)
+class PhotoData:
+    """The capture's photos as the pipeline uses them (photo mode)."""
+
+    photos: PhotoSet
+    train: list[PhotoView]
+    held_out: list[PhotoView]
+    alignment: object | None
+    """the :class:`scantex.photos.alignment.AlignmentReport`, when checked"""
+    pose_corrections: list = field(default_factory=list)
+    """:class:`scantex.photos.poses.PoseCorrection` per training photo, when refined"""
+
+
+def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
+                update: Update) -> PhotoData:
+    """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
+    from scantex.photos.alignment import require_alignment
+    from scantex.photos.training import VisibilitySettings, prepare_photos, split_photos
+
+    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
+    if report is not None:
+        log.info("%s", report.summary())
+    train, held = split_photos(len(photos), pc.holdout, seed)
+    corrections = []
+    if pc.refine_poses and scan.is_textured:
+        from scantex.photos.poses import refine_poses
+
+        # held-out photos keep their recorded poses: they are the score's reference, not training data
+        photos, corrections = refine_poses(scan, photos, train, lambda f, b: shade_hits(scan, f, b), caster)
+    settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
+                                  max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
+    views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
+    return PhotoData(photos, views[:len(train)], views[len(train):], report, corrections)
+
+
+def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
+                    canonical: str = "input"):
+    """All training rays of photo mode and their appearance groups.
+
+    Groups ``0 .. P-1`` are the training photos (one exposure / white balance each), ``P .. P+C-1``
+    the input atlas's charts seen in the synthetic views (``synthetic`` may be ``None``: an untextured
+    scan has nothing to render). The synthetic rays weigh ``synthetic_weight`` each against a photo
+    ray's 1 (in the loss; not in fixing the colour balance).
+
+    ``canonical`` says whose appearance is the one baked: ``"input"``, the input texture's average over
+    its charts (the result keeps the scan's overall colour balance; the photos only add what they see),
+    or ``"photos"``, the photos' average; an untextured scan always takes the photos'. Either is an
+    average of independently exposed images, and so only an estimate of the true colour.
+
+    Returns:
+        ``(rays, chart_offset, appearance_weights)``: the synthetic rays' groups are their chart + offset.
+    """
+    from scantex.errors import ScanError
+    from scantex.field.train import RayDataset
+    from scantex.photos.training import photo_rays
+
+    if canonical not in ("input", "photos"):
+        raise ScanError(None, f"photos.canonical must be 'input' or 'photos', not '{canonical}'")
+    P = len(photo.train)
+    seen = photo_rays(photo.train, range(P))
+    parts = [dataclasses.replace(seen, weight=np.ones(len(seen), np.float32))]
+    if synthetic is not None and len(synthetic) and synthetic_weight > 0:
+        parts.append(dataclasses.replace(synthetic, chart=synthetic.chart + P,
+                                         weight=np.full(len(synthetic), synthetic_weight, np.float32)))
+    rays = RayDataset.concatenate(parts)
+    counts = np.bincount(rays.chart, minlength=P + n_charts).astype(np.float32)
+    weights = np.zeros(P + n_charts, np.float32)
+    if canonical == "input" and counts[P:].sum() > 0:
+        weights[P:] = counts[P:]
+    else:
+        weights[:P] = counts[:P]
+    return rays, P, weights
+
+
+def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
+    """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
+    to the canonical appearance by each photo's inverse colour transform (training photo ``k`` is
+    appearance group ``k``), with ``fallback`` (the field) where no photo sees them."""
+    import torch
+
+    from scantex.errors import ScanError
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+
+    if pc.texturing != "projective":
+        raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
+    def canonicalise(rgb, group):
+        return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
+                                           torch.as_tensor(group, device=device)).cpu().numpy()
+
+    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)),
+                                       canonicalise if fitted.appearance is not None else None,
+                                       fallback, ProjectiveSettings(temperature=pc.temperature))
+    return colour, {"mode": "projective", **report}
+
+
+def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
+    """A digest of what a field checkpoint depends on: the scan's geometry and UVs, the photos' cameras
+    and the settings (but the step count, which a resumed run may raise): ``--resume`` refuses another's."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    for array in (scan.positions, scan.faces, scan.uvs, scan.face_uvs):
+        if array is not None:
+            h.update(np.ascontiguousarray(array).tobytes())
+    settings = config.to_dict()
+    settings["train"] = {k: v for k, v in settings["train"].items() if k not in ("steps", "checkpoint_every")}
+    for key in ("device", "threads"):
+        settings.pop(key, None)
+    h.update(json.dumps(settings, sort_keys=True, default=str).encode())
+    if photos is not None:
+        h.update(json.dumps([c.to_dict() for c in photos.cameras], default=str).encode())
+    return h.hexdigest()[:16]
+
+
+def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
+            photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
+            reporter: Reporter | None = None) -> EnhanceResult:
+    """Enhance ``scan``'s texture; its positions and faces are returned untouched.
+
+    Args:
+        scan: the input scan (with UVs: the input layout is kept).
+        config: all settings (see :mod:`scantex.pipeline.config` and its presets).
+        ground_truth: the same geometry with the true texture, when known (synthetic scans): held-out
+            views are then scored against it, for the input and for the result.
+        photos: the capture's posed photos (photo mode): the field learns from them, with the
+            synthetic views of the input texture at a lower weight for surface no photo sees; a share
+            of them is held out and the input and the result are scored against it.
+        work_dir: where field checkpoints go (for ``resume``).
+        resume: continue from the checkpoint in ``work_dir`` if there is one.
+        reporter: progress reporting (default: silent).
+    """
+    import torch
+
+    from scantex.field.model import FieldConfig
+    from scantex.field.train import fit_field, resolve_device
+    from scantex.field.volume import BoxNormaliser
+
+    from scantex.uv import blend_seams, plan_uvs
+
+    from scantex.errors import ScanError
+    from scantex.pipeline.config import validate
+
+    validate(config)
+    reporter = reporter or Reporter()
+    if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
+                                     or ground_truth.faces.shape != scan.faces.shape):
+        from scantex.errors import ScanError
+
+        raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
+    torch.set_num_threads(config.threads or os.cpu_count() or 1)
+    device = resolve_device(config.device)
+    timings: dict[str, float] = {}
+    rng_seed = config.seed
+    vc, tc = config.views, config.train
+
+    t = time.perf_counter()
+    caster = RayCaster(scan.positions, scan.faces)
+    holes = untextured_faces(scan)
+    # bilinear lookups at a hole's border read its black texels: keep one ring of faces out of training
+    excluded = grow_faces(scan, holes, rings=1)
+    charts = uv_shells(scan)
+    up = up_axis(scan, vc.up)
+    with reporter.stage("planning views") as update:
+        cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height,
+                             fov_deg=vc.fov_deg, seed=rng_seed, up=up, caster=caster)
+        if vc.adaptive:
+            cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4),
+                                             up=up, seed=rng_seed, caster=caster)
+        coverage = face_coverage(scan, cameras, caster=caster)
+        update(1, 1)
+    timings["plan"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    with reporter.stage("rendering views") as update:
+        tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
+                                   rng_seed, update)
+    timings["render"] = time.perf_counter() - t
+
+    photo = None
+    if photos is not None:
+        t = time.perf_counter()
+        with reporter.stage("reading photos") as update:
+            photo = read_photos(scan, photos, config.photos, caster, rng_seed, update)
+        timings["photos"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    data = gather_rays(tv, charts, tv.views.train)
+    n_groups, chart_offset, appearance_weights = int(charts.max()) + 1, 0, None
+    if photo is not None:
+        synthetic = data if scan.is_textured else None  # an untextured scan's renders teach nothing
+        data, chart_offset, appearance_weights = photo_mode_rays(synthetic, photo, n_groups,
+                                                                 config.photos.synthetic_weight,
+                                                                 config.photos.canonical)
+        n_groups += chart_offset
+    if len(data) == 0:
+        raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
+                                     "(are its faces degenerate or collinear?)")
+    lo, hi = scan.bounds
+    normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
+    band = tc.band_width * float(np.linalg.norm(hi - lo))
+    fs = config.field
+    field_config = FieldConfig(encoding=fs.encoding, hidden=fs.hidden, n_layers=fs.n_layers,
+                               skip_at=fs.n_layers // 2,
+                               log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
+                               max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
+                               use_viewdirs=fs.use_viewdirs)
+    from scantex.pipeline.outputs import CHECKPOINT
+
+    checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
+    with reporter.stage("training the field") as update:
+        gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
+        if gains is not None and chart_offset:
+            gains = np.concatenate([np.ones((chart_offset, 3), gains.dtype), gains])
+        fitted = fit_field(data, normaliser, field_config, tc, n_groups, band, device=device,
+                           seed=rng_seed, progress=update, checkpoint=checkpoint, resume=resume,
+                           run_key=run_key(scan, config, photos),
+                           initial_gains=gains, appearance_weights=appearance_weights)
+    timings["train"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    uc = config.uv
+    mode = uc.mode if scan.has_uvs else "unwrap"  # an untextured mesh needs an atlas to hold its texture
+    size = config.bake.texture_size or max(output_size(scan, m)[0] for m in range(len(scan.materials)))
+    if photo is not None and not scan.is_textured and not config.bake.texture_size:
+        size = 2048  # photos hold far more detail than the 1024 atlas given to an untextured mesh
+    with reporter.stage(f"UV layout ({mode})") as update:
+        plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
+        update(1, 1)
+    timings["uv"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    fill = excluded
+    if photo is None:
+        taught = taught_faces(tv, scan.n_faces)
+    else:
+        from scantex.photos.training import taught_by_photos
+
+        seen = taught_by_photos(photo.train, scan.n_faces)
+        taught = seen | (taught_faces(tv, scan.n_faces) if scan.is_textured else False)
+        # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
+        fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
+    if photo is None:
+        colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake)
+    else:
+        from scantex.atlas.colour import field_colour
+
+        colour = field_colour(scan, fitted, fill, taught, charts + chart_offset, device, detail=config.bake.detail)
+        bake_report = {"source": "field"}
+    projective_report = None
+    if photo is not None and config.photos.texturing != "field":
+        colour, projective_report = photo_texture(photo, fitted, colour, config.photos, device)
+    bake_seconds = time.perf_counter() - t
+
+    refine_report = None
+    if config.refine.enabled and (photo is None or config.refine.with_photos):
+        from scantex.refine.stage import refine_colour
+
+        t = time.perf_counter()
+        with reporter.stage("refining (ViT)") as update:
+            refined = refine_colour(scan, fitted, tv, caster, colour, config.refine, device, update, fill=fill,
+                                    charts=charts + chart_offset, seed=rng_seed,
+                                    canonical=bake_report["source"] == "field")
+            colour, refine_report = refined.colour, refined.report
+        timings["refine"] = time.perf_counter() - t
+
+    t = time.perf_counter() - bake_seconds
+    with reporter.stage("baking the texture") as update:
+        target = plan.scan
+        images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size,
+                      chunk=config.bake.chunk, progress=update)
+    materials = tuple(
+        m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
+                                                  diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
+        for m, img in zip(target.materials, images))
+    baked = target.replace(materials=materials, source=None)
+    enhanced = blend_seams(baked, band_texels=uc.band_texels) if uc.blend_seams else baked
+    timings["bake"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    comparisons: dict[str, np.ndarray] = {}
+    with reporter.stage("measuring") as update:
+        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
+        metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
+        metrics["uv"] = {"mode": mode, **plan.report}
+        metrics["field"]["untaught_faces"] = int((~taught & ~fill).sum())
+        metrics["bake"] = bake_report
+        metrics["sampling"] = sampling_report(scan, tv, taught, fill)
+        if refine_report is not None:
+            metrics["refine"] = refine_report
+        if photo is not None:
+            sheets: dict = {}
+            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster, sheets))
+            metrics["photos"]["texturing"] = projective_report or {"mode": "field"}
+            comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
+        update(1, 1)
+    timings["metrics"] = time.perf_counter() - t
+    metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
+    metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
+    return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)
+
+
+def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData, rays,
+                  holes: np.ndarray, caster: RayCaster, images: dict | None = None) -> dict:
+    """Photo mode: what the photos gave, and the input and the result scored on the held-out photos
+    (and, when known, against the ground truth rendered through the held-out photos' cameras).
+    ``images`` receives a photo | input | result image per held-out photo."""
+    from scantex.photos.training import score_photos
+
+    P = len(photo.train)
+    rejected = {k: sum(v.rejected[k] for v in photo.train) for k in ("edge", "grazing", "depth_map")}
+    out: dict = {"photos": {
+        "source": str(photo.photos.source), "format": photo.photos.format, "total": len(photo.photos),
+        "train": [int(v.index) for v in photo.train], "held_out": [int(v.index) for v in photo.held_out],
+        "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
+        "photo_rays": int((rays.chart < P).sum()), "synthetic_rays": int((rays.chart >= P).sum()),
+        "rejected_pixels": rejected,
+        "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
+        "alignment": None if photo.alignment is None else {
+            "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
+            "ratio": round(photo.alignment.ratio, 3), "offset_m": round(photo.alignment.offset_m, 4),
+            "turn_deg": round(photo.alignment.turn_deg, 2), "displacement": round(photo.alignment.displacement, 5),
+            "summary": photo.alignment.summary()},
+    }}
+    if photo.held_out:
+        out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,
+                                              images=images)
+        if ground_truth is not None:
+            out["held_out_photos_vs_ground_truth"] = score_views(
+                lambda cam: render(ground_truth, cam, caster, supersample=2),
+                {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)
+    return out
+
+
+def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
+            charts: np.ndarray, caster: RayCaster, coverage, fitted) -> dict:
+    """The run's metrics: geometry identity always; texture scores on the held-out views."""
+    edges = seam_edges(scan)
+    metrics: dict = {
+        "geometry": geometry_metrics(scan, enhanced),
+        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "charts": int(charts.max()) + 1,
+                  "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
+        "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
+                  "coverage": coverage.summary()},
+        "field": {"train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run, "final_loss": float(np.mean(fitted.losses[-50:])),
+                  "train_rays": int(tv.valid[tv.views.train].sum())},
+        # each texture is measured along its own layout's seams
+        "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
+                            "enhanced": round(seam_visibility(enhanced), 3)},
+    }
+    test_cams = [tv.views.cameras[i] for i in tv.views.test]
+    if scan.is_textured:
+        metrics["patches"] = patch_metrics(scan, enhanced, test_cams, caster)
+    if ground_truth is not None:
+        metrics["held_out_vs_ground_truth"] = score_views(
+            lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
+            test_cams, caster, holes)
+    elif scan.is_textured:
+        # no truth: how faithfully the result reproduces the input where the input has colour
+        metrics["held_out_vs_input"] = score_views(
+            lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},
+            test_cams, caster, holes)
+    return metrics
+
+
+def patch_metrics(scan: Scan, enhanced: Scan, cameras: list[Camera], caster: RayCaster) -> dict:
+    """The patch measure of the result against the input at ``cameras`` (see :mod:`scantex.metrics.patches`):
+    the share of pixels where the result has a low-frequency edge the input does not. A result that only
+    levels exposure smoothly, fills holes and removes noise scores about 0."""
+    from scantex.metrics.patches import SIGMA_SHARE, THRESHOLD, patch_score
+
+    scores = []
+    for cam in cameras:
+        before, alpha = render(scan, cam, caster, supersample=2)
+        after, _ = render(enhanced, cam, caster, supersample=2)
+        scores.append(patch_score(after, before, alpha >= 0.999))
+    return {"enhanced_vs_input": round(float(np.mean(scores)), 5) if scores else 0.0,
+            "per_view": [round(s, 5) for s in scores], "sigma_share": SIGMA_SHARE, "threshold": THRESHOLD}
+
+
+def used_texels(scan: Scan) -> int:
+    """About how many texels of the input's atlases its faces cover (their UV area in texels)."""
+    if not scan.is_textured:
+        return 0
+    uv = scan.triangle_uvs
+    a, b = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    total = 0.0
+    for m, material in enumerate(scan.materials):
+        if material.image is not None:
+            H, W = material.image.shape[:2]
+            total += float(area[scan.face_materials == m].sum()) * H * W
+    return int(total)
+
+
+def sampling_report(scan: Scan, tv: TrainingViews, taught: np.ndarray, fill: np.ndarray) -> dict:
+    """How densely the training views sample the input: rays per used texel, and the faces they teach."""
+    rays = int(tv.valid[tv.views.train].sum())
+    texels = used_texels(scan)
+    usable = ~fill
+    return {"train_rays": rays, "used_input_texels": texels,
+            "rays_per_used_texel": round(rays / texels, 4) if texels else None,
+            "taught_face_share": round(float(taught[usable].mean()) if usable.any() else 0.0, 4)}

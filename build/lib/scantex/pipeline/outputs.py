@@ -1,0 +1,87 @@
+"""Writing an enhance run's outputs into a folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+from scantex.io import save_scan
+from scantex.pipeline.config import save_config
+from scantex.views.viewset import write_views
+
+
+#: the files an enhance run keeps in its work folder: the field checkpoint and its temporary
+CHECKPOINT, CHECKPOINT_TMP = "field.pt", "field.tmp"
+
+
+def work_dir_for(output: Path) -> Path:
+    """Where an unfinished run keeps its checkpoints (kept for --resume until the run completes)."""
+    return output.with_name(output.name + ".partial")
+
+
+def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = True) -> Path | None:
+    """Clean up an enhance run's work folder; returns the checkpoint kept, if any.
+
+    Only the files the run writes there are removed, then the folder if it is empty: a failed run
+    leaves no ``OUT.partial/`` behind unless it holds a field checkpoint that ``--resume`` continues
+    from (``keep_checkpoint``; a kill -9 during training leaves one the same way).
+    """
+    work = Path(work)
+    if not work.is_dir():
+        return None  # never made, or a file of the user's that only has the work folder's name
+    checkpoint = work / CHECKPOINT
+    (work / CHECKPOINT_TMP).unlink(missing_ok=True)
+    if keep_checkpoint and checkpoint.is_file():
+        return checkpoint
+    checkpoint.unlink(missing_ok=True)
+    if not remove_folder:
+        return None
+    try:
+        work.rmdir()
+    except OSError:
+        pass  # missing, or holding files that are not the run's: left as they are
+    return None
+
+
+def write_outputs(result, out_dir: str | Path) -> None:
+    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
+    ``comparisons/`` (photo mode: held-out photo | input | result), ``report.html``."""
+    from scantex.report import write_report
+    from scantex.report.html import json_default
+
+    out_dir = Path(out_dir)
+    png_cache: dict = {}  # the OBJ's PNG and the GLB's embedded one are the same bytes: encode once
+    save_scan(result.scan, out_dir / "enhanced.obj", png_cache=png_cache)
+    save_scan(result.scan, out_dir / "enhanced.glb", png_cache=png_cache)
+    metrics = completed_metrics(result)
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
+    save_config(result.config, out_dir / "config.json")
+    write_views(result.views.views, out_dir / "renders")
+    if result.comparisons:
+        from PIL import Image
+
+        from scantex.views.render import to_uint8
+
+        (out_dir / "comparisons").mkdir()
+        for name, image in result.comparisons.items():
+            Image.fromarray(to_uint8(image)).save(out_dir / "comparisons" / f"{name}.png")
+    write_report(result, out_dir / "report.html", metrics=metrics)
+
+
+def completed_metrics(result) -> dict:
+    """``result.metrics`` with what the written outputs report besides: the surface distances and volume
+    between input and output, and each atlas's own properties (texel density, coverage), when the run
+    did not measure them already and knows its input scan. ``result`` is not changed."""
+    from scantex.metrics.geometry import geometry_metrics
+    from scantex.metrics.texture import texture_summary
+
+    metrics = dict(result.metrics)
+    before = getattr(result, "input_scan", None)
+    if before is None:
+        return metrics
+    if "distance" not in metrics.get("geometry", {}):
+        metrics["geometry"] = geometry_metrics(before, result.scan)
+    if "texture" not in metrics:
+        metrics["texture"] = {"input": texture_summary(before), "enhanced": texture_summary(result.scan)}
+    return metrics

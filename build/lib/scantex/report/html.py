@@ -1,0 +1,652 @@
+"""``report.html``: one self-contained page per enhance run.
+
+What is in it: the headline numbers, an interactive 3D view of the scan before and after (the two
+cameras move together; it shows the geometry, each face in its mean colour), a wipe comparison of the
+held-out views (input | enhanced | ground truth when known, rendered at a finer resolution than the
+metric's, with each view's PSNR/SSIM from ``metrics.json`` beside it), the atlases before and after,
+whole and as a wipe comparison of one region at 1:1, every metric, the per-stage timings and the
+resolved config. The wipe viewers (split slider, zoom by wheel or buttons, pan by dragging) are a few
+lines of plain JavaScript in :data:`COMPARE_SCRIPT`. Images are inline base64 PNGs and plotly.js is
+embedded once for both 3D views, so the file opens offline and can be mailed as it is.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from scantex.atlas.holes import untextured_faces
+from scantex.atlas.seams import seam_edges
+from scantex.io.atomic import atomic_files
+from scantex.metrics.image import psnr, ssim
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from scantex.views.render import render, to_uint8
+
+log = logging.getLogger(__name__)
+
+#: faces per 3D view at most (a random subset above; display only)
+MAX_FACES = 100_000
+#: held-out views shown as renders
+MAX_VIEWS = 4
+#: longest side of the whole-atlas thumbnails, pixels
+THUMBNAIL = 512
+#: the atlas comparison: this many input texels across (the output's atlas shows the same UV square at
+#: its own resolution)
+CROP_TEXELS = 256
+#: held-out views are rendered for display at least this many pixels on their longer side (the metrics
+#: are computed at the views' own size; a finer render shows the texels)
+RENDER_DISPLAY = 720
+#: the wipe viewer's largest size on the page, CSS pixels
+VIEWER_SIZE = (720, 540)
+
+
+def write_report(result, path: str | Path, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
+                 metrics: dict | None = None, max_faces: int = MAX_FACES) -> Path:
+    """Write the report of an enhance run to ``path`` (atomically) and return the path.
+
+    Args:
+        result: the :class:`scantex.pipeline.enhance.EnhanceResult`.
+        path: the HTML file.
+        input_scan: the scan before enhancement (default: ``result.input_scan``); without one the page
+            shows only the result.
+        ground_truth: the true texture (default: ``result.ground_truth``), shown next to the renders.
+        metrics: the metrics to show (default: ``result.metrics``).
+        max_faces: faces per 3D view at most (a random subset above, for display only).
+    """
+    page = build_report(result, input_scan=input_scan, ground_truth=ground_truth, metrics=metrics,
+                        max_faces=max_faces)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_files() as files:
+        files.path(path).write_text(page, encoding="utf-8")
+    return path
+
+
+def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
+                 metrics: dict | None = None, max_faces: int = MAX_FACES) -> str:
+    """The report's HTML as a string (see :func:`write_report`). Without plotly (the ``view`` extra)
+    the 3D section says how to get it and the rest of the page is as usual."""
+    from scantex.deps import has_module, missing_message
+
+    before = input_scan if input_scan is not None else getattr(result, "input_scan", None)
+    truth = ground_truth if ground_truth is not None else getattr(result, "ground_truth", None)
+    after = result.scan
+    metrics = result.metrics if metrics is None else metrics
+    views = result.views.views
+    cameras = [views.cameras[i] for i in views.test[:MAX_VIEWS]] or list(views.cameras[:MAX_VIEWS])
+
+    name = (before.source.name if before is not None and before.source is not None else "scan")
+    plotly = has_module("plotly")
+    if not plotly:
+        log.warning(missing_message("plotly", "the report's 3D view") + "; the report is written without it")
+    plotlyjs = ""
+    if plotly:
+        from plotly.offline import get_plotlyjs
+
+        plotlyjs = f'<script type="text/javascript">{get_plotlyjs()}</script>'
+    sections = [
+        _section("Summary", _headline(metrics)),
+        _section("3D view", _views_3d(before, after, max_faces), "Drag to turn, scroll to zoom; both views "
+                 "move together. Each face shows the mean texture colour at its corners and centre: this view "
+                 "is for the geometry; judge the texture in the comparisons below.")
+        if plotly else _section("3D view", f"<p>{html.escape(missing_message('plotly', 'The 3D view'))}.</p>"),
+        _section("Held-out views", _renders(before, after, truth, cameras, _per_view_scores(metrics)),
+                 "Unlit renders at views the field never trained on, compared with a wipe: drag the white "
+                 "handle or the slider to move the split, scroll or use the buttons to zoom, drag the image to "
+                 "pan; the menus pick which image is on each side. The scores are each view's own, from "
+                 "metrics.json (computed at the views' resolution; the renders here are finer)."),
+    ]
+    if getattr(result, "comparisons", None):
+        sections.append(_section("Held-out photos", _comparisons(result.comparisons),
+                                 "Photos the field never trained on | the input rendered through their cameras "
+                                 "| the result."))
+    if before is not None:
+        sections.append(_section("Atlas", _atlases(before, after),
+                                 "The texture images themselves: whole (scaled to fit), then one region of the UV "
+                                 "square in both atlases, compared with a wipe. It opens at 1:1 (one texel of the "
+                                 "finer atlas per screen pixel); zoomed in, texels are drawn as squares."))
+    sections += [
+        _section("Metrics", _metrics_tables(metrics)),
+        _section("Timings", _timings(metrics.get("timings_s", {}))),
+        _section("Config", f"<pre>{html.escape(json.dumps(result.config.to_dict(), indent=2))}</pre>"),
+        _section("All metrics (metrics.json)", f"<details><summary>show</summary><pre>"
+                 f"{html.escape(json.dumps(metrics, indent=2, default=json_default))}</pre></details>"),
+    ]
+    return PAGE.format(title=html.escape(f"scantex report: {name}"), plotlyjs=plotlyjs,
+                       style=STYLE + COMPARE_STYLE, script=SYNC_SCRIPT + COMPARE_SCRIPT, date=time.strftime("%Y-%m-%d %H:%M"),
+                       body="\n".join(sections))
+
+
+# -- pieces ---------------------------------------------------------------------------------------------
+
+
+def _section(title: str, body: str, note: str = "") -> str:
+    slug = "".join(c if c.isalnum() else "-" for c in title.lower())
+    note = f'<p class="note">{html.escape(note)}</p>' if note else ""
+    return f'<section id="{slug}"><h2>{html.escape(title)}</h2>{note}{body}</section>'
+
+
+def _headline(m: dict) -> str:
+    g = m.get("geometry", {})
+    rows = []
+    if g:
+        same = g.get("arrays_identical")
+        d = g.get("distance")
+        text = (f"{'identical' if same else 'CHANGED'}: {g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces")
+        if d is not None:
+            text += f"; Hausdorff {d['hausdorff']:.3g}, mean point-to-mesh {d['mean']:.3g}"
+        rows.append(("Geometry", text, "good" if same else "bad"))
+    scores = m.get("held_out_vs_ground_truth")
+    if scores:
+        i, e = scores["input"], scores["enhanced"]
+        rows.append(("Held-out views vs ground truth",
+                     f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB, SSIM {i['ssim']:.3f} → {e['ssim']:.3f}",
+                     "good" if e["psnr"] > i["psnr"] else "bad"))
+        if "hole_psnr" in i and "hole_psnr" in e:
+            rows.append(("Holes vs ground truth", f"PSNR {_num(i['hole_psnr'])} → {_num(e['hole_psnr'])} dB", ""))
+    elif "held_out_vs_input" in m:
+        e = m["held_out_vs_input"]["enhanced"]
+        rows.append(("Held-out views vs input renders", f"PSNR {_num(e['psnr'])} dB, SSIM {e['ssim']:.3f} "
+                     "(fidelity to the input, not quality: no ground truth was given)", ""))
+    photos = m.get("held_out_photos")
+    if photos:
+        i, e = photos["input"], photos["enhanced"]
+        rows.append((f"Held-out photos ({i.get('photos', 0)})",
+                     f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB (colour-matched {_num(i['psnr_matched'])} → "
+                     f"{_num(e['psnr_matched'])}), SSIM {i['ssim']:.3f} → {e['ssim']:.3f}",
+                     "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
+    sv = m.get("seam_visibility")
+    if sv:
+        rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
+                     "0–255)", "good" if sv["enhanced"] < sv["input"] else ""))
+    if "timings_s" in m:
+        rows.append(("Time", f"{m['timings_s'].get('total', 0):.1f} s", ""))
+    body = "".join(f'<tr><th>{html.escape(k)}</th><td class="{c}">{html.escape(v)}</td></tr>' for k, v, c in rows)
+    return f'<table class="headline">{body}</table>'
+
+
+def _views_3d(before: Scan | None, after: Scan, max_faces: int) -> str:
+    import plotly.io as pio
+
+    from scantex.inspect.plotly_view import mesh_figure
+
+    panels = []
+    for key, scan, title in (("before", before, "before"), ("after", after, "after")):
+        if scan is None:
+            continue
+        figure = mesh_figure(scan, max_faces=max_faces, title=title)
+        lo, hi = scan.bounds
+        extent = np.maximum(hi - lo, 1e-12)
+        # plotly's aspectmode "data" scales by the mean extent, blowing a flat wall up past the view
+        ratio = np.maximum(extent / extent.max(), 0.02)
+        figure.update_layout(height=460, scene=dict(
+            xaxis_visible=False, yaxis_visible=False, zaxis_visible=False, aspectmode="manual",
+            aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]), z=float(ratio[2])), camera=_facing_camera(scan)))
+        spec = pio.to_json(figure, validate=False).replace("</", "<\\/")
+        panels.append(f'<div class="view3d"><div id="view3d-{key}" class="plot3d"></div>'
+                      f'<script type="application/json" class="figure" data-target="view3d-{key}">{spec}</script></div>')
+    return f'<div class="row">{"".join(panels)}</div>'
+
+
+def _facing_camera(scan: Scan) -> dict:
+    """A plotly scene camera looking at the side the surface faces (a wall from the front, a room from
+    above its open top); plotly's default diagonal view for closed objects, whose normals cancel."""
+    normals = scan.face_normals * scan.face_areas[:, None]
+    mean = normals.sum(axis=0) / max(scan.face_areas.sum(), 1e-300)
+    length = float(np.linalg.norm(mean))
+    if length < 0.3:
+        return dict(eye=dict(x=1.25, y=1.25, z=1.25))
+    eye = 1.05 * mean / length
+    eye[2] += 0.2  # a little from above, so that depth reads
+    up = (0.0, 1.0, 0.0) if abs(mean[2]) / length > 0.9 else (0.0, 0.0, 1.0)
+    return dict(eye=dict(x=float(eye[0]), y=float(eye[1]), z=float(eye[2])),
+                up=dict(x=up[0], y=up[1], z=up[2]))
+
+
+def _per_view_scores(m: dict) -> tuple[str, dict[str, dict[str, list]]] | None:
+    """``(what the scores compare against, {scan name: {"psnr": [...], "ssim": [...]}})`` from the
+    metrics' held-out scores, one entry per held-out view in ``views.test`` order; ``None`` without."""
+    for key, against in (("held_out_vs_ground_truth", "ground truth"), ("held_out_vs_input", "input renders")):
+        scores = m.get(key)
+        if scores and all("per_view" in s for s in scores.values()):
+            return against, {name: s["per_view"] for name, s in scores.items()}
+    return None
+
+
+def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list[Camera],
+             scores: tuple[str, dict] | None = None) -> str:
+    from scantex.photos.alignment import resized_camera
+
+    caster = RayCaster(after.positions, after.faces)  # the geometry is the same for all three
+    columns = [("input", before), ("enhanced", after), ("ground truth", truth)]
+    columns = [(n, s) for n, s in columns if s is not None]
+    widgets = []
+    for k, cam in enumerate(cameras):
+        factor = max(1, math.ceil(RENDER_DISPLAY / max(cam.width, cam.height)))
+        fine = resized_camera(cam, cam.width * factor, cam.height * factor)
+        images = {n: to_uint8(render(s, fine, caster, supersample=2)[0]) for n, s in columns}
+        if scores is None and truth is not None:  # metrics without per-view scores: score here, as they would
+            ref, ref_alpha = render(truth, cam, caster, supersample=2)
+            mask = ref_alpha >= 0.999
+            measured = {n: render(s, cam, caster, supersample=2)[0] for n, s in columns if n != "ground truth"}
+            view_scores = ("ground truth", {n: {"psnr": psnr(im, ref, mask), "ssim": ssim(im, ref, mask)}
+                                            for n, im in measured.items()})
+        elif scores is not None:
+            against, per_view = scores
+            view_scores = (against, {n: {m: v[m][k] for m in ("psnr", "ssim") if k < len(v.get(m, []))}
+                                     for n, v in per_view.items()})
+        else:
+            view_scores = None
+        table = _scores_table(view_scores, f"view {k + 1}: {cam.width}×{cam.height} px scored, "
+                              f"{fine.width}×{fine.height} shown")
+        right = "enhanced"
+        left = "input" if "input" in images else "ground truth" if "ground truth" in images else "enhanced"
+        widgets.append(_compare(f"view-{k + 1}", images, left, right, table, fit=True))
+    return "".join(widgets)
+
+
+def _scores_table(scores: tuple[str, dict] | None, caption: str) -> str:
+    rows = ""
+    if scores is not None:
+        against, values = scores
+        rows = "".join(f"<tr><th>{html.escape(n)}</th><td>{_num(v.get('psnr'))} dB</td><td>{_fmt(v.get('ssim'))}</td></tr>"
+                       for n, v in values.items())
+        rows = (f"<tr><th></th><th>PSNR</th><th>SSIM</th></tr>{rows}"
+                f"<tr><td colspan=3 class='cap'>against the {html.escape(against)}</td></tr>")
+    return f"<table class='cmp-scores'><caption>{html.escape(caption)}</caption>{rows}</table>"
+
+
+def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, side: str, *, fit: bool) -> str:
+    """A wipe viewer over ``images`` (all shown over the same box: the largest image's size), ``left``
+    and ``right`` shown first; ``side`` is HTML put beside it. ``fit``: open fitted to the box, else at
+    1:1 (one pixel of the largest image per CSS pixel)."""
+    H = max(im.shape[0] for im in images.values())
+    W = max(im.shape[1] for im in images.values())
+    # at 1:1, a box a little larger than a small image leaves room to zoom in
+    box_w, box_h = min(max(W, 384), VIEWER_SIZE[0]), min(max(H, 384), VIEWER_SIZE[1])
+    if fit:  # keep the image's aspect in the box
+        scale = min(VIEWER_SIZE[0] / W, VIEWER_SIZE[1] / H)
+        box_w, box_h = max(1, round(W * scale)), max(1, round(H * scale))
+    sources = "".join(_img(im, name, "cmp-source", data_name=name) for name, im in images.items())
+
+    def menu(side_name: str, chosen: str) -> str:
+        options = "".join(f'<option value="{html.escape(n)}"{" selected" if n == chosen else ""}>{html.escape(n)}'
+                          f"</option>" for n in images)
+        return f'<label>{side_name} <select class="cmp-{side_name}">{options}</select></label>'
+
+    return (f'<div class="compare" id="compare-{key}" data-width="{W}" data-height="{H}" '
+            f'data-open="{"fit" if fit else "1"}">'
+            f'<div class="cmp-controls">{menu("left", left)} {menu("right", right)} '
+            '<button type="button" data-zoom="out" title="zoom out">−</button>'
+            '<button type="button" data-zoom="in" title="zoom in">+</button>'
+            '<button type="button" data-zoom="1" title="one image pixel per screen pixel">1:1</button>'
+            '<button type="button" data-zoom="fit" title="the whole image">fit</button>'
+            '<span class="cmp-zoom"></span></div>'
+            f'<div class="cmp-body"><div class="cmp-view" style="width:{box_w}px;height:{box_h}px">'
+            '<div class="cmp-layer cmp-a"><img class="cmp-img" alt=""></div>'
+            '<div class="cmp-layer cmp-b"><img class="cmp-img" alt=""></div>'
+            '<div class="cmp-divider"><div class="cmp-handle"></div></div>'
+            '<span class="cmp-label cmp-label-a"></span><span class="cmp-label cmp-label-b"></span></div>'
+            f'<div class="cmp-side">{side}</div></div>'
+            f'<input type="range" class="cmp-split" min="0" max="100" step="0.1" value="50" '
+            f'style="width:{box_w}px" aria-label="split position">'
+            f'<div class="cmp-sources" hidden>{sources}</div></div>')
+
+
+def _atlases(before: Scan, after: Scan) -> str:
+    from PIL import Image
+
+    rows = []
+    crop = _crop_centre(before)
+    for m, (mb, ma) in enumerate(zip(before.materials, after.materials)):
+        if mb.image is None or ma.image is None:
+            continue
+        cells_whole, crops, where = [], {}, {}
+        for label, image in (("before", mb.image), ("after", ma.image)):
+            H, W = image.shape[:2]
+            scale = min(1.0, THUMBNAIL / max(H, W))
+            thumb = Image.fromarray(image[..., :3]).resize((max(1, round(W * scale)), max(1, round(H * scale))),
+                                                           Image.LANCZOS)
+            cells_whole.append(f"<td>{_img(np.asarray(thumb), f'{label} atlas', 'thumb')}"
+                               f"<div class='cap'>{label}: {W}×{H}</div></td>")
+            # the same region of the UV square in both atlases, whatever their sizes
+            cu, cv = crop[:2] if crop is not None and crop[2] == m else (0.5, 0.5)
+            size = CROP_TEXELS / mb.image.shape[1]
+            x0 = int(round((cu - size / 2) * W))
+            y0 = int(round((1 - cv - size / 2) * H))
+            n = min(max(1, int(round(size * W))), W, H)
+            x0, y0 = min(max(x0, 0), max(W - n, 0)), min(max(y0, 0), max(H - n, 0))
+            crops[label] = np.ascontiguousarray(image[y0:y0 + n, x0:x0 + n, :3])
+            where[label] = f"texels {x0}–{x0 + n} × {y0}–{y0 + n} of {W}×{H}"
+        title = html.escape(mb.name)
+        same = before.triangle_uvs.shape == after.triangle_uvs.shape and np.allclose(before.triangle_uvs,
+                                                                                      after.triangle_uvs)
+        note = ("The same UV region of both atlases (the layout is kept, so the same surface)." if same else
+                "The same square of UV space in both atlases; the layouts differ, so it is not the same surface.")
+        side = ("<table class='cmp-scores'><caption>material " + title + "</caption>"
+                + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in where.items())
+                + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
+        rows.append(f"<tr><th colspan=2>material {title}</th></tr><tr>{''.join(cells_whole)}</tr>"
+                    f"<tr><td colspan=2>{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}</td></tr>")
+    return f'<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
+
+
+def _comparisons(images: dict) -> str:
+    rows = "".join(f"<tr><td>{_img(to_uint8(image), name, 'sheet')}<div class='cap'>{html.escape(name)}</div></td></tr>"
+                   for name, image in images.items())
+    return f'<table class="images">{rows}</table>'
+
+
+def _crop_centre(scan: Scan) -> tuple[float, float, int] | None:
+    """UV centre and material of the detail crop: the first hole if the scan has one (where the input
+    is at its worst), else the middle of the first seam edge, else none."""
+    if not scan.is_textured:
+        return None
+    holes = np.flatnonzero(untextured_faces(scan))
+    if holes.size:
+        f = holes[len(holes) // 2]
+    else:
+        edges = seam_edges(scan)
+        if not len(edges):
+            return None
+        f = edges.faces[len(edges) // 2, 0]
+    u, v = scan.triangle_uvs[f].mean(axis=0)
+    return float(u % 1.0), float(v % 1.0), int(scan.face_materials[f])
+
+
+def _metrics_tables(m: dict) -> str:
+    tables = []
+    g = m.get("geometry")
+    if g:
+        rows = [("vertices", *g["vertices"]), ("faces", *g["faces"]), ("distinct positions", *g["distinct_positions"])]
+        if "volume" in g:
+            for key, label in (("area", "surface area"), ("volume", "volume")):
+                rows.append((label, *[_num(v[key]) if v[key] is not None else "—" for v in g["volume"]]))
+        body = "".join(f"<tr><th>{html.escape(r[0])}</th><td>{_fmt(r[1])}</td><td>{_fmt(r[2])}</td></tr>" for r in rows)
+        extra = ""
+        if "volume" in g:
+            extra += f"<p class='note'>{html.escape(g['volume'][0]['note'])}</p>"
+        if "distance" in g:
+            d = g["distance"]
+            extra += ("<table><tr><th></th><th>input → output</th><th>output → input</th><th>symmetric</th></tr>"
+                      f"<tr><th>Hausdorff</th><td>{_num(d['hausdorff_a_to_b'])}</td><td>{_num(d['hausdorff_b_to_a'])}</td>"
+                      f"<td>{_num(d['hausdorff'])}</td></tr>"
+                      f"<tr><th>mean point-to-mesh</th><td>{_num(d['mean_a_to_b'])}</td><td>{_num(d['mean_b_to_a'])}</td>"
+                      f"<td>{_num(d['mean'])}</td></tr></table>"
+                      f"<p class='note'>Distances in the scan's units, from every vertex and {d['samples']:,} "
+                      "random surface points per direction.</p>")
+        tables.append(f"<h3>Geometry</h3><table><tr><th></th><th>input</th><th>output</th></tr>{body}</table>{extra}")
+    for key, label in (("held_out_vs_ground_truth", "Held-out views vs ground truth"),
+                       ("held_out_vs_input", "Held-out views vs input renders"),
+                       ("held_out_photos", "Held-out photos"),
+                       ("held_out_photos_vs_ground_truth", "Held-out photos' cameras vs ground truth")):
+        scores = m.get(key)
+        if not scores:
+            continue
+        names = list(scores)
+        cols = sorted({c for s in scores.values() for c in s if c != "per_view"})
+        head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
+        body = "".join(f"<tr><th>{html.escape(c)}</th>" + "".join(f"<td>{_fmt(scores[n].get(c))}</td>" for n in names)
+                       + "</tr>" for c in cols)
+        tables.append(f"<h3>{label}</h3><table><tr><th></th>{head}</tr>{body}</table>")
+    texture = m.get("texture")
+    if texture:
+        names = list(texture)
+        flat = {n: _flatten(texture[n]) for n in names}
+        keys = list(dict.fromkeys(k for n in names for k in flat[n]))
+        head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
+        body = "".join(f"<tr><th>{html.escape(k)}</th>" + "".join(f"<td>{_fmt(flat[n].get(k))}</td>" for n in names)
+                       + "</tr>" for k in keys)
+        tables.append(f"<h3>Texture</h3><table><tr><th></th>{head}</tr>{body}</table>")
+    rest = {k: v for k, v in m.items() if k not in ("geometry", "held_out_vs_ground_truth", "held_out_vs_input",
+                                                    "held_out_photos", "held_out_photos_vs_ground_truth",
+                                                    "texture", "timings_s")}
+    flat = _flatten(rest)
+    body = "".join(f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in flat.items())
+    tables.append(f"<h3>Run</h3><table>{body}</table>")
+    return "".join(tables)
+
+
+def _timings(t: dict) -> str:
+    if not t:
+        return "<p>No timings recorded.</p>"
+    total = t.get("total") or sum(v for k, v in t.items() if k != "total") or 1.0
+    rows = "".join(
+        f"<tr><th>{html.escape(k)}</th><td>{v:.2f} s</td><td><div class='bar' style='width:{100 * v / total:.1f}%'>"
+        f"</div></td></tr>" for k, v in t.items() if k != "total")
+    return f"<table class='timings'>{rows}<tr><th>total</th><td>{total:.2f} s</td><td></td></tr></table>"
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _num(v) -> str:
+    if v is None:
+        return "—"
+    v = float(v)
+    if math.isinf(v):
+        return "∞"
+    if math.isnan(v):
+        return "—"
+    if v == 0:
+        return "0"
+    return f"{v:.4g}" if abs(v) < 1e5 else f"{v:,.0f}"
+
+
+def _fmt(v) -> str:
+    if isinstance(v, bool) or v is None or isinstance(v, str):
+        return html.escape(str(v) if v is not None else "—")
+    if isinstance(v, (int, np.integer)):
+        return f"{int(v):,}"
+    if isinstance(v, (float, np.floating)):
+        return _num(v)
+    return html.escape(json.dumps(v, default=json_default))
+
+
+def _img(image: np.ndarray, alt: str, kind: str = "", data_name: str | None = None) -> str:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="PNG", optimize=False)
+    data = base64.b64encode(buffer.getvalue()).decode("ascii")
+    name = f' data-name="{html.escape(data_name)}"' if data_name is not None else ""
+    return f'<img class="{kind}"{name} alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def json_default(value):
+    """``json.dumps(default=...)`` for numpy scalars and arrays."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(type(value))
+
+
+STYLE = """
+body { font: 14px/1.45 system-ui, sans-serif; margin: 0 auto; max-width: 1280px; padding: 0 16px 48px; color: #222; }
+h1 { margin: 20px 0 4px; } h2 { margin-top: 32px; border-bottom: 1px solid #ddd; } h3 { margin-bottom: 4px; }
+table { border-collapse: collapse; margin: 6px 0; } th, td { padding: 3px 10px; text-align: left; vertical-align: top; }
+th { font-weight: 600; } table tr:nth-child(even) { background: #f6f6f6; }
+table.images tr { background: none; } table.images img { display: block; max-width: 100%; image-rendering: pixelated; }
+img.render { width: 300px; } img.thumb { width: 384px; } img.sheet { width: 960px; }
+.headline td.good { color: #176b2c; } .headline td.bad { color: #a31515; font-weight: 600; }
+.note, .cap { color: #666; font-size: 12px; } .row { display: flex; gap: 12px; flex-wrap: wrap; }
+.view3d { flex: 1 1 480px; min-width: 360px; } .plot3d { height: 460px; }
+.bar { background: #5b8def; height: 10px; min-width: 1px; } .timings td:last-child { width: 320px; }
+pre { background: #f6f6f6; padding: 8px; overflow: auto; max-height: 480px; }
+"""
+
+#: plots every embedded figure, then keeps the 3D cameras of the views in step
+SYNC_SCRIPT = """
+(function () {
+  var specs = document.querySelectorAll('script.figure');
+  if (!specs.length) { return; }
+  var plots = [];
+  specs.forEach(function (node) {
+    var fig = JSON.parse(node.textContent);
+    var div = document.getElementById(node.dataset.target);
+    Plotly.newPlot(div, fig.data, fig.layout, {displaylogo: false, responsive: true});
+    plots.push(div);
+  });
+  var syncing = false;
+  plots.forEach(function (src) {
+    src.on('plotly_relayout', function (ev) {
+      if (syncing || !ev || !ev['scene.camera']) { return; }
+      syncing = true;
+      var updates = plots.filter(function (p) { return p !== src; })
+        .map(function (p) { return Plotly.relayout(p, {'scene.camera': ev['scene.camera']}); });
+      Promise.all(updates).then(function () { syncing = false; }, function () { syncing = false; });
+    });
+  });
+})();
+"""
+
+COMPARE_STYLE = """
+.compare { margin: 10px 0 22px; } .cmp-controls { margin-bottom: 4px; } .cmp-controls button { min-width: 32px; }
+.cmp-controls label { margin-right: 6px; } .cmp-zoom { color: #666; margin-left: 6px; font-size: 12px; }
+.cmp-body { display: flex; gap: 16px; align-items: flex-start; flex-wrap: wrap; }
+.cmp-view { position: relative; overflow: hidden; background: #333; cursor: grab; touch-action: none;
+            user-select: none; flex: none; }
+.cmp-view.panning { cursor: grabbing; }
+.cmp-layer { position: absolute; inset: 0; overflow: hidden; }
+.cmp-layer img { position: absolute; left: 0; top: 0; transform-origin: 0 0; max-width: none;
+                 image-rendering: pixelated; pointer-events: none; }
+.cmp-divider { position: absolute; top: 0; bottom: 0; left: 50%; width: 24px; margin-left: -12px; cursor: ew-resize; }
+.cmp-divider::before { content: ""; position: absolute; left: 11px; top: 0; bottom: 0; width: 2px; background: #fff;
+                       box-shadow: 0 0 3px #000; }
+.cmp-handle { position: absolute; left: 0; top: 50%; width: 20px; height: 20px; margin-top: -12px; border-radius: 50%;
+              background: #fff; border: 2px solid #333; }
+.cmp-label { position: absolute; top: 6px; padding: 1px 6px; background: rgba(0,0,0,.6); color: #fff; font-size: 12px;
+             pointer-events: none; } .cmp-label-a { left: 6px; } .cmp-label-b { right: 6px; }
+.cmp-split { display: block; margin: 4px 0 0; } .cmp-scores caption { text-align: left; color: #666; font-size: 12px; }
+"""
+
+#: the wipe viewers: the right image is clipped to the right of the split; both images share one zoom
+#: and pan (a CSS transform), so the same texel is under the cursor on both sides of the split
+COMPARE_SCRIPT = """
+(function () {
+  function setup(root) {
+    var W = +root.dataset.width, H = +root.dataset.height;
+    var view = root.querySelector('.cmp-view'), layerB = root.querySelector('.cmp-b');
+    var images = [root.querySelector('.cmp-a img'), root.querySelector('.cmp-b img')];
+    var menus = [root.querySelector('.cmp-left'), root.querySelector('.cmp-right')];
+    var labels = [root.querySelector('.cmp-label-a'), root.querySelector('.cmp-label-b')];
+    var divider = root.querySelector('.cmp-divider'), split = root.querySelector('.cmp-split');
+    var zoomText = root.querySelector('.cmp-zoom');
+    var sources = {};
+    root.querySelectorAll('.cmp-source').forEach(function (img) { sources[img.dataset.name] = img.src; });
+    var state = {s: 1, x: 0, y: 0};
+    function fitScale() { return Math.min(view.clientWidth / W, view.clientHeight / H); }
+    function place(size, box, offset) {  // centred when smaller than the box, else no empty margin
+      return size <= box ? (box - size) / 2 : Math.min(0, Math.max(box - size, offset));
+    }
+    function apply() {
+      state.x = place(W * state.s, view.clientWidth, state.x);
+      state.y = place(H * state.s, view.clientHeight, state.y);
+      var t = 'translate(' + state.x + 'px,' + state.y + 'px) scale(' + state.s + ')';
+      images.forEach(function (img) { img.style.transform = t; });
+      zoomText.textContent = Math.abs(state.s - 1) < 1e-6 ? '1:1' : Math.round(state.s * 100) + ' %';
+    }
+    function zoomAt(s, mx, my) {
+      s = Math.min(64, Math.max(Math.min(1, fitScale()) / 2, s));
+      state.x = mx - (mx - state.x) * s / state.s;
+      state.y = my - (my - state.y) * s / state.s;
+      state.s = s;
+      apply();
+    }
+    function setSplit(p) {
+      p = Math.min(100, Math.max(0, +p));
+      layerB.style.clipPath = 'inset(0 0 0 ' + p + '%)';
+      divider.style.left = p + '%';
+      if (+split.value !== p) { split.value = p; }
+      root.dataset.split = p;
+    }
+    function choose() {
+      for (var i = 0; i < 2; i++) {
+        images[i].src = sources[menus[i].value];
+        labels[i].textContent = menus[i].value;
+      }
+    }
+    images.forEach(function (img) { img.style.width = W + 'px'; img.style.height = H + 'px'; });
+    menus.forEach(function (m) { m.addEventListener('change', choose); });
+    split.addEventListener('input', function () { setSplit(split.value); });
+    root.querySelectorAll('button[data-zoom]').forEach(function (b) {
+      b.addEventListener('click', function () {
+        var z = b.dataset.zoom, cx = view.clientWidth / 2, cy = view.clientHeight / 2;
+        if (z === 'in') { zoomAt(state.s * 2, cx, cy); }
+        else if (z === 'out') { zoomAt(state.s / 2, cx, cy); }
+        else if (z === '1') { zoomAt(1, cx, cy); }
+        else { zoomAt(fitScale(), cx, cy); }
+      });
+    });
+    view.addEventListener('wheel', function (e) {
+      e.preventDefault();
+      var r = view.getBoundingClientRect();
+      zoomAt(state.s * (e.deltaY < 0 ? 1.25 : 0.8), e.clientX - r.left, e.clientY - r.top);
+    }, {passive: false});
+    var drag = null;
+    view.addEventListener('pointerdown', function (e) {
+      drag = {mode: divider.contains(e.target) ? 'split' : 'pan', x: e.clientX, y: e.clientY};
+      if (drag.mode === 'pan') { view.classList.add('panning'); }
+      if (view.setPointerCapture) { try { view.setPointerCapture(e.pointerId); } catch (err) { /* synthetic */ } }
+      e.preventDefault();
+    });
+    view.addEventListener('pointermove', function (e) {
+      if (!drag) { return; }
+      if (drag.mode === 'split') {
+        var r = view.getBoundingClientRect();
+        setSplit(100 * (e.clientX - r.left) / r.width);
+      } else {
+        state.x += e.clientX - drag.x;
+        state.y += e.clientY - drag.y;
+        apply();
+      }
+      drag.x = e.clientX;
+      drag.y = e.clientY;
+    });
+    function end() { drag = null; view.classList.remove('panning'); }
+    view.addEventListener('pointerup', end);
+    view.addEventListener('pointercancel', end);
+    choose();
+    setSplit(split.value);
+    state.s = root.dataset.open === 'fit' ? fitScale() : 1;
+    apply();
+  }
+  document.querySelectorAll('.compare').forEach(setup);
+})();
+"""
+
+PAGE = """<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<title>{title}</title>
+<style>{style}</style>
+{plotlyjs}
+</head>
+<body>
+<h1>{title}</h1>
+<p class="note">Written by scantex on {date}. Geometry is never changed: only the texture is new.</p>
+{body}
+<script type="text/javascript">{script}</script>
+</body>
+</html>
+"""

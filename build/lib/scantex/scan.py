@@ -1,0 +1,246 @@
+"""The :class:`Scan`: a textured triangle mesh exactly as its file holds it.
+
+Geometry and texture parameterisation are kept apart, as in an OBJ file: ``faces`` index ``positions``
+and ``face_uvs`` index ``uvs``. Nothing here welds, splits or re-orders vertices, so the positions and
+triangles a user gave are the ones written back. Every later stage may change the texture (materials,
+UVs) but never ``positions`` or ``faces``.
+
+Texture convention: a material's ``image`` is ``(H, W, C) uint8`` with row 0 at the top, and a UV
+``(u, v)`` lands at pixel ``(x, y) = (u * W - 0.5, (1 - v) * H - 0.5)`` (texel centres at half
+integers), repeating outside ``[0, 1]`` as OBJ and glTF viewers do.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+
+
+#: largest coordinate magnitude accepted: squares of differences of coordinates stay far inside float32
+MAX_COORDINATE = 1e12
+
+
+@dataclass(frozen=True, eq=False)
+class Material:
+    """One material: a base colour and, usually, a texture atlas.
+
+    Attributes:
+        name: the material's name in the file (``newmtl`` in OBJ).
+        image: ``(H, W, 3|4) uint8`` texture, row 0 at the top; ``None`` for an untextured material.
+        diffuse: ``(4,) float`` RGBA base colour in [0, 1]; multiplies the image when rendering.
+        image_name: file name the texture is written under (``None``: derived from ``name``).
+    """
+
+    name: str
+    image: np.ndarray | None = None
+    diffuse: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    image_name: str | None = None
+
+    def with_image(self, image: np.ndarray) -> Material:
+        return dataclasses.replace(self, image=image)
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """A mesh with optional UVs, materials and colours.
+
+    Attributes:
+        positions: ``(V, 3) float64`` vertex positions, exactly as read.
+        faces: ``(F, 3) int64`` indices into ``positions``; winding as in the file.
+        uvs: ``(T, 2) float64`` texture coordinates, or ``None``.
+        face_uvs: ``(F, 3) int64`` indices into ``uvs`` per face corner, or ``None``.
+        face_materials: ``(F,) int32`` index into ``materials`` per face.
+        materials: the materials; at least one (a plain grey one for untextured meshes).
+        vertex_colors: ``(V, 4) uint8`` RGBA per vertex, or ``None``.
+        face_colors: ``(F, 4) uint8`` RGBA per face, or ``None``.
+        normals: ``(N, 3) float64`` shading normals, or ``None``.
+        face_normals_idx: ``(F, 3) int64`` indices into ``normals`` per face corner, or ``None``.
+        source: the file the scan came from, if any.
+        inputs: every file the scan was read from (the mesh, its material libraries, textures, buffers),
+            so that no output ever replaces one of them.
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None = None
+    face_uvs: np.ndarray | None = None
+    face_materials: np.ndarray | None = None
+    materials: tuple[Material, ...] = (Material("default", diffuse=(0.7, 0.7, 0.7, 1.0)),)
+    vertex_colors: np.ndarray | None = None
+    face_colors: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    face_normals_idx: np.ndarray | None = None
+    source: Path | None = field(default=None)
+    inputs: tuple[Path, ...] = ()
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "positions", np.ascontiguousarray(self.positions, dtype=np.float64))
+        set_(self, "faces", np.ascontiguousarray(self.faces, dtype=np.int64))
+        if self.face_materials is None:
+            set_(self, "face_materials", np.zeros(len(self.faces), dtype=np.int32))
+        else:
+            set_(self, "face_materials", np.ascontiguousarray(self.face_materials, dtype=np.int32))
+        if self.uvs is not None:
+            set_(self, "uvs", np.ascontiguousarray(self.uvs, dtype=np.float64))
+            set_(self, "face_uvs", np.ascontiguousarray(self.face_uvs, dtype=np.int64))
+        self.validate()
+
+    # -- checks ---------------------------------------------------------------------------------
+
+    def validate(self) -> None:
+        """Raise :class:`ScanError` when the arrays do not describe a usable mesh."""
+        where = self.source
+        V, F = len(self.positions), len(self.faces)
+        if self.positions.ndim != 2 or self.positions.shape[1] != 3:
+            raise ScanError(where, f"positions must be (V, 3), got {self.positions.shape}")
+        if F == 0:
+            raise ScanError(where, "the mesh has no faces")
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
+            raise ScanError(where, f"faces must be (F, 3) triangles, got {self.faces.shape}")
+        bad = ~np.isfinite(self.positions).all(axis=1)
+        if bad.any():
+            raise ScanError(where, f"{int(bad.sum())} vertex positions are NaN or infinite "
+                                   f"(first: vertex {int(np.flatnonzero(bad)[0]) + 1})")
+        huge = (np.abs(self.positions) > MAX_COORDINATE).any(axis=1)
+        if huge.any():
+            raise ScanError(where, f"{int(huge.sum())} vertex positions lie beyond +-{MAX_COORDINATE:g} "
+                                   f"(first: vertex {int(np.flatnonzero(huge)[0]) + 1}); no scan is that "
+                                   "large, and edge lengths, normals and the float32 ray caster overflow")
+        _check_index(where, self.faces, V, "face", "vertex", "vertices")
+        if (self.uvs is None) != (self.face_uvs is None):
+            raise ScanError(where, "uvs and face_uvs must be given together")
+        if self.uvs is not None:
+            if self.face_uvs.shape != (F, 3):
+                raise ScanError(where, f"face_uvs must be ({F}, 3), got {self.face_uvs.shape}")
+            if not np.isfinite(self.uvs).all():
+                raise ScanError(where, "texture coordinates contain NaN or infinite values")
+            _check_index(where, self.face_uvs, len(self.uvs), "face", "texture coordinate",
+                         "texture coordinates")
+        if self.face_materials.shape != (F,):
+            raise ScanError(where, f"face_materials must be ({F},), got {self.face_materials.shape}")
+        if len(self.materials) == 0:
+            raise ScanError(where, "a scan needs at least one material")
+        if F and (self.face_materials.min() < 0 or self.face_materials.max() >= len(self.materials)):
+            raise ScanError(where, "a face refers to a material that does not exist")
+        if self.vertex_colors is not None and len(self.vertex_colors) != V:
+            raise ScanError(where, f"{len(self.vertex_colors)} vertex colours for {V} vertices")
+        if self.face_colors is not None and len(self.face_colors) != F:
+            raise ScanError(where, f"{len(self.face_colors)} face colours for {F} faces")
+        if self.normals is not None:
+            _check_index(where, self.face_normals_idx, len(self.normals), "face", "normal", "normals")
+
+    # -- derived quantities -----------------------------------------------------------------------
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.positions)
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    @property
+    def has_uvs(self) -> bool:
+        return self.uvs is not None
+
+    @property
+    def is_textured(self) -> bool:
+        """True when faces carry UVs and at least one material has an image."""
+        return self.has_uvs and any(m.image is not None for m in self.materials)
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """``(F, 3, 3) float64`` corner positions of every face."""
+        return self.positions[self.faces]
+
+    @property
+    def triangle_uvs(self) -> np.ndarray:
+        """``(F, 3, 2) float64`` corner UVs of every face (requires UVs)."""
+        if self.uvs is None:
+            raise ValueError("this scan has no texture coordinates")
+        return self.uvs[self.face_uvs]
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """``(2, 3)`` min and max corner of the referenced vertices."""
+        used = self.positions[np.unique(self.faces)]
+        return np.stack([used.min(axis=0), used.max(axis=0)])
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """``(F, 3)`` unit geometric normals (zero for degenerate faces)."""
+        t = self.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+    @property
+    def face_areas(self) -> np.ndarray:
+        t = self.triangles
+        return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+    def replace(self, **changes) -> Scan:
+        """A copy with some fields changed; geometry fields may not change."""
+        for key in ("positions", "faces"):
+            if key in changes and changes[key] is not getattr(self, key):
+                raise ValueError(f"scantex never changes a scan's {key}")
+        return dataclasses.replace(self, **changes)
+
+    def with_texture(self, uvs: np.ndarray, face_uvs: np.ndarray, materials, face_materials=None) -> Scan:
+        """The same geometry with a new UV layout and materials."""
+        return dataclasses.replace(
+            self, uvs=uvs, face_uvs=face_uvs, materials=tuple(materials),
+            face_materials=self.face_materials if face_materials is None else face_materials,
+        )
+
+    def to_trimesh(self, process: bool = False):
+        """A :class:`trimesh.Trimesh` of the geometry (no texture), for geometric queries."""
+        import trimesh
+
+        return trimesh.Trimesh(self.positions, self.faces, process=process, validate=False)
+
+    def summary(self) -> str:
+        tex = ", ".join(
+            f"{m.name}: {m.image.shape[1]}x{m.image.shape[0]}" if m.image is not None else f"{m.name}: -"
+            for m in self.materials
+        )
+        return (f"{self.n_vertices:,} vertices, {self.n_faces:,} faces, "
+                f"{'UVs' if self.has_uvs else 'no UVs'}, materials [{tex}]"
+                + (", vertex colours" if self.vertex_colors is not None else ""))
+
+
+def _check_index(where, idx: np.ndarray, n: int, owner: str, target: str, plural: str) -> None:
+    if idx.size == 0:
+        return
+    lo, hi = int(idx.min()), int(idx.max())
+    if lo < 0 or hi >= n:
+        row = int(np.flatnonzero((idx < 0).any(axis=1) | (idx >= n).any(axis=1))[0])
+        value = int(idx[row][(idx[row] < 0) | (idx[row] >= n)][0])
+        raise ScanError(where, f"{owner} {row + 1} refers to {target} {value + 1}, "
+                               f"the file has {n} {plural}")
+
+
+def triangle_multiset_key(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Canonical sorted ``(F, 9)`` float64 rows: the triangles as a multiset, winding kept.
+
+    Each triangle is rotated so that its lexicographically smallest corner comes first (a rotation
+    keeps the winding), then rows are sorted. Two meshes have bitwise the same triangles, with the same
+    orientation, exactly when these arrays are equal.
+    """
+    tri = np.asarray(positions, dtype=np.float64)[np.asarray(faces)]  # [F, 3, 3]
+    F = len(tri)
+    # all three rotations of every triangle; keep the lexicographically smallest one, which is
+    # well defined even for degenerate faces that repeat a corner
+    rotations = np.stack([np.roll(tri, -k, axis=1).reshape(F, 9) for k in range(3)])  # [3, F, 9]
+    flat = rotations.reshape(3 * F, 9)
+    rank = np.empty(3 * F, dtype=np.int64)
+    rank[np.lexsort(flat.T[::-1])] = np.arange(3 * F)
+    best = rank.reshape(3, F).argmin(axis=0)
+    rows = rotations[best, np.arange(F)]
+    return rows[np.lexsort(rows.T[::-1])]

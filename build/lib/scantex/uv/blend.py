@@ -1,0 +1,171 @@
+"""Seam blending after a bake, and moving a texture onto a new UV layout.
+
+Along a seam the same 3D points are stored twice, once in each chart. :func:`blend_seams` levels the two
+copies: at every point of a seam edge it measures the colour on both sides (just inside each chart),
+and moves the texels of each side towards their mean. Texels within ``core_texels`` of the seam (the ones
+bilinear filtering reads at the seam) move all the way, so both sides end equal; the shift then falls
+off linearly to nothing at ``band_texels``, so texture detail is kept and no step appears inside the
+chart. Gutters are padded again afterwards from the blended texels.
+
+The atlas is processed in strips of rows (texel map and offsets for one strip at a time), so memory
+beyond the two images is the gutter padding's, not the 2.7 GB of whole-atlas float64 offsets an 8192^2
+atlas would take.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from scantex.atlas.padding import fill_gutters
+from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
+from scantex.atlas.texelmap import texel_strips, uv_to_pixel
+from scantex.scan import Scan
+from scantex.views.raycast import interpolate
+from scantex.views.render import sample_texture, to_uint8
+
+log = logging.getLogger(__name__)
+
+#: candidate texels examined per batch of seam edges (bounds memory on large atlases)
+CANDIDATES_PER_BATCH = 2_000_000
+
+
+def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
+                edges: SeamEdges | None = None) -> Scan:
+    """The same scan with seam-blended material images (see the module docstring).
+
+    Args:
+        scan: a textured scan.
+        band_texels: texels farther than this from a seam keep their colour.
+        core_texels: texels within this distance of a seam take the mean of both sides fully.
+        inset_texels: how far inside each chart the two sides are read.
+        edges: the seam edges (default: all of :func:`scantex.atlas.seams.seam_edges`).
+    """
+    if band_texels <= 0:
+        raise ValueError(f"band_texels must be positive, got {band_texels}")
+    edges = seam_edges(scan) if edges is None else edges
+    if not scan.is_textured or len(edges) == 0:
+        return scan
+    core = min(core_texels, 0.999 * band_texels)
+    shells = uv_shells(scan)
+    tri_uv = scan.triangle_uvs
+    mats = scan.face_materials
+    out_images = [m.image for m in scan.materials]
+    for m, material in enumerate(scan.materials):
+        image = material.image
+        own = np.flatnonzero(mats[edges.faces.ravel()] == m)
+        if image is None or own.size == 0:
+            continue
+        H, W = image.shape[:2]
+        edge_id, side = own // 2, own % 2
+        f = edges.faces[edge_id, side]
+        g = edges.faces[edge_id, 1 - side]
+        cf = edges.corners[edge_id, side]
+        cg = edges.corners[edge_id, 1 - side]
+        seg = uv_to_pixel(np.stack([tri_uv[f, cf[:, 0]], tri_uv[f, cf[:, 1]]], axis=1), W, H)  # [n, 2, 2]
+        lo = np.floor(seg.min(axis=1) - band_texels).astype(np.int64)
+        hi = np.ceil(seg.max(axis=1) + band_texels).astype(np.int64)
+        scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+        new = image.copy()
+        covered = np.zeros((H, W), bool)
+        moved = 0
+        # the atlas in strips of rows: each strip's texel map and offsets, and the edges whose band reaches it
+        for y0, strip in texel_strips(tri_uv, W, H, np.flatnonzero(mats == m)):
+            y1 = y0 + strip.shape[0]
+            covered[y0:y1] = strip.mask
+            texel_shell = np.where(strip.face_id >= 0, shells[np.maximum(strip.face_id, 0)], -1)
+            offset, weight, strongest = _strip_offsets(
+                scan, texel_shell, y0, W, shells, seg, f, g, cf, cg, lo, hi, band_texels, core, inset_texels)
+            touched = weight > 0
+            rgb = image[y0:y1, :, :3].astype(np.float64) * scale
+            rgb[touched] += offset[touched] / weight[touched, None] * strongest[touched, None]
+            new[y0:y1, :, :3] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
+            moved += int(touched.sum())
+        fill_gutters(new[..., :3], covered)  # from the blended texels
+        out_images[m] = new
+        log.debug("blended %d seam sides in material %d (%d texels moved)", len(f), m, moved)
+    materials = tuple(mat.with_image(img) if img is not None else mat for mat, img in zip(scan.materials, out_images))
+    return scan.replace(materials=materials)
+
+
+def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, shells: np.ndarray, seg: np.ndarray,
+                   f: np.ndarray, g: np.ndarray, cf: np.ndarray, cg: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   band_texels: float, core: float, inset_texels: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The seam sides' pull on the texels of atlas rows ``y0 .. y0 + h`` (``texel_shell (h, W)``: the
+    shell each texel shows, -1 for none): ``(h, W, 3)`` summed weighted offsets, ``(h, W)`` summed
+    weights and ``(h, W)`` strongest weight. Candidate texels are each seam side's bounding box within
+    ``band_texels``, cut to the strip's rows, examined ``CANDIDATES_PER_BATCH`` at a time."""
+    h = texel_shell.shape[0]
+    y1 = y0 + h
+    offset = np.zeros((3, h * W), np.float64)
+    weight = np.zeros(h * W, np.float64)
+    strongest = np.zeros(h * W, np.float64)
+    rows = np.flatnonzero((hi[:, 1] >= y0) & (lo[:, 1] <= y1 - 1))  # the sides whose band reaches the strip
+    lo_y = np.maximum(lo[rows, 1], y0)
+    count_x = np.maximum(hi[rows, 0] - lo[rows, 0] + 1, 0)
+    count_y = np.maximum(np.minimum(hi[rows, 1], y1 - 1) - lo_y + 1, 0)
+    per = count_x * count_y
+    cum = np.cumsum(per)
+    start = 0
+    while start < len(rows):
+        done_before = cum[start - 1] if start else 0
+        end = max(int(np.searchsorted(cum, done_before + CANDIDATES_PER_BATCH, side="right")), start + 1)
+        b = np.arange(start, end)
+        start = end
+        n_c = per[b]
+        j = np.repeat(b, n_c)  # index into rows
+        k = np.arange(n_c.sum()) - np.repeat(np.cumsum(n_c) - n_c, n_c)
+        x = lo[rows[j], 0] + k % np.maximum(count_x[j], 1)
+        y = lo_y[j] + k // np.maximum(count_x[j], 1)
+        e = rows[j]
+        inside = (x >= 0) & (x < W) & (y >= y0) & (y < y1)
+        e, x, y = e[inside], x[inside], y[inside]
+        same_chart = texel_shell[y - y0, x] == shells[f[e]]
+        e, x, y = e[same_chart], x[same_chart], y[same_chart]
+        a, d_vec = seg[e, 0], seg[e, 1] - seg[e, 0]
+        length2 = (d_vec ** 2).sum(axis=1)
+        t = np.clip(np.divide(((np.stack([x, y], 1) - a) * d_vec).sum(axis=1), length2,
+                              out=np.zeros(len(e)), where=length2 > 0), 0.0, 1.0)
+        dist = np.linalg.norm(np.stack([x, y], 1) - (a + t[:, None] * d_vec), axis=1)
+        w = np.clip((band_texels - dist) / (band_texels - core), 0.0, 1.0)
+        keep = w > 0
+        e, x, y, t, w = e[keep], x[keep], y[keep], t[keep], w[keep]
+        if e.size == 0:
+            continue
+        mine = seam_side_colours(scan, f[e], cf[e], t, inset_texels)
+        theirs = seam_side_colours(scan, g[e], cg[e], t, inset_texels)
+        delta = 0.5 * (theirs - mine).astype(np.float64)
+        flat = (y - y0) * W + x
+        for c in range(3):
+            offset[c] += np.bincount(flat, w * delta[:, c], h * W)
+        weight += np.bincount(flat, w, h * W)
+        np.maximum.at(strongest, flat, w)
+    return offset.T.reshape(h, W, 3), weight.reshape(h, W), strongest.reshape(h, W)
+
+
+def transfer_texture(source: Scan, target: Scan, size: int) -> Scan:
+    """``target`` (same geometry, new UV layout) with ``source``'s texture baked into its layout.
+
+    Each target texel shows the source texture at the same surface point (same face, same barycentrics).
+    """
+    from scantex.atlas.bake import bake
+
+    if source.n_faces != target.n_faces:
+        raise ValueError(f"source has {source.n_faces} faces, target {target.n_faces}: not the same mesh")
+    src_uv = source.triangle_uvs
+
+    def colour(points, normals, faces, bary):
+        uv = interpolate(faces, bary, src_uv)
+        rgb = np.zeros((len(faces), 3), np.float32)
+        mat = source.face_materials[faces]
+        for m, material in enumerate(source.materials):
+            sel = np.flatnonzero(mat == m)
+            if sel.size and material.image is not None:
+                rgb[sel] = sample_texture(material.image, uv[sel])[:, :3]
+        return rgb
+
+    images = bake(target, colour, size=size)
+    return target.replace(materials=tuple(m.with_image(i) if i is not None else m
+                                          for m, i in zip(target.materials, images)))

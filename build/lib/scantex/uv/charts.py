@@ -1,0 +1,70 @@
+"""Charts before packing: which faces form each chart and where their corners lie in the chart's plane.
+
+:class:`Charts` is the hand-off between the stages that cut and flatten the surface (``unwrap``,
+``optimize``) and the packer. Coordinates are in metres on the surface (a chart scaled by its own
+texel density when densities are kept), so a single scale turns every chart into texels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from scantex.uv.param import Distortion, distortion
+
+
+@dataclass(frozen=True, eq=False)
+class Charts:
+    """An unpacked UV layout.
+
+    Attributes:
+        chart_of_face: ``(F,) int64`` chart id of every face, ``0..C-1``.
+        face_uvs: ``(F, 3) int64`` indices into ``uvs``; no UV index is shared by two charts.
+        uvs: ``(T, 2) float64`` chart-plane coordinates in metres.
+    """
+
+    chart_of_face: np.ndarray
+    face_uvs: np.ndarray
+    uvs: np.ndarray
+
+    @property
+    def n_charts(self) -> int:
+        return int(self.chart_of_face.max()) + 1 if len(self.chart_of_face) else 0
+
+    def faces_of(self) -> list[np.ndarray]:
+        """Face ids of every chart."""
+        order = np.argsort(self.chart_of_face, kind="stable")
+        bounds = np.searchsorted(self.chart_of_face[order], np.arange(self.n_charts + 1))
+        return [order[a:b] for a, b in pairwise(bounds)]
+
+    def distortions(self, triangles_3d: np.ndarray) -> list[Distortion]:
+        """Distortion of every chart given the scan's ``(F, 3, 3)`` corner positions."""
+        tri_uv = self.uvs[self.face_uvs]
+        return [distortion(triangles_3d[f], tri_uv[f]) for f in self.faces_of()]
+
+
+def assemble(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n_faces: int) -> Charts:
+    """One :class:`Charts` from per-chart pieces ``(faces (n,), corner_node (n, 3), node_uv (k, 2))``.
+
+    ``corner_node`` indexes the piece's own ``node_uv``. Every face must appear in exactly one piece.
+    """
+    chart_of_face = np.full(n_faces, -1, dtype=np.int64)
+    face_uvs = np.zeros((n_faces, 3), dtype=np.int64)
+    uvs, base = [], 0
+    for c, (faces, corner_node, node_uv) in enumerate(pieces):
+        chart_of_face[faces] = c
+        face_uvs[faces] = corner_node + base
+        uvs.append(node_uv)
+        base += len(node_uv)
+    if (chart_of_face < 0).any():
+        raise ValueError(f"{int((chart_of_face < 0).sum())} faces belong to no chart")
+    return Charts(chart_of_face, face_uvs, np.concatenate(uvs) if uvs else np.zeros((0, 2)))
+
+
+def compact(corner_key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Renumber arbitrary ``(n, 3)`` corner keys to ``0..k-1``; returns the new ``(n, 3)`` and the
+    ``(k,)`` original key of each."""
+    keys, inverse = np.unique(corner_key.ravel(), return_inverse=True)
+    return inverse.reshape(corner_key.shape), keys

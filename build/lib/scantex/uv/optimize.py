@@ -1,0 +1,119 @@
+"""The paper's UV optimisation: split shells that stretch too much, merge neighbours while a merged chart
+stays under the threshold, so the atlas has fewer, larger charts and fewer seams.
+
+Starting from the scan's own shells:
+
+* **split**: a shell whose L2 stretch exceeds the threshold (or that is mirrored in part, or overlaps
+  itself) is replaced by normal-cone planar charts of its faces (:func:`scantex.uv.unwrap.planar_charts`);
+* **merge**: shells are merged greedily, longest shared seam (in metres) first. The union is welded
+  along the seam between the two shells only (other cuts stay cut), re-flattened by planar projection,
+  else by a least-squares conformal map, and kept when it has no mirrored face, no overlap and stretch
+  within the threshold (:class:`scantex.uv.merge.Merger`).
+
+Geometry never changes; the result is a :class:`~scantex.uv.charts.Charts` for the packer.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scantex.atlas.seams import uv_shells
+from scantex.scan import Scan
+from scantex.uv.charts import Charts, assemble, compact
+from scantex.uv.merge import MergeLog, Merger, Piece
+from scantex.uv.param import distortion
+from scantex.uv.shells import texel_uvs
+from scantex.uv.unwrap import (
+    UnwrapLog,
+    UnwrapOptions,
+    acceptable,
+    interior_edges,
+    planar_charts,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class OptimizeLog:
+    """What the optimiser did (JSON-ready through ``as_dict``)."""
+
+    shells_in: int = 0
+    shells_split: int = 0
+    charts_from_splits: int = 0
+    merge: MergeLog = field(default_factory=MergeLog)
+    fallbacks: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {**self.__dict__, "merge": self.merge.as_dict()}
+
+
+def shell_pieces(scan: Scan, texture_size: int, equalise_density: bool) -> tuple[list[Piece], np.ndarray]:
+    """The scan's shells as pieces in metres (texel coordinates over the shell's texel density, or over
+    the median density to keep relative densities), and ``(S,)`` each shell's density in texels/m."""
+    shells = uv_shells(scan)
+    tex = texel_uvs(scan, texture_size)  # [F, 3, 2]
+    S = int(shells.max()) + 1
+    e1, e2 = tex[:, 1] - tex[:, 0], tex[:, 2] - tex[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    surface = np.bincount(shells, scan.face_areas, S)
+    density = np.sqrt(np.divide(np.bincount(shells, uv_area, S), surface, out=np.zeros(S), where=surface > 0))
+    common = float(np.median(density[density > 0])) if (density > 0).any() else 1.0
+    key = scan.face_uvs * len(scan.materials) + scan.face_materials[:, None]
+    order = np.argsort(shells, kind="stable")
+    bounds = np.searchsorted(shells[order], np.arange(S + 1))
+    pieces = []
+    for s in range(S):
+        faces = order[bounds[s]:bounds[s + 1]]
+        corner_node, _ = compact(key[faces])
+        node_uv = np.zeros((int(corner_node.max()) + 1, 2))
+        node_uv[corner_node.ravel()] = tex[faces].reshape(-1, 2)
+        scale = density[s] if equalise_density else common
+        pieces.append(Piece(faces, corner_node, node_uv / (scale if scale > 0 else 1.0)))
+    return pieces, density
+
+
+def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: int = 1024,
+             equalise_density: bool = True, merge: bool = True, time_budget_s: float = 60.0,
+             record: OptimizeLog | None = None, unwrap_record: UnwrapLog | None = None) -> Charts:
+    """Split and merge the scan's UV shells under ``options.threshold`` (see the module docstring)."""
+    if not scan.has_uvs:
+        raise ValueError("optimising a UV layout needs UVs; unwrap the scan instead")
+    start = time.perf_counter()
+    options = options if options is not None else UnwrapOptions()
+    record = record if record is not None else OptimizeLog()
+    unwrap_record = unwrap_record if unwrap_record is not None else UnwrapLog()
+    shells, _ = shell_pieces(scan, texture_size, equalise_density)
+    record.shells_in = len(shells)
+    tri3 = scan.triangles
+    pairs, corners = interior_edges(scan.faces)
+    pieces: list[Piece] = []
+    for p in shells:
+        if acceptable(tri3[p.faces], p.node_uv[p.corner_node], options.threshold):
+            pieces.append(p)
+            continue
+        parts = planar_charts(scan.positions, scan.faces, scan.face_normals, scan.face_areas, pairs, options,
+                              subset=p.faces, record=unwrap_record)
+        record.shells_split += 1
+        record.charts_from_splits += len(parts)
+        pieces += [Piece(*part) for part in parts]
+    if merge and len(pieces) > 1:
+        merger = Merger(scan.positions, scan.faces, pieces, pairs, corners, options.threshold)
+        pieces = merger.run(start + time_budget_s, record.merge)
+        if record.merge.out_of_time:
+            record.fallbacks.append(f"merging stopped at the {time_budget_s:g} s budget")
+    log.info("UV optimisation: %d shells -> %d charts (%d split, %d merges of %d tried) in %.1f s",
+             record.shells_in, len(pieces), record.shells_split, record.merge.merges, record.merge.attempts,
+             time.perf_counter() - start)
+    return assemble([(p.faces, p.corner_node, p.node_uv) for p in pieces], scan.n_faces)
+
+
+def charts_distortion(scan: Scan, charts: Charts) -> list:
+    """Distortion of every chart (in metres, before packing)."""
+    tri_uv = charts.uvs[charts.face_uvs]
+    tri3 = scan.triangles
+    return [distortion(tri3[f], tri_uv[f]) for f in charts.faces_of()]

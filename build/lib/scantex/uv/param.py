@@ -1,0 +1,229 @@
+"""Parameterising one chart: planar projection, least-squares conformal maps, and their distortion.
+
+A chart is given as its own small mesh: ``points (N, 3)`` and ``triangles (n, 3)`` into them. Maps
+return ``(N, 2)`` coordinates in metres (a planar projection is exactly that; an LSCM is scaled so its
+UV area equals the surface area).
+
+Distortion is measured per face by the singular values ``σ1 >= σ2`` of the Jacobian from the face's
+own 2D frame to UV, and per chart by Sander et al.'s L2 stretch after scaling the chart's UV area to its
+surface area: ``sqrt(Σ A (Γ1² + Γ2²) / 2 / Σ A)`` with ``Γ = 1 / σ`` the singular values of the inverse
+map (how far one texel reaches on the surface). It is 1 for an isometry and grows with any distortion,
+anisotropic or a change of scale across the chart (a conformal map of a sphere cap is not 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def face_frames(triangles_3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each face in its own orthonormal 2D frame.
+
+    Args:
+        triangles_3d: ``(n, 3, 3)`` corner positions.
+
+    Returns:
+        ``(n, 3, 2)`` corner coordinates (corner 0 at the origin, corner 1 on +x) and ``(n,)`` areas.
+    """
+    e1 = triangles_3d[:, 1] - triangles_3d[:, 0]
+    e2 = triangles_3d[:, 2] - triangles_3d[:, 0]
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)
+    l1 = np.linalg.norm(e1, axis=1)
+    x_axis = np.divide(e1, l1[:, None], out=np.zeros_like(e1), where=l1[:, None] > 0)
+    normal = np.divide(n, area2[:, None], out=np.zeros_like(n), where=area2[:, None] > 0)
+    y_axis = np.cross(normal, x_axis)
+    local = np.zeros(triangles_3d.shape[:1] + (3, 2))
+    local[:, 1, 0] = l1
+    local[:, 2, 0] = (e2 * x_axis).sum(axis=1)
+    local[:, 2, 1] = (e2 * y_axis).sum(axis=1)
+    return local, 0.5 * area2
+
+
+def jacobians(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(n, 2, 2)`` Jacobians from each face's 2D frame to UV, and ``(n,)`` surface areas.
+
+    Degenerate faces (no surface area) get a zero Jacobian.
+    """
+    local, area = face_frames(triangles_3d)
+    P = np.stack([local[:, 1] - local[:, 0], local[:, 2] - local[:, 0]], axis=2)  # [n, 2, 2] columns
+    U = np.stack([triangles_uv[:, 1] - triangles_uv[:, 0], triangles_uv[:, 2] - triangles_uv[:, 0]], axis=2)
+    det = P[:, 0, 0] * P[:, 1, 1] - P[:, 0, 1] * P[:, 1, 0]
+    ok = np.abs(det) > 1e-30
+    inv = np.zeros_like(P)
+    inv[ok, 0, 0] = P[ok, 1, 1] / det[ok]
+    inv[ok, 1, 1] = P[ok, 0, 0] / det[ok]
+    inv[ok, 0, 1] = -P[ok, 0, 1] / det[ok]
+    inv[ok, 1, 0] = -P[ok, 1, 0] / det[ok]
+    return U @ inv, np.where(ok, area, 0.0)
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """How far a chart's UVs are from an isometry.
+
+    Attributes:
+        stretch: L2 stretch after normalising the chart's UV area to its surface area (1 = isometric).
+        max_anisotropy: largest per-face ``σ1 / σ2`` (faces with surface area only).
+        flipped_share: share of the surface area whose UV triangle is mirrored relative to the rest.
+        surface_area: chart area in m².
+        uv_area: chart area in UV units².
+    """
+
+    stretch: float
+    max_anisotropy: float
+    flipped_share: float
+    surface_area: float
+    uv_area: float
+
+
+def distortion(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> Distortion:
+    """Distortion of one chart from its ``(n, 3, 3)`` corner positions and ``(n, 3, 2)`` corner UVs."""
+    J, area = jacobians(triangles_3d, triangles_uv)
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    frob2 = (J ** 2).sum(axis=(1, 2))  # σ1² + σ2²
+    total = float(area.sum())
+    uv_area = float((np.abs(det) * area).sum())
+    if total <= 0 or uv_area <= 0:
+        return Distortion(float("inf"), float("inf"), 0.0, total, uv_area)
+    # σ1, σ2 from the trace and determinant of JᵀJ
+    disc = np.sqrt(np.maximum(frob2 ** 2 - 4 * det ** 2, 0.0))
+    s1 = np.sqrt(0.5 * (frob2 + disc))
+    s2 = np.sqrt(np.maximum(0.5 * (frob2 - disc), 0.0))
+    used = area > 0
+    with np.errstate(divide="ignore", over="ignore"):
+        aniso = float(np.max(np.where(s2[used] > 0, s1[used] / np.maximum(s2[used], 1e-300), np.inf)))
+    # Sander et al.'s stretch is of the inverse map (texels onto the surface): Γ1² + Γ2² = (σ1² + σ2²) / det²
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.where(used, frob2 / np.where(used, det ** 2, 1.0), 0.0)
+    l2 = np.sqrt((area * inverse / 2).sum() / total)
+    stretch = float(l2 * np.sqrt(uv_area / total))
+    orientation = np.sign((det * area).sum()) or 1.0
+    flipped = float(area[det * orientation < 0].sum() / total)
+    return Distortion(stretch, aniso, flipped, total, uv_area)
+
+
+def planar_projection(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` coordinates in metres on the plane through the chart with its area-weighted mean normal.
+
+    The axes are chosen so that faces keep their winding (counter-clockwise seen from the front).
+    """
+    tri = points[triangles]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0)  # area-weighted (x2)
+    length = np.linalg.norm(n)
+    if length <= 0:
+        n = np.array([0.0, 0.0, 1.0])
+    else:
+        n = n / length
+    helper = np.eye(3)[np.argmin(np.abs(n))]
+    x_axis = np.cross(helper, n)
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(n, x_axis)
+    centred = points - points.mean(axis=0)
+    return np.stack([centred @ x_axis, centred @ y_axis], axis=1)
+
+
+def lscm(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Least-squares conformal map (Lévy et al. 2002) of a disc-like chart, ``(N, 2)`` in metres.
+
+    Two far-apart vertices are pinned; the result is rescaled so that its UV area equals the surface
+    area and mirrored if needed so that faces keep their winding. Vertices no face uses stay at 0.
+    Written here because no maintained Python library exposes LSCM without a heavy dependency.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    N, n = len(points), len(triangles)
+    local, area = face_frames(points[triangles])
+    # W_j = (x_l - x_k) + i (y_l - y_k) for corners (j, k, l) in cyclic order, over sqrt(2A)
+    nxt, prv = local[:, [1, 2, 0]], local[:, [2, 0, 1]]
+    w = prv - nxt  # [n, 3, 2]
+    scale = np.where(area > 0, 1.0 / np.sqrt(np.maximum(2 * area, 1e-300)), 0.0)[:, None]
+    wr, wi = w[..., 0] * scale, w[..., 1] * scale  # [n, 3]
+    rows = np.repeat(np.arange(n), 3)
+    cols = triangles.ravel()
+    # real rows: Re(W)·u - Im(W)·v ; imaginary rows: Im(W)·u + Re(W)·v
+    r = np.concatenate([rows, rows, rows + n, rows + n])
+    c = np.concatenate([cols, cols + N, cols, cols + N])
+    v = np.concatenate([wr.ravel(), -wi.ravel(), wi.ravel(), wr.ravel()])
+    A = coo_matrix((v, (r, c)), shape=(2 * n, 2 * N)).tocsc()
+
+    used = np.unique(triangles)
+    centre = points[used].mean(axis=0)
+    p0 = used[np.argmax(np.linalg.norm(points[used] - centre, axis=1))]
+    p1 = used[np.argmax(np.linalg.norm(points[used] - points[p0], axis=1))]
+    pinned = np.array([p0, p1, p0 + N, p1 + N])
+    pinned_values = np.array([0.0, np.linalg.norm(points[p1] - points[p0]), 0.0, 0.0])
+    free = np.setdiff1d(np.concatenate([used, used + N]), pinned)
+    Af, Ap = A[:, free], A[:, pinned]
+    rhs = -(Ap @ pinned_values)
+    AtA = (Af.T @ Af).tocsc()
+    AtA = AtA + 1e-12 * coo_matrix((np.ones(len(free)), (np.arange(len(free)),) * 2),
+                                   shape=AtA.shape).tocsc()
+    x = np.zeros(2 * N)
+    x[free] = spsolve(AtA, Af.T @ rhs)
+    x[pinned] = pinned_values
+    uv = np.stack([x[:N], x[N:]], axis=1)
+    return normalise(points, triangles, uv)
+
+
+def normalise(points: np.ndarray, triangles: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``uv`` scaled so its area equals the surface area, mirrored if most of it is mirrored."""
+    d = distortion(points[triangles], uv[triangles])
+    if not np.isfinite(d.stretch) or d.uv_area <= 0:
+        return uv
+    J, area = jacobians(points[triangles], uv[triangles])
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    out = uv * np.sqrt(d.surface_area / d.uv_area)
+    if (det * area).sum() < 0:
+        out[:, 0] = -out[:, 0]
+    return out
+
+
+def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
+    """Share of a chart's rasterised UV area covered by more than one triangle.
+
+    The chart is rasterised at about ``texels`` texels (default: 8 per triangle, 2k to 200k); a texel
+    centre counts for a triangle when it lies strictly inside it, so triangles that only share an edge
+    never count as overlapping.
+    """
+    n = len(triangles_uv)
+    texels = int(np.clip(8 * n, 2048, 200_000)) if texels is None else texels
+    if n == 0:
+        return 0.0
+    e1 = triangles_uv[:, 1] - triangles_uv[:, 0]
+    e2 = triangles_uv[:, 2] - triangles_uv[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    if area <= 0:
+        return 0.0
+    lo = triangles_uv.reshape(-1, 2).min(axis=0)
+    scale = np.sqrt(texels / area)
+    for _ in range(8):
+        pix = (triangles_uv - lo) * scale  # [n, 3, 2]
+        tmin = np.floor(pix.min(axis=1) - 0.5).astype(np.int64) + 1  # first texel centre x+0.5 >= min
+        tmax = np.floor(pix.max(axis=1) - 0.5).astype(np.int64)
+        count = np.maximum(tmax - tmin + 1, 0)
+        per = count[:, 0] * count[:, 1]
+        if per.sum() <= 20_000_000:
+            break
+        scale *= 0.5
+    tri = np.repeat(np.arange(n), per)
+    offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
+    w = np.maximum(count[tri, 0], 1)
+    x = tmin[tri, 0] + offset % w
+    y = tmin[tri, 1] + offset // w
+    px, py = x + 0.5, y + 0.5
+    a, b, c = pix[tri, 0], pix[tri, 1], pix[tri, 2]
+
+    def edge(p, q):
+        return (q[:, 0] - p[:, 0]) * (py - p[:, 1]) - (q[:, 1] - p[:, 1]) * (px - p[:, 0])
+
+    s0, s1, s2 = edge(a, b), edge(b, c), edge(c, a)
+    inside = ((s0 > 0) & (s1 > 0) & (s2 > 0)) | ((s0 < 0) & (s1 < 0) & (s2 < 0))
+    if not inside.any():
+        return 0.0
+    width = int(x.max()) + 2
+    hits = np.bincount(y[inside] * width + x[inside])
+    return float((hits > 1).sum() / max((hits > 0).sum(), 1))

@@ -1,0 +1,133 @@
+"""The UV plan: keep the scan's layout, optimise its shells, or unwrap afresh; then pack one atlas.
+
+:func:`plan_uvs` is the stage's entry point. Whatever the mode, ``positions`` and ``faces`` are the very
+same arrays as the input's; only ``uvs``, ``face_uvs``, ``face_materials`` and ``materials`` change.
+
+A new layout gets one material holding one square ``texture_size``² atlas whose image is all zeros
+(``(S, S, 3) uint8``): a placeholder of the right size for :func:`scantex.atlas.bake.bake` (pass
+``size=texture_size``) or :func:`scantex.uv.blend.transfer_texture` to fill.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.scan import Material, Scan
+from scantex.uv.charts import Charts
+from scantex.uv.optimize import OptimizeLog, charts_distortion, optimize
+from scantex.uv.pack import pack
+from scantex.uv.shells import stats, summarise
+from scantex.uv.unwrap import UnwrapLog, UnwrapOptions, unwrap
+
+log = logging.getLogger(__name__)
+
+MODES = ("keep", "optimize", "unwrap")
+
+
+@dataclass(frozen=True, eq=False)
+class UVPlan:
+    """The scan with its planned UV layout, and what planning did.
+
+    Attributes:
+        scan: same ``positions`` and ``faces`` objects as the input; new ``uvs``, ``face_uvs``,
+            ``face_materials`` and ``materials`` unless the layout was kept.
+        report: JSON-ready: mode, shells and seam edges before and after, stretch and texel density
+            (px/cm) statistics before and after, time taken, and what fell back to what.
+    """
+
+    scan: Scan
+    report: dict
+
+
+def _default_size(scan: Scan) -> int:
+    sides = [max(m.image.shape[:2]) for m in scan.materials if m.image is not None]
+    return int(max(sides)) if sides else 1024
+
+
+def _atlas_material(scan: Scan, size: int) -> Material:
+    image = np.zeros((size, size, 3), np.uint8)
+    if len(scan.materials) == 1:
+        return dataclasses.replace(scan.materials[0], image=image)
+    return Material("atlas", image, diffuse=scan.materials[0].diffuse, image_name="atlas.png")
+
+
+def _summary(scan: Scan, size: int) -> dict | None:
+    s = summarise(scan, size)
+    return None if s is None else s.as_dict()
+
+
+def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_size: int = 0,
+             time_budget_s: float = 60.0, equalise_density: bool = True, seed: int = 0,
+             gutter_texels: int = 4, max_angle_deg: float = 50.0, use_xatlas: bool = True) -> UVPlan:
+    """Plan the texture layout of ``scan``.
+
+    Args:
+        scan: the input scan, with or without UVs.
+        mode: ``"keep"`` the input layout; ``"optimize"`` it (split shells over ``threshold``, merge
+            neighbours while under it, repack); ``"unwrap"`` afresh (planar charts plus xatlas for the
+            curved leftovers). A scan without UVs is unwrapped whatever the mode (noted in the report).
+        threshold: largest L2 stretch of a chart (1 = no distortion; 1.1 allows about 10 %).
+        texture_size: side of the new square atlas in texels; 0 = the largest input image, else 1024.
+        time_budget_s: wall-clock budget for merging (optimize) or for xatlas (unwrap); when it runs
+            out the work done so far is used and the report says so.
+        equalise_density: give every chart the same texels per metre (optimize; unwrap always does).
+        seed: reserved for randomised tie-breaking; the planner is deterministic today.
+        gutter_texels: empty texels kept around each chart in the atlas.
+        max_angle_deg: widest normal cone of a planar chart.
+        use_xatlas: hand the curved leftovers of an unwrap to xatlas (in a subprocess).
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if threshold < 1.0:
+        raise ValueError(f"threshold is a stretch (>= 1, 1 = no distortion), got {threshold}")
+    if texture_size < 0 or gutter_texels < 0:
+        raise ValueError("texture_size and gutter_texels must not be negative")
+    del seed
+    start = time.perf_counter()
+    size = int(texture_size) or _default_size(scan)
+    report: dict = {"mode": mode, "threshold": threshold, "texture_size": size,
+                    "equalise_density": equalise_density, "fallbacks": []}
+    report["before"] = _summary(scan, size)
+    if not scan.has_uvs and mode != "unwrap":
+        report["fallbacks"].append(f"the scan has no UVs: {mode} fell back to unwrap")
+        mode = "unwrap"
+    report["mode_used"] = mode
+    if mode == "keep":
+        report["after"] = report["before"]
+        report["time_s"] = time.perf_counter() - start
+        return UVPlan(scan, report)
+
+    options = UnwrapOptions(threshold=threshold, max_angle_deg=max_angle_deg, xatlas=use_xatlas)
+    unwrap_log = UnwrapLog()
+    if mode == "optimize":
+        optimize_log = OptimizeLog()
+        charts = optimize(scan, options, texture_size=size, equalise_density=equalise_density,
+                          time_budget_s=time_budget_s, record=optimize_log, unwrap_record=unwrap_log)
+        report["optimize"] = optimize_log.as_dict()
+        report["fallbacks"] += optimize_log.fallbacks
+    else:
+        charts = unwrap(scan.positions, scan.faces, options, time_budget_s=time_budget_s, record=unwrap_log)
+    report["unwrap"] = unwrap_log.as_dict()
+    report["fallbacks"] += unwrap_log.fallbacks
+    planned = _packed_scan(scan, charts, size, gutter_texels, report)
+    report["after"] = _summary(planned, size)
+    report["time_s"] = time.perf_counter() - start
+    log.info("UV plan (%s): %s -> %s shells in %.1f s", mode,
+             report["before"]["shells"] if report["before"] else "-", report["after"]["shells"], report["time_s"])
+    return UVPlan(planned, report)
+
+
+def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dict) -> Scan:
+    d = charts_distortion(scan, charts)
+    report["chart_stretch"] = stats([x.stretch for x in d])
+    atlas = pack(charts, size, gutter)
+    report["texels_per_metre"] = atlas.texels_per_metre
+    report["atlas_utilisation"] = atlas.utilisation
+    report["images"] = f"zero placeholders ({size}, {size}, 3) uint8; bake(size={size}) fills them"
+    return scan.with_texture(atlas.uvs, atlas.face_uvs, (_atlas_material(scan, size),),
+                             np.zeros(scan.n_faces, dtype=np.int32))

@@ -1,0 +1,127 @@
+"""Shells and seams seen by the UV optimiser: how far apart a seam's two sides lie in the atlas,
+which shells touch along how much seam, and each shell's distortion and texel density.
+
+Builds on :mod:`scantex.atlas.seams` (``uv_shells``, ``seam_edges``) and never changes a scan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from scantex.atlas.seams import SeamEdges, seam_edges, uv_shells
+from scantex.scan import Scan
+from scantex.uv.param import distortion
+
+
+def material_sizes(scan: Scan, texture_size: int = 1024) -> np.ndarray:
+    """``(M, 2)`` atlas ``(width, height)`` in texels per material (``texture_size`` where no image)."""
+    sizes = np.full((len(scan.materials), 2), texture_size, dtype=np.int64)
+    for m, material in enumerate(scan.materials):
+        if material.image is not None:
+            sizes[m] = material.image.shape[1], material.image.shape[0]
+    return sizes
+
+
+def texel_uvs(scan: Scan, texture_size: int = 1024) -> np.ndarray:
+    """``(F, 3, 2)`` corner UVs in texels of each face's own atlas."""
+    size = material_sizes(scan, texture_size)[scan.face_materials]  # [F, 2]
+    return scan.triangle_uvs * size[:, None, :]
+
+
+def seam_distances(scan: Scan, edges: SeamEdges | None = None, texture_size: int = 1024) -> np.ndarray:
+    """``(E,)`` distance in texels between the two sides of every seam edge.
+
+    The mean, over the edge's two end points, of the distance between the UVs the two faces give that
+    point (0 would be no seam at all). Edges between faces of different materials are ``inf``: their
+    sides lie in different atlases.
+    """
+    edges = seam_edges(scan) if edges is None else edges
+    if len(edges) == 0:
+        return np.zeros(0)
+    tex = texel_uvs(scan, texture_size)
+    side_a = tex[edges.faces[:, 0:1], edges.corners[:, 0]]  # [E, 2, 2]: end point, (x, y)
+    side_b = tex[edges.faces[:, 1:2], edges.corners[:, 1]]
+    d = np.linalg.norm(side_a - side_b, axis=2).mean(axis=1)
+    cross = scan.face_materials[edges.faces[:, 0]] != scan.face_materials[edges.faces[:, 1]]
+    return np.where(cross, np.inf, d)
+
+
+def edge_lengths(scan: Scan, edges: SeamEdges) -> np.ndarray:
+    """``(E,)`` 3D length of every seam edge in metres."""
+    f = scan.faces[edges.faces[:, 0]]
+    rows = np.arange(len(edges))
+    p0 = scan.positions[f[rows, edges.corners[:, 0, 0]]]
+    p1 = scan.positions[f[rows, edges.corners[:, 0, 1]]]
+    return np.linalg.norm(p1 - p0, axis=1)
+
+
+def chart_distortion(scan: Scan, chart_of_face: np.ndarray, texture_size: int = 1024) -> list:
+    """:class:`~scantex.uv.param.Distortion` of every chart ``0..C-1`` of the scan's current UVs (in texels)."""
+    tri3 = scan.triangles
+    tex = texel_uvs(scan, texture_size)
+    order = np.argsort(chart_of_face, kind="stable")
+    bounds = np.searchsorted(chart_of_face[order], np.arange(int(chart_of_face.max()) + 2))
+    return [distortion(tri3[order[a:b]], tex[order[a:b]]) for a, b in pairwise(bounds)]
+
+
+def texel_density(scan: Scan, chart_of_face: np.ndarray | None = None, texture_size: int = 1024) -> np.ndarray:
+    """``(C,)`` texels per centimetre of every chart: ``sqrt(texel area / surface area in cm²)``."""
+    if chart_of_face is None:
+        chart_of_face = uv_shells(scan)
+    tex = texel_uvs(scan, texture_size)
+    e1, e2 = tex[:, 1] - tex[:, 0], tex[:, 2] - tex[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    C = int(chart_of_face.max()) + 1
+    surface = np.bincount(chart_of_face, scan.face_areas, C) * 1e4  # cm²
+    texels = np.bincount(chart_of_face, uv_area, C)
+    return np.sqrt(np.divide(texels, surface, out=np.zeros(C), where=surface > 0))
+
+
+def stats(values: np.ndarray) -> dict:
+    """``{"min", "median", "max", "count"}`` of finite values, JSON-ready (``None`` when empty)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"min": None, "median": None, "max": None, "count": 0}
+    return {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max()), "count": int(v.size)}
+
+
+@dataclass(frozen=True)
+class LayoutSummary:
+    """Counts and statistics of one UV layout (see :func:`summarise`)."""
+
+    shells: int
+    seam_edges: int
+    seam_length_m: float
+    seam_distance_texels: dict
+    stretch: dict
+    stretch_area_weighted: float
+    density_px_per_cm: dict
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def summarise(scan: Scan, texture_size: int = 1024) -> LayoutSummary | None:
+    """Shells, seams, distortion and texel density of a scan's UV layout (``None`` without UVs)."""
+    if not scan.has_uvs:
+        return None
+    shells = uv_shells(scan)
+    edges = seam_edges(scan)
+    dist = chart_distortion(scan, shells, texture_size)
+    stretch = np.array([d.stretch for d in dist])
+    area = np.array([d.surface_area for d in dist])
+    ok = np.isfinite(stretch)
+    weighted = float((stretch[ok] * area[ok]).sum() / max(area[ok].sum(), 1e-300)) if ok.any() else float("nan")
+    return LayoutSummary(
+        shells=int(shells.max()) + 1,
+        seam_edges=len(edges),
+        seam_length_m=float(edge_lengths(scan, edges).sum()),
+        seam_distance_texels=stats(seam_distances(scan, edges, texture_size)),
+        stretch=stats(stretch),
+        stretch_area_weighted=weighted,
+        density_px_per_cm=stats(texel_density(scan, shells, texture_size)),
+    )

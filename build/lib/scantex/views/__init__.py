@@ -1,0 +1,1 @@
+"""Views of a scan: cameras, view planning, G-buffers by ray casting, and rendering."""

@@ -1,0 +1,161 @@
+"""G-buffers by ray casting with Embree (through embreex), no OpenGL context needed.
+
+Embree is called directly: trimesh's ray API wraps the same scene but is several times slower
+(it returns no barycentrics). Rays are cast in chunks, split over threads (embreex releases the GIL),
+so memory stays bounded however large the image.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.views.camera import Camera
+
+#: rays per Embree call: 64k rays take ~4 MB of buffers and split well over threads
+CHUNK = 1 << 16
+
+
+@dataclass(frozen=True, eq=False)
+class Hits:
+    """Where rays first hit the mesh.
+
+    Attributes:
+        face_id: ``(N,) int32`` face index, -1 for a miss.
+        bary: ``(N, 2) float32`` Embree's ``(u, v)``: hit = (1-u-v)·p0 + u·p1 + v·p2.
+        t: ``(N,) float32`` distance along the (unnormalised) ray direction; inf for a miss.
+    """
+
+    face_id: np.ndarray
+    bary: np.ndarray
+    t: np.ndarray
+
+
+class RayCaster:
+    """An Embree BVH over a triangle mesh.
+
+    Positions are shifted to the mesh's centre before the float32 conversion Embree needs, so that
+    scans in large world coordinates (building scans, geo-referenced tiles) keep their precision.
+    """
+
+    def __init__(self, positions: np.ndarray, faces: np.ndarray):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        positions = np.asarray(positions, dtype=np.float64)
+        self.origin = 0.5 * (positions.min(axis=0) + positions.max(axis=0)) if len(positions) else np.zeros(3)
+        self.n_faces = len(faces)
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._scene, vertices=(positions - self.origin).astype(np.float32),
+                     indices=np.asarray(faces, dtype=np.int32))
+        self.threads = max(1, min(2, os.cpu_count() or 1))
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """First hits of rays ``origins + t * directions``, ``t > 0``.
+
+        Args:
+            origins: ``(N, 3)``, or ``(3,)`` / ``(1, 3)`` for rays from one point (a camera).
+            directions: ``(N, 3)``; need not be unit length.
+        """
+        origins = np.asarray(origins, dtype=np.float64)
+        directions = np.asarray(directions)
+        if origins.shape == (1, 3):
+            origins = origins[0]
+        shared_origin = origins.ndim == 1
+        N = len(directions)
+        face_id = np.empty(N, dtype=np.int32)
+        bary = np.empty((N, 2), dtype=np.float32)
+        t = np.empty(N, dtype=np.float32)
+
+        def run(start: int) -> None:
+            stop = min(start + CHUNK, N)
+            if shared_origin:
+                o = np.empty((stop - start, 3), dtype=np.float32)
+                o[:] = (origins - self.origin).astype(np.float32)
+            else:
+                o = (origins[start:stop] - self.origin).astype(np.float32)
+            d = np.ascontiguousarray(directions[start:stop], dtype=np.float32)
+            out = self._scene.run(o, d, output=1)
+            face_id[start:stop] = out["primID"]
+            bary[start:stop, 0] = out["u"]
+            bary[start:stop, 1] = out["v"]
+            t[start:stop] = out["tfar"]
+
+        starts = range(0, N, CHUNK)
+        if self.threads > 1 and N > CHUNK:
+            with ThreadPoolExecutor(self.threads) as pool:  # Embree releases the GIL
+                list(pool.map(run, starts))
+        else:
+            for s in starts:
+                run(s)
+        miss = face_id < 0
+        t[miss] = np.inf
+        bary[miss] = 0
+        return Hits(face_id, bary, t)
+
+
+@dataclass(frozen=True, eq=False)
+class GBuffer:
+    """Per-pixel surface attributes of one view.
+
+    Attributes:
+        face_id: ``(H, W) int32`` visible face, -1 where the ray misses.
+        bary: ``(H, W, 2) float32`` Embree barycentrics ``(u, v)`` of the hit in that face.
+        depth: ``(H, W) float32`` camera-space z of the hit; inf on a miss.
+        normal: ``(H, W, 3) float32`` unit geometric normal of the hit face (world space), zero on a miss.
+    """
+
+    face_id: np.ndarray
+    bary: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        """``(H, W) bool`` pixels that see the mesh."""
+        return self.face_id >= 0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.face_id.shape
+
+    def points(self, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` world position of each hit (zero on a miss)."""
+        return interpolate(self.face_id, self.bary, positions[faces])
+
+
+def interpolate(face_id: np.ndarray, bary: np.ndarray, corner_values: np.ndarray) -> np.ndarray:
+    """Interpolate per-corner values ``(F, 3, C)`` at hits ``face_id (...), bary (..., 2)``.
+
+    Returns ``(..., C)`` float (zero where ``face_id`` is -1).
+    """
+    shape = face_id.shape
+    fid = face_id.reshape(-1)
+    b = bary.reshape(-1, 2).astype(np.float64)
+    hit = fid >= 0
+    out = np.zeros((fid.size, corner_values.shape[-1]), dtype=np.float64)
+    c = corner_values[fid[hit]]  # [n, 3, C]
+    w = np.stack([1 - b[hit, 0] - b[hit, 1], b[hit, 0], b[hit, 1]], axis=1)  # [n, 3]
+    out[hit] = np.einsum("nk,nkc->nc", w, c)
+    return out.reshape(*shape, corner_values.shape[-1])
+
+
+def cast_gbuffer(caster: RayCaster, camera: Camera, face_normals: np.ndarray) -> GBuffer:
+    """Ray-cast one camera's G-buffer.
+
+    Args:
+        caster: the BVH of the scan.
+        camera: the view; cast at its full resolution (use :meth:`Camera.scaled` to supersample).
+        face_normals: ``(F, 3)`` unit normals of the scan's faces.
+    """
+    origins, directions = camera.pixel_rays()
+    hits = caster.intersect(origins, directions)
+    H, W = camera.height, camera.width
+    face_id = hits.face_id.reshape(H, W)
+    normal = np.asarray(face_normals, dtype=np.float32)[hits.face_id]  # -1 picks the last row...
+    normal[hits.face_id < 0] = 0  # ...so misses are cleared
+    # directions have unit camera-z, so the ray parameter is the depth
+    return GBuffer(face_id, hits.bary.reshape(H, W, 2), hits.t.reshape(H, W), normal.reshape(H, W, 3))

@@ -1,0 +1,143 @@
+"""Rendering a scan from its G-buffers: unlit texture lookup (what the field fits) and a lit preview.
+
+Colours are the texture's stored values scaled to [0, 1] (no colour management: scans store sRGB
+and so does every output, so the field learns and bakes sRGB values).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import GBuffer, RayCaster, cast_gbuffer, interpolate
+
+
+def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of ``image (H, W, C)`` at ``uv (N, 2)``, repeating outside [0, 1].
+
+    Returns ``(N, C) float32`` in [0, 1] for uint8 images (values as stored for float images).
+    """
+    H, W = image.shape[:2]
+    scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+    x = uv[:, 0] * W - 0.5
+    y = (1.0 - uv[:, 1]) * H - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    x0 = x0.astype(np.int64) % W
+    y0 = y0.astype(np.int64) % H
+    x1 = (x0 + 1) % W
+    y1 = (y0 + 1) % H
+    img = image.reshape(H, W, -1)
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
+
+
+def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """Unlit RGB ``(N, 3) float32`` of surface points given as ``face_id (N,)`` (all >= 0), ``bary (N, 2)``.
+
+    Texture (per material) when the scan has UVs, else vertex colours, else face colours, else the
+    material's base colour.
+    """
+    N = len(face_id)
+    rgb = np.empty((N, 3), dtype=np.float32)
+    mat_of_hit = scan.face_materials[face_id]
+    tri_uv = scan.uvs[scan.face_uvs] if scan.has_uvs else None
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(mat_of_hit == m)
+        if sel.size == 0:
+            continue
+        base = np.asarray(material.diffuse[:3], dtype=np.float32)
+        if material.image is not None and tri_uv is not None:
+            uv = interpolate(face_id[sel], bary[sel], tri_uv)
+            rgb[sel] = sample_texture(material.image, uv)[:, :3] * base
+        elif scan.vertex_colors is not None:
+            corner = scan.vertex_colors[scan.faces][:, :, :3].astype(np.float32) / 255.0
+            rgb[sel] = interpolate(face_id[sel], bary[sel], corner)
+        elif scan.face_colors is not None:
+            rgb[sel] = scan.face_colors[face_id[sel], :3].astype(np.float32) / 255.0
+        else:
+            rgb[sel] = base
+    return rgb
+
+
+def render_gbuffer(scan: Scan, gbuffer: GBuffer, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Unlit colours ``(H, W, 3) float32`` in [0, 1] of the surface each pixel sees."""
+    H, W = gbuffer.shape
+    image = np.empty((H * W, 3), dtype=np.float32)
+    image[:] = background
+    fid = gbuffer.face_id.reshape(-1)
+    hit = np.flatnonzero(fid >= 0)
+    image[hit] = shade_hits(scan, fid[hit], gbuffer.bary.reshape(-1, 2)[hit])
+    return image.reshape(H, W, 3)
+
+
+@dataclass(frozen=True)
+class Light:
+    """A directional light plus ambient, for previews.
+
+    Attributes:
+        direction_camera: ``(3,)`` direction the light travels, in camera coordinates (OpenCV axes), so
+            that every view is lit from the same side: the default comes from the upper left, behind
+            the viewer.
+        ambient: share of the colour that is lit regardless of orientation.
+    """
+
+    direction_camera: tuple[float, float, float] = (0.4, 0.5, 1.0)
+    ambient: float = 0.35
+
+
+def shade_lit(albedo: np.ndarray, gbuffer: GBuffer, camera: Camera, light: Light = Light()) -> np.ndarray:
+    """Lambertian shading of ``albedo (H, W, 3)`` by a directional light; two-sided."""
+    d = camera.R.T @ np.asarray(light.direction_camera, dtype=np.float64)
+    d /= np.linalg.norm(d)
+    n = gbuffer.normal.astype(np.float64)
+    # two-sided: face the normal towards the camera (scanned surfaces are seen from either side)
+    view = camera.forward
+    n = np.where((n @ view)[..., None] > 0, -n, n)
+    lambert = np.clip(-(n @ d), 0.0, 1.0)[..., None]
+    shaded = albedo * (light.ambient + (1 - light.ambient) * lambert)
+    return np.where(gbuffer.mask[..., None], shaded, albedo).astype(np.float32)
+
+
+def downsample(image: np.ndarray, factor: int) -> np.ndarray:
+    """Box-filter ``(H*f, W*f, C)`` to ``(H, W, C)``."""
+    if factor == 1:
+        return image
+    H, W = image.shape[0] // factor, image.shape[1] // factor
+    return image.reshape(H, factor, W, factor, -1).mean(axis=(1, 3))
+
+
+def render(scan: Scan, camera: Camera, caster: RayCaster | None = None, *, lit: bool = False,
+           supersample: int = 1, light: Light = Light(), background=(0.0, 0.0, 0.0)):
+    """Render one view of a scan.
+
+    Args:
+        scan: the scan.
+        camera: the view.
+        caster: a prebuilt :class:`RayCaster` (built here when ``None``).
+        lit: shade with ``light`` (a preview) instead of returning the unlit texture colour.
+        supersample: rays per pixel along each axis (box filtered).
+        background: RGB of pixels that see nothing.
+
+    Returns:
+        ``(image, alpha)``: ``(H, W, 3) float32`` in [0, 1] and ``(H, W) float32`` coverage.
+    """
+    caster = caster or RayCaster(scan.positions, scan.faces)
+    cam = camera.scaled(supersample) if supersample > 1 else camera
+    g = cast_gbuffer(caster, cam, scan.face_normals)
+    rgb = render_gbuffer(scan, g, background)
+    if lit:
+        rgb = shade_lit(rgb, g, cam, light)
+    alpha = g.mask.astype(np.float32)[..., None]
+    return downsample(rgb, supersample), downsample(alpha, supersample)[..., 0]
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """``[0, 1]`` float image to uint8 with rounding."""
+    return np.clip(np.rint(np.asarray(image) * 255.0), 0, 255).astype(np.uint8)
