@@ -101,7 +101,7 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
                  "is for the geometry; judge the texture in the comparisons below.")
         if plotly else _section("3D view", f"<p>{html.escape(missing_message('plotly', 'The 3D view'))}.</p>"),
         _section("Held-out views", _renders(before, after, truth, cameras, _per_view_scores(metrics)),
-                 "Unlit renders at views the field never trained on, compared with a wipe: drag the white "
+                 "Unlit renders at views no stage trained on, compared with a wipe: drag the white "
                  "handle or the slider to move the split, scroll or use the buttons to zoom, drag the image to "
                  "pan; the menus pick which image is on each side. The scores are each view's own, from "
                  "metrics.json (computed at the views' resolution; the renders here are finer)."),
@@ -169,6 +169,14 @@ def _headline(m: dict) -> str:
     if sv:
         rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
                      "0–255)", "good" if sv["enhanced"] < sv["input"] else ""))
+    patches = m.get("patches")
+    if patches and "enhanced_vs_input" in patches:
+        share = patches["enhanced_vs_input"]
+        rows.append(("Patches vs input", f"{100 * share:.2f} % of pixels have a hard-edged low-frequency change the "
+                     "input does not (about 0: no patch)", "good" if share < 0.01 else "bad"))
+    field = m.get("field", {})
+    if field.get("trained") is False:
+        rows.append(("Field", field.get("why", "not trained"), ""))
     if "timings_s" in m:
         rows.append(("Time", f"{m['timings_s'].get('total', 0):.1f} s", ""))
     body = "".join(f'<tr><th>{html.escape(k)}</th><td class="{c}">{html.escape(v)}</td></tr>' for k, v, c in rows)

@@ -130,7 +130,7 @@ def test_enhance_outputs_include_report_and_zero_distances(tmp_path):
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     d = metrics["geometry"]["distance"]
     assert d["hausdorff"] == 0.0 and d["mean_a_to_b"] == 0.0 and d["mean_b_to_a"] == 0.0
-    assert metrics["texture"]["enhanced"]["atlas_sizes"] == [[64, 64]]
+    assert metrics["texture"]["enhanced"]["atlas_sizes"] == [[32, 32]]  # the input's texels, kept at its size
     page = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert len(figures(page)) == 2 and "Held-out views vs ground truth" in page
     assert np.isfinite(metrics["held_out_vs_ground_truth"]["enhanced"]["psnr"])
