@@ -25,7 +25,7 @@ TINY = EnhanceConfig(
     preset="tiny",
     views=ViewsConfig(n_views=2, width=24, height=16, supersample=1, adaptive=False),
     field=FieldSettings(hidden=8, n_layers=1, n_levels=2, log2_table_size=8, max_resolution=16),
-    train=TrainConfig(steps=4, batch_rays=256, start_levels=1, checkpoint_every=2),
+    train=TrainConfig(steps=4, batch_rays=256, start_levels=1, checkpoint_every=2, always=True),  # checkpoints
     uv=UVConfig(blend_seams=False), bake=BakeConfig(texture_size=32), refine=RefineConfig(enabled=False))
 
 
