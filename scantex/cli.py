@@ -338,6 +338,9 @@ def enhance_summary(m: dict) -> str:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
                      f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    if "safety" in m.get("bake", {}):
+        lines.append(f"safety fallback: {m['bake']['safety']['why']}; the result keeps the input's texels "
+                     f"(holes filled, seams blended)")
     if not m.get("field", {}).get("trained", True):
         lines.append(f"field: {m['field']['why']}")
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(

@@ -144,6 +144,15 @@ def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarr
     return np.bincount(hit, minlength=n_faces) >= min_rays
 
 
+#: share of the held-out views' pixels with a patch against the input (:func:`patch_metrics`) above which
+#: the default bake's levelling and refining are not trusted ...
+PATCH_LIMIT = 0.01
+#: ... unless they removed at least this share of the input's seam visibility (what levelling is for; measured
+#: before seam blending: the demo wall's levelling removes 52 % with 1.3 % patches, on a Polycam scan it removed
+#: 7 % while drawing 7.6 %)
+SEAM_GAIN = 0.3
+
+
 def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
     """Whether the run bakes the input's own texels (mesh-only mode, ``bake.source`` input, a textured scan)."""
     if config.bake.source not in ("input", "field"):
@@ -458,20 +467,41 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             colour, refine_report = refined.colour, refined.report
         timings["refine"] = time.perf_counter() - t
 
+    def bake_and_blend(colour: SurfaceColour, stage: str) -> tuple[Scan, Scan]:
+        with reporter.stage(stage) as update:
+            target = plan.scan
+            # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
+            # the size would only resample them); a field or the photos hold detail worth a finer atlas
+            scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
+            images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
+                          chunk=config.bake.chunk, progress=update)
+        materials = tuple(
+            m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
+                                                      diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
+            for m, img in zip(target.materials, images))
+        baked = target.replace(materials=materials, source=None)
+        return baked, blend_seams(baked, band_texels=uc.band_texels) if uc.blend_seams else baked
+
     t = time.perf_counter() - bake_seconds
-    with reporter.stage("baking the texture") as update:
-        target = plan.scan
-        # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
-        # the size would only resample them); a field or the photos hold detail worth a finer atlas
-        scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
-        images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
-                      chunk=config.bake.chunk, progress=update)
-    materials = tuple(
-        m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
-                                                  diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
-        for m, img in zip(target.materials, images))
-    baked = target.replace(materials=materials, source=None)
-    enhanced = blend_seams(baked, band_texels=uc.band_texels) if uc.blend_seams else baked
+    baked, enhanced = bake_and_blend(colour, "baking the texture")
+    safety = None
+    if photo is None and bake_report["source"] == "input" and mode == "keep":
+        # never a patch the input does not have: a result that paints them without removing most of the
+        # input's seam steps falls back to the input's texels, holes filled and seams blended only
+        test_cams = [tv.views.cameras[i] for i in tv.views.test]
+        share = patch_metrics(scan, enhanced, test_cams, caster)["enhanced_vs_input"]
+        seams_in, seams_out = seam_visibility(scan), seam_visibility(baked)
+        if share > PATCH_LIMIT and seams_out > (1 - SEAM_GAIN) * seams_in:
+            safety = {"fallback": "no levelling, no refiner", "patches_before_fallback": round(share, 5),
+                      "why": f"levelling and refining drew patches on {100 * share:.1f} % of the held-out views' "
+                             f"pixels while removing only {100 * (1 - seams_out / max(seams_in, 1e-9)):.0f} % of "
+                             f"the input's seam visibility ({seams_in:.2f} -> {seams_out:.2f})"}
+            log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
+            colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device,
+                                                   dataclasses.replace(config.bake, levelling=False), noise)
+            refine_report = None
+            baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
+            bake_report["safety"] = safety
     timings["bake"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -173,3 +173,22 @@ def test_default_bake_keeps_the_input_texels_and_reports_patches(toy_demo, toy_r
     assert m["bake"]["source"] == "input" and m["bake"]["noise_threshold"] >= 0
     assert 0 <= m["patches"]["enhanced_vs_input"] <= 1 and len(m["patches"]["per_view"]) == m["views"]["test"]
     assert m["sampling"]["train_rays"] > 0 and m["sampling"]["used_input_texels"] > 0
+
+
+def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypatch):
+    """The safety net of the default bake: when levelling and refining draw patches (share of held-out
+    pixels above PATCH_LIMIT) without removing SEAM_GAIN of the seam visibility, the texels go back to
+    the input's (holes filled, seams blended), and the metrics say why."""
+    import scantex.pipeline.enhance as pipeline
+
+    cfg = TOY.override(train__steps=5, refine__enabled=True, refine__steps=2)
+    monkeypatch.setattr(pipeline, "PATCH_LIMIT", 2.0)  # no result "has patches"
+    kept = enhance(toy_demo.scan, cfg).metrics
+    assert "safety" not in kept["bake"] and kept["bake"]["levelling_offset_max"] > 0 and "refine" in kept
+    monkeypatch.setattr(pipeline, "PATCH_LIMIT", -1.0)  # every result "has patches" ...
+    monkeypatch.setattr(pipeline, "SEAM_GAIN", 1.01)  # ... and no levelling removes enough seams
+    result = enhance(toy_demo.scan, cfg)
+    m = result.metrics
+    assert m["bake"]["safety"]["fallback"] == "no levelling, no refiner" and "seam visibility" in m["bake"]["safety"]["why"]
+    assert m["bake"]["levelling_offset_max"] == 0 and "refine" not in m
+    assert result.scan.positions is toy_demo.scan.positions and result.scan.faces is toy_demo.scan.faces
