@@ -172,8 +172,9 @@ def _headline(m: dict) -> str:
     patches = m.get("patches")
     if patches and "enhanced_vs_input" in patches:
         share = patches["enhanced_vs_input"]
-        rows.append(("Patches vs input", f"{100 * share:.2f} % of pixels have a hard-edged low-frequency change the "
-                     "input does not (about 0: no patch)", "good" if share < 0.01 else "bad"))
+        rows.append(("Patches vs input", f"{100 * share:.2f} % of the held-out pixels have a hard-edged low-frequency "
+                     "change against the input (about 0: none; exposure steps removed at seams count too)",
+                     "good" if share < 0.01 else ""))
     field = m.get("field", {})
     if field.get("trained") is False:
         rows.append(("Field", field.get("why", "not trained"), ""))
