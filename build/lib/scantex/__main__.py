@@ -1,3 +1,0 @@
-from scantex.cli import main
-
-raise SystemExit(main())

@@ -1,1 +1,0 @@
-"""Texture atlases: which surface point every texel shows (the texel map), and later the UV plan."""

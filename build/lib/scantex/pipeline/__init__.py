@@ -1,1 +1,0 @@
-"""The enhance pipeline: configuration and the orchestration that wires the stages together."""
