@@ -278,7 +278,7 @@ RANGES: dict[str, tuple] = {
     "train.checkpoint_every": (1, BIG),
     "uv.mode": ("keep", "optimize", "unwrap"), "uv.threshold": (1.0, 1e6), "uv.time_budget_s": (0.0, 1e9),
     "uv.band_texels": (0.0, 1024.0),
-    "bake.texture_size": (0, 16384), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
+    "bake.texture_size": (0, 16384), "bake.source": ("input", "field"), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),

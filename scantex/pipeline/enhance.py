@@ -155,10 +155,6 @@ SEAM_GAIN = 0.3
 
 def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
     """Whether the run bakes the input's own texels (mesh-only mode, ``bake.source`` input, a textured scan)."""
-    if config.bake.source not in ("input", "field"):
-        from scantex.errors import ScanError
-
-        raise ScanError(None, f"bake.source must be 'input' or 'field', not '{config.bake.source}'")
     return photos is None and scan.is_textured and config.bake.source == "input"
 
 
@@ -171,10 +167,6 @@ def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, c
     from scantex.atlas.colour import atlas_noise, field_colour, levelled_input_colour
     from scantex.atlas.levelling import seam_offsets
 
-    if config.source not in ("input", "field"):
-        from scantex.errors import ScanError
-
-        raise ScanError(None, f"bake.source must be 'input' or 'field', not '{config.source}'")
     if config.source == "field" or not scan.is_textured:
         return field_colour(scan, fitted, fill, taught, charts, device, detail=config.detail), {"source": "field"}
     offsets = seam_offsets(scan, exclude=fill) if config.levelling else np.zeros((len(scan.uvs), 3))
@@ -484,14 +476,15 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     t = time.perf_counter() - bake_seconds
     baked, enhanced = bake_and_blend(colour, "baking the texture")
-    safety = None
+    patches = None  # the result's patch measure, when the safety net below has taken it
     if photo is None and bake_report["source"] == "input" and mode == "keep":
         # never a patch the input does not have: a result that paints them without removing most of the
         # input's seam steps falls back to the input's texels, holes filled and seams blended only
-        test_cams = [tv.views.cameras[i] for i in tv.views.test]
-        share = patch_metrics(scan, enhanced, test_cams, caster)["enhanced_vs_input"]
+        patches = patch_metrics(scan, enhanced, [tv.views.cameras[i] for i in tv.views.test], caster)
+        share = patches["enhanced_vs_input"]
         seams_in, seams_out = seam_visibility(scan), seam_visibility(baked)
         if share > PATCH_LIMIT and seams_out > (1 - SEAM_GAIN) * seams_in:
+            patches = None
             safety = {"fallback": "no levelling, no refiner", "patches_before_fallback": round(share, 5),
                       "why": f"levelling and refining drew patches on {100 * share:.1f} % of the held-out views' "
                              f"pixels while removing only {100 * (1 - seams_out / max(seams_in, 1e-9)):.0f} % of "
@@ -507,7 +500,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     t = time.perf_counter()
     comparisons: dict[str, np.ndarray] = {}
     with reporter.stage("measuring") as update:
-        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted)
+        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
         metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())
@@ -563,8 +556,9 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
 
 
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
-            charts: np.ndarray, caster: RayCaster, coverage, fitted) -> dict:
-    """The run's metrics: geometry identity always; texture scores on the held-out views."""
+            charts: np.ndarray, caster: RayCaster, coverage, fitted, patches: dict | None = None) -> dict:
+    """The run's metrics: geometry identity always; texture scores on the held-out views. ``patches``: the
+    result's :func:`patch_metrics`, when already taken."""
     edges = seam_edges(scan)
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
@@ -580,7 +574,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     }
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
     if scan.is_textured:
-        metrics["patches"] = patch_metrics(scan, enhanced, test_cams, caster)
+        metrics["patches"] = patches if patches is not None else patch_metrics(scan, enhanced, test_cams, caster)
     if ground_truth is not None:
         metrics["held_out_vs_ground_truth"] = score_views(
             lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
