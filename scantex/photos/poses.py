@@ -111,6 +111,15 @@ def refine_pose(scan: Scan, photos: PhotoSet, i: int, reference: Reference, cast
                 settings: PoseSettings = PoseSettings(), faces: np.ndarray | None = None) -> PoseCorrection:
     """Refine photo ``i``'s pose against ``reference`` (see the module docstring); only surface points on
     ``faces`` (``(F,) bool``, default all) are used."""
+    return align_camera(scan, photos.cameras[i], photos.load_image(i), reference, caster, settings, faces, i)
+
+
+def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Reference, caster,
+                 settings: PoseSettings = PoseSettings(), faces: np.ndarray | None = None,
+                 index: int = 0) -> PoseCorrection:
+    """The pose correction that makes ``image`` (``(H, W, 3)`` uint8, or float in [0, 1], at ``recorded``'s
+    size) agree best with ``reference`` seen through the camera (see the module docstring); ``index``
+    names the photo in the result and seeds its point sample."""
     from PIL import Image
     from scipy import ndimage
     from scipy.optimize import least_squares
@@ -119,9 +128,11 @@ def refine_pose(scan: Scan, photos: PhotoSet, i: int, reference: Reference, cast
     from scantex.photos.training import working_camera
     from scantex.views.raycast import cast_gbuffer
 
-    recorded = photos.cameras[i]
+    i = index
     cam = working_camera(recorded, settings.max_side)
-    photo = photos.load_image(i)
+    photo = np.asarray(image)
+    if photo.dtype != np.uint8:
+        photo = np.clip(np.round(photo * 255), 0, 255).astype(np.uint8)
     if (cam.width, cam.height) != (recorded.width, recorded.height):
         photo = np.asarray(Image.fromarray(photo).resize((cam.width, cam.height), Image.Resampling.BOX))
     photo = photo.astype(np.float32) / 255.0

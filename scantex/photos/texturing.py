@@ -43,7 +43,7 @@ SurfaceColour = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.nd
 class ProjectiveSettings:
     """How texels are sampled from the photos."""
 
-    temperature: float = 0.15
+    temperature: float = 5.0
     """softmax temperature on the view quality (log units): lower picks the best view more sharply"""
     feather_px: float = 6.0
     """a photo's weight fades in over this many working pixels from the edge of its usable region"""
@@ -173,3 +173,81 @@ def _bilinear(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     a, b = image[y0, x0].astype(np.float32), image[y0, x0 + 1].astype(np.float32)
     c, d = image[y0 + 1, x0].astype(np.float32), image[y0 + 1, x0 + 1].astype(np.float32)
     return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d)
+
+
+def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoView],
+                         charts: np.ndarray | None = None, chart_area: np.ndarray | None = None,
+                         blur_px: float = 1.0, min_pixels: int = 50) -> np.ndarray:
+    """Each photo's colour transform onto the reference texture's appearance, in closed form.
+
+    ``reference[k]`` is the reference colour (the input texture rendered through view ``k``'s camera,
+    ``(H, W, 3)`` float). A capture app's atlas is itself a patchwork of exposures, one per chart, so a
+    photo is not fitted to the texture as it is: per channel, the model is ``photo = g_photo x`` and
+    ``texture = g_chart x`` for the true colour ``x`` (exposure and white balance are gains), and
+    ``log g_photo - log g_chart`` is measured as the median log ratio of every (photo, chart) pair's
+    pixels (robust to the poses' few pixels of error), then solved for all gains at once by least
+    squares with the charts' area-weighted mean log gain held at 0: the photos are brought to the input
+    texture's average appearance, not to whichever chart they happen to see most.
+
+    Args:
+        charts: ``(F,)`` chart of each face (default: one chart).
+        chart_area: ``(C,)`` weights of the gauge (default: equal).
+
+    Returns:
+        ``(P, 4, 3)``: rows 0-2 are ``A`` (diagonal), row 3 is ``b`` (0): ``photo = canonical @ A + b``.
+    """
+    from scipy import ndimage, sparse
+    from scipy.sparse.linalg import lsqr
+
+    P = len(views)
+    charts = np.zeros(max((int(v.face_id.max()) + 1 for v in views), default=1), np.int64) if charts is None else charts
+    C = int(charts.max()) + 1
+    area = np.ones(C) if chart_area is None else np.asarray(chart_area, np.float64)
+    rows: list[tuple[int, int, np.ndarray, float]] = []  # (photo, chart, median log ratio (3,), weight)
+    for k, (view, ref) in enumerate(zip(views, reference)):
+        mask = view.valid & (view.face_id >= 0)
+        if mask.sum() < min_pixels:
+            continue
+        x = np.stack([ndimage.gaussian_filter(ref[..., c], blur_px) for c in range(3)], -1)[mask]
+        y = np.stack([ndimage.gaussian_filter(view.image[..., c], blur_px) for c in range(3)], -1)[mask]
+        chart = charts[view.face_id[mask]]
+        ok = ((x > 0.03) & (x < 0.97) & (y > 0.03) & (y < 0.97)).all(axis=1)  # neither dark nor clipped
+        ratio, chart = np.log(y[ok]) - np.log(x[ok]), chart[ok]
+        order = np.argsort(chart, kind="stable")
+        ratio, chart = ratio[order], chart[order]
+        bounds = np.flatnonzero(np.diff(chart)) + 1
+        for part, c in zip(np.split(ratio, bounds), chart[np.r_[0, bounds]] if chart.size else []):
+            if len(part) >= min_pixels:
+                rows.append((k, int(c), np.median(part, axis=0), float(np.sqrt(len(part)))))
+    out = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (P, 1, 1))
+    if not rows:
+        return out
+    n = len(rows)
+    r = np.arange(n)
+    k_idx = np.array([row[0] for row in rows])
+    c_idx = np.array([row[1] for row in rows])
+    w = np.array([row[3] for row in rows])
+    # unknowns: log g_photo (P), then log g_chart (C); gauge row: area-weighted mean chart gain 0; a weak
+    # ridge keeps charts (and photos) that no pair ties down at gain 1
+    A = sparse.vstack([
+        sparse.csr_matrix((np.r_[w, -w], (np.r_[r, r], np.r_[k_idx, P + c_idx])), shape=(n, P + C)),
+        sparse.csr_matrix((100.0 * w.sum() * area / area.sum(), (np.zeros(C, int), P + np.arange(C))),
+                          shape=(1, P + C)),
+        1e-3 * sparse.identity(P + C, format="csr")]).tocsr()
+    for ch in range(3):
+        rhs = np.r_[w * np.array([row[2][ch] for row in rows]), 0.0, np.zeros(P + C)]
+        solution = lsqr(A, rhs, atol=1e-10, btol=1e-10)[0]
+        out[:, ch, ch] = np.exp(np.clip(solution[:P], -2.5, 2.5))
+    return out
+
+
+def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``canonicalise(rgb (n, 3), group (n,))`` for :func:`projective_colour`: a photo's colours brought
+    back to the reference appearance by the inverse of its transform from :func:`fit_photo_transforms`."""
+    inverse = np.linalg.inv(transforms[:, :3])  # (P, 3, 3)
+    offset = transforms[:, 3]
+
+    def canonicalise(rgb: np.ndarray, group: np.ndarray) -> np.ndarray:
+        return np.einsum("ni,nij->nj", rgb - offset[group], inverse[group]).astype(np.float32)
+
+    return canonicalise

@@ -207,7 +207,7 @@ def colour_match(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.
 
 
 def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: RayCaster,
-                 supersample: int = 2, images: dict | None = None) -> dict:
+                 supersample: int = 2, images: dict | None = None, align: bool = False) -> dict:
     """PSNR / SSIM of each scan rendered through held-out photos' cameras, raw and colour-matched,
     over the pixels that pass the visibility test (averaged over photos).
 
@@ -215,6 +215,11 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         images: if given, receives for each scored photo (by its index in the set) one
             ``(H, W * (1 + len(scans)), 3) float32`` image: the photo, then each scan's render through its
             camera, side by side (for people to look at).
+        align: also score each scan after aligning the held-out photo's pose to *its* texture
+            (:func:`scantex.photos.poses.align_camera`, a small rotation, translation and focal change):
+            ``psnr_aligned`` / ``ssim_aligned``, colour-matched. A recorded pose that is a few pixels off
+            penalises a sharp texture more than a blurred one; aligning each scan's view on its own
+            (as pose-refining NeRFs are evaluated) scores the texture rather than the held-out pose.
     """
     from scantex.metrics.image import psnr, ssim
     from scantex.views.render import render
@@ -234,6 +239,19 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             s["ssim"].append(ssim(img, view.image, mask))
             s["psnr_matched"].append(psnr(matched, view.image, mask))
             s["ssim_matched"].append(ssim(matched, view.image, mask))
+            if align:
+                from scantex.photos.poses import PoseSettings, align_camera
+                from scantex.views.render import shade_hits
+
+                fitted = align_camera(scan, view.camera, view.image, lambda f, b, scan=scan: shade_hits(scan, f, b),
+                                      caster, PoseSettings(max_side=max(view.camera.width, view.camera.height)),
+                                      index=view.index)
+                moved, alpha = render(scan, fitted.camera, caster, supersample=supersample)
+                covered = mask & (alpha > 0.999)
+                moved = colour_match(moved, view.image, covered)
+                s.setdefault("psnr_aligned", []).append(psnr(moved, view.image, covered))
+                s.setdefault("ssim_aligned", []).append(ssim(moved, view.image, covered))
+                s.setdefault("aligned_by_deg", []).append(fitted.rotation_deg)
         if images is not None:
             images[view.index] = np.concatenate(row, axis=1)
     return {name: {k: float(np.mean(v)) for k, v in s.items() if v} | {"photos": len(s["psnr"])}

@@ -143,9 +143,9 @@ class PhotosConfig:
     refine_poses: bool = False
     """refine each training photo's pose (small rotation, translation, focal) photometrically against the input texture (textured scans; off: not yet reliable, see bench/RESULTS.md)"""
     texturing: str = "projective"
-    """texel colours: projective (sampled from the photos that see them best, at full resolution, blended smoothly; the field fills the rest) or field (the field's colour everywhere)"""
-    temperature: float = 0.15
-    """projective texturing: softmax temperature on the view quality (lower: the best view dominates more)"""
+    """texel colours: projective (sampled from the photos that see them, at full resolution, blended smoothly; the input's texels, or the field when it is trained, fill the rest) or field (the field's colour everywhere)"""
+    temperature: float = 5.0
+    """projective texturing: softmax temperature on the view quality (log units). High (the default, 5) blends every photo that sees a texel almost equally: noise, occluders and the poses' errors average out; low (0.15) lets the best view dominate: sharper where poses are exact, ghosted where they are not"""
     canonical: str = "input"
     """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 

@@ -158,6 +158,15 @@ def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
     return photos is None and scan.is_textured and config.bake.source == "input"
 
 
+def photos_need_no_field(scan: Scan, config: EnhanceConfig, photos) -> bool:
+    """Whether photo mode can do without the field: projective texturing of a textured scan in the input's
+    colour balance takes each photo's colour transform in closed form against the input texture and fills
+    what no photo sees with the input's own texels."""
+    pc = config.photos
+    return (photos is not None and scan.is_textured and pc.texturing == "projective" and pc.canonical == "input"
+            and not config.train.always)
+
+
 def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
                      config: BakeConfig, noise: float | None = None) -> tuple[SurfaceColour, dict]:
     """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report.
@@ -253,25 +262,52 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     return rays, P, weights
 
 
-def photo_texture(photo: PhotoData, fitted, fallback, pc: PhotosConfig, device):
+def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster, device):
     """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
-    to the canonical appearance by each photo's inverse colour transform (training photo ``k`` is
-    appearance group ``k``), with ``fallback`` (the field) where no photo sees them."""
+    to the canonical appearance by each photo's inverse colour transform, with ``fallback`` (the field, or
+    the input's texels) where no photo sees them. The transforms are the field's (training photo ``k`` is
+    appearance group ``k``) when it was trained, else fitted in closed form against the input texture."""
     import torch
 
     from scantex.errors import ScanError
-    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.photos.texturing import (ProjectiveSettings, fit_photo_transforms, inverse_transforms,
+                                          projective_colour)
 
     if pc.texturing != "projective":
         raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
-    def canonicalise(rgb, group):
-        return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
-                                           torch.as_tensor(group, device=device)).cpu().numpy()
+    report: dict = {}
+    if fitted is None:
+        references = [render(scan, view.camera, caster)[0] for view in photo.train]
+        charts = uv_shells(scan)
+        transforms = fit_photo_transforms(references, photo.train, charts,
+                                          np.bincount(charts, scan.face_areas, int(charts.max()) + 1))
+        canonicalise = inverse_transforms(transforms)
+        report["colour_transforms"] = "closed form, against the input texture"
+        report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
+    elif fitted.appearance is not None:
+        def canonicalise(rgb, group):
+            return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
+                                               torch.as_tensor(group, device=device)).cpu().numpy()
+        report["colour_transforms"] = "the field's"
+    else:
+        canonicalise = None
+    colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
+                                        fallback, ProjectiveSettings(temperature=pc.temperature))
+    return colour, {"mode": "projective", **sampled, **report}
 
-    colour, report = projective_colour(photo.photos, photo.train, range(len(photo.train)),
-                                       canonicalise if fitted.appearance is not None else None,
-                                       fallback, ProjectiveSettings(temperature=pc.temperature))
-    return colour, {"mode": "projective", **report}
+
+def photo_atlas_scale(scan: Scan, photo: PhotoData) -> tuple[int, dict]:
+    """How much finer than the input atlas photo mode bakes: 2 when the photos resolve the surface at least
+    1.4 times finer than the input atlas's texels do (median over the training photos' usable pixels of
+    full-resolution pixels per centimetre), else 1 (a finer atlas would only resample the same detail)."""
+    from scantex.metrics.texture import texel_density
+
+    atlas = texel_density(scan)["px_per_cm_mean"] if scan.is_textured else 0.0
+    per_photo = [float(np.median(photo.photos.cameras[v.index].K[0, 0] / v.depth[v.valid])) / 100.0
+                 for v in photo.train if v.valid.any()]
+    photos = float(np.median(per_photo)) if per_photo else 0.0
+    scale = 2 if atlas <= 0 or photos > 1.4 * atlas else 1
+    return scale, {"photos_px_per_cm": round(photos, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
 
 
 def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
@@ -401,6 +437,11 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                              f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
                              f"field could not change a texel (train.always trains it anyway)")
             log.info("field %s", field_skipped)
+    if photos_need_no_field(scan, config, photos):
+        field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to the "
+                         "input texture's colours by a transform fitted in closed form; the input's own texels "
+                         "fill what no photo sees (train.always trains it anyway)")
+        log.info("field %s", field_skipped)
     fitted = None
     if field_skipped is None:
         with reporter.stage("training the field") as update:
@@ -435,7 +476,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         taught = seen | (taught_faces(tv, scan.n_faces) if scan.is_textured else False)
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
-    if photo is None:
+    if photo is None or fitted is None:
         colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake, noise)
     else:
         from scantex.atlas.colour import field_colour
@@ -443,8 +484,12 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         colour = field_colour(scan, fitted, fill, taught, charts + chart_offset, device, detail=config.bake.detail)
         bake_report = {"source": "field"}
     projective_report = None
+    photo_scale = 2
+    if photo is not None:
+        photo_scale, density = photo_atlas_scale(scan, photo)
+        bake_report.update(density)
     if photo is not None and config.photos.texturing != "field":
-        colour, projective_report = photo_texture(photo, fitted, colour, config.photos, device)
+        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, device)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -464,7 +509,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             target = plan.scan
             # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
             # the size would only resample them); a field or the photos hold detail worth a finer atlas
-            scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
+            if photo is not None:
+                scale = photo_scale
+            else:
+                scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
             images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
                           chunk=config.bake.chunk, progress=update)
         materials = tuple(

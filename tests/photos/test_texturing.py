@@ -9,13 +9,15 @@ from PIL import Image
 
 from scantex.photos.texturing import (
     ProjectiveSettings,
+    fit_photo_transforms,
+    inverse_transforms,
     photo_sharpness,
     projective_colour,
 )
 from scantex.photos.training import VisibilitySettings, prepare_photos
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
-from scantex.views.render import shade_hits
+from scantex.views.render import render, shade_hits
 from tests.conftest import grid_wall
 from tests.photos.test_alignment import photograph
 
@@ -112,3 +114,25 @@ def test_sharpness_measure_prefers_sharp_images():
 
     blurred = ndimage.gaussian_filter(sharp, (2, 2, 0))
     assert photo_sharpness(sharp) > 10 * photo_sharpness(blurred)
+
+
+def test_colour_transforms_in_closed_form_undo_each_photos_exposure(tmp_path):
+    """Photos taken at gains 0.6 and 1.2: the transforms fitted against the scan's own texture recover the
+    gains, and their inverse brings the photos' samples back to the texture's colours."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(0.6, 1.2))
+    caster = RayCaster(scan.positions, scan.faces)
+    references = [render(scan, v.camera, caster)[0] for v in views]
+    transforms = fit_photo_transforms(references, views)
+    assert transforms.shape == (2, 4, 3)
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    dim = truth.max(axis=1) < 0.8
+    for t, gain in zip(transforms, (0.6, 1.2)):  # the texture's colours as each photo records them
+        np.testing.assert_allclose(truth[dim] @ t[:3] + t[3], gain * truth[dim], atol=0.03)
+    canonical = inverse_transforms(transforms)
+    raw, _ = projective_colour(photos, views, [0, 1], None, grey)
+    fixed, _ = projective_colour(photos, views, [0, 1], canonical, grey)
+    got, before = fixed(points, normals, f, b), raw(points, normals, f, b)
+    seen = (np.abs(before - 0.5).max(axis=1) > 1e-6) & dim  # seen, not clipped
+    assert np.abs(got[seen] - truth[seen]).mean() < 0.4 * np.abs(before[seen] - truth[seen]).mean()
