@@ -128,7 +128,6 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     from scantex.photos.training import working_camera
     from scantex.views.raycast import cast_gbuffer
 
-    i = index
     cam = working_camera(recorded, settings.max_side)
     photo = np.asarray(image)
     if photo.dtype != np.uint8:
@@ -148,7 +147,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     if faces is not None:
         usable &= faces[np.where(mask, g.face_id, 0)]
     ys, xs = np.nonzero(usable)
-    identity = PoseCorrection(i, recorded, 0.0, 0.0, 1.0, float("nan"), float("nan"), False)
+    identity = PoseCorrection(index, recorded, 0.0, 0.0, 1.0, float("nan"), float("nan"), False)
     if ys.size < 200:
         return identity
     fid, bary = g.face_id[ys, xs], g.bary[ys, xs]
@@ -156,7 +155,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     # favour textured pixels (they carry the pose), keep some flat ones (they carry the exposure)
     grad = np.hypot(*np.gradient(ndimage.gaussian_filter(_rgb_to_grey_image(ref, ys, xs, mask.shape), 1.0)))
     strength = grad[ys, xs] + 1e-3
-    rng = np.random.default_rng(i)
+    rng = np.random.default_rng(index)
     n = min(settings.n_points, ys.size)
     pick = rng.choice(ys.size, n, replace=False, p=strength / strength.sum())
     points = g.points(scan.positions, scan.faces)[ys[pick], xs[pick]]
@@ -198,7 +197,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         trial = x.copy()
         trial[:n_params] = fit.x
         c = cost(trial)
-        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s)", i, sigma, best, c, np.round(trial, 5), fit.message)
+        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s)", index, sigma, best, c, np.round(trial, 5), fit.message)
         if c < best:
             x, best = trial, c
     rotation = float(np.degrees(np.linalg.norm(x[:3])))
@@ -207,7 +206,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     plausible = rotation <= settings.max_rotation_deg and moved <= settings.max_translation * depth_scale
     applied = plausible and best < before
     full = perturbed_camera(recorded, x, depth_scale) if applied else recorded
-    return PoseCorrection(i, full, rotation if applied else 0.0, moved if applied else 0.0,
+    return PoseCorrection(index, full, rotation if applied else 0.0, moved if applied else 0.0,
                           1 + x[6] if applied else 1.0, before, best if applied else before, applied)
 
 

@@ -222,7 +222,8 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             (as pose-refining NeRFs are evaluated) scores the texture rather than the held-out pose.
     """
     from scantex.metrics.image import psnr, ssim
-    from scantex.views.render import render
+    from scantex.photos.poses import PoseSettings, align_camera
+    from scantex.views.render import render, shade_hits
 
     scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
     for view in views:
@@ -240,9 +241,6 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             s["psnr_matched"].append(psnr(matched, view.image, mask))
             s["ssim_matched"].append(ssim(matched, view.image, mask))
             if align:
-                from scantex.photos.poses import PoseSettings, align_camera
-                from scantex.views.render import shade_hits
-
                 fitted = align_camera(scan, view.camera, view.image, lambda f, b, scan=scan: shade_hits(scan, f, b),
                                       caster, PoseSettings(max_side=max(view.camera.width, view.camera.height)),
                                       index=view.index)

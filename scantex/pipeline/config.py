@@ -282,6 +282,7 @@ RANGES: dict[str, tuple] = {
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
+    "photos.texturing": ("projective", "field"),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),

@@ -262,23 +262,21 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
     return rays, P, weights
 
 
-def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster, device):
+def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster,
+                  charts: np.ndarray, device):
     """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
     to the canonical appearance by each photo's inverse colour transform, with ``fallback`` (the field, or
     the input's texels) where no photo sees them. The transforms are the field's (training photo ``k`` is
-    appearance group ``k``) when it was trained, else fitted in closed form against the input texture."""
+    appearance group ``k``) when it was trained, else fitted in closed form against the input texture
+    (``charts``: the input atlas's chart of each face)."""
     import torch
 
-    from scantex.errors import ScanError
     from scantex.photos.texturing import (ProjectiveSettings, fit_photo_transforms, inverse_transforms,
                                           projective_colour)
 
-    if pc.texturing != "projective":
-        raise ScanError(None, f"photos.texturing must be 'projective' or 'field', not '{pc.texturing}'")
     report: dict = {}
     if fitted is None:
         references = [render(scan, view.camera, caster)[0] for view in photo.train]
-        charts = uv_shells(scan)
         transforms = fit_photo_transforms(references, photo.train, charts,
                                           np.bincount(charts, scan.face_areas, int(charts.max()) + 1))
         canonicalise = inverse_transforms(transforms)
@@ -489,7 +487,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         photo_scale, density = photo_atlas_scale(scan, photo)
         bake_report.update(density)
     if photo is not None and config.photos.texturing != "field":
-        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, device)
+        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
