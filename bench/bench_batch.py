@@ -15,6 +15,7 @@ largest peak memory of a scan's worker.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -78,15 +79,16 @@ def main() -> None:
              "|---|---|---|---|---|---|"]
     table += [f"| {label} | {s:.0f} | {base / s:.2f}x | {total:.0f} | {peak:.2f} GiB | {psnr:.2f} dB |"
               for label, s, total, peak, psnr in rows]
+    load = os.getloadavg()
     md = f"""## Batch: {args.scans} small scans ({faces:,} faces, 128² atlas, `fast` with 4 views of 96x72, 40 steps, a 2^15 x 8-level hash grid, no refiner)
 
 {chr(10).join(table)}
 
 One run, the three executors one after another on the same scans and config. Every scan runs in its own worker process
 (spawned: about 3 s of interpreter and torch start-up each), which the sequential row pays too. The machine has
-**{cores} cores shared with other engineers' jobs** (load average above 10 during the run), so these times are noisy and
-the parallel speed-up is bounded by the 2 cores; on a quiet many-core machine or a cluster the pool and Ray scale with
-the cores.
+{cores} cores (load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} when the run ended), which bound the parallel
+speed-up; on a many-core machine or a cluster the pool and Ray scale with the cores. Ray's row includes starting the
+local cluster.
 
 Command: `python bench/bench_batch.py`
 """
