@@ -112,7 +112,9 @@ def main() -> None:
              "pose-aligned PSNR (SSIM) | time s | peak GiB |", "|---|---|---|---|---|---|---|---|"]
     runs = [("scantex", override, f"scantex `{args.preset}`" + (f" {override}" if override else ""))]
     if not override and not args.no_variants:
-        runs += [("scantex", {"photos__refine_poses": True}, "scantex, poses refined (`photos.refine_poses`)"),
+        runs += [("scantex", {"photos__refine_poses": "input"}, "scantex, poses refined to the input (`photos.refine_poses` input)"),
+                 ("scantex", {"photos__refine_poses": "consensus", "photos__refine_iterations": 2},
+                  "scantex, poses refined to the other photos' consensus, 2 rounds (`photos.refine_poses` consensus)"),
                  ("scantex", {"photos__temperature": 0.15}, "scantex, best view dominates (`photos.temperature` 0.15)"),
                  ("scantex", {"photos__texturing": "field"}, "scantex, the field's colour (`photos.texturing` field)")]
     runs.append(("baseline", {}, "best-view baseline"))

@@ -229,6 +229,64 @@ def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, ca
     return dataclasses.replace(photos, cameras=tuple(cameras)), corrections
 
 
+def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, caster, fallback,
+                    iterations: int = 1, temperature: float = 5.0, settings: PoseSettings = PoseSettings(),
+                    prepare: Callable[[PhotoSet], list] | None = None,
+                    update: Callable[[int, int], None] | None = None
+                    ) -> tuple[PhotoSet, list, list[PoseCorrection]]:
+    """Each training photo's pose aligned to the *consensus* of the others: the projective texture the other
+    training photos make together (:func:`scantex.photos.texturing.projective_colour`, leave-one-out), so
+    the photos come to agree with one another through the mesh, whatever the input texture's own errors.
+
+    The input texture (``refine_poses`` input) is itself baked from misaligned photos, and aligning to it
+    copies its errors; the consensus has no single photo's error. Repeated ``iterations`` times: each round
+    aligns every photo, from its recorded pose, to the consensus of the previous round's poses (and
+    G-buffers, remade by ``prepare(photos) -> views``).
+
+    Args:
+        views: the training photos' working G-buffers (:class:`~scantex.photos.training.PhotoView`).
+        canonicalise: brings photo ``k``'s colours (``group`` k) to a common appearance (or ``None``).
+        fallback: the colour where no other photo sees a point (a :data:`SurfaceColour`).
+
+    Returns:
+        ``(photos, views, corrections)``: the refined photo set, its training G-buffers, and the corrections
+        (each photo's last round, against its recorded pose).
+    """
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.views.raycast import interpolate
+
+    recorded = {v.index: photos.cameras[v.index] for v in views}
+    corners = scan.positions[scan.faces]
+    corrections: dict[int, PoseCorrection] = {}
+    total, done = iterations * len(views), 0
+    for _ in range(iterations):
+        cameras = list(photos.cameras)
+        for k, view in enumerate(views):
+            others = [j for j in range(len(views)) if j != k]
+            colour, _ = projective_colour(photos, [views[j] for j in others], others, canonicalise, fallback,
+                                          ProjectiveSettings(temperature=temperature))
+
+            def reference(fid, bary, colour=colour):
+                return colour(interpolate(fid, bary, corners), scan.face_normals[fid], fid, bary)
+
+            # from the recorded pose every round (its prior stays the recorded pose): a photo that a first,
+            # ghosted consensus pulled into a wrong minimum is not held there
+            i = view.index
+            c = align_camera(scan, recorded[i], photos.load_image(i), reference, caster, settings, None, i)
+            cameras[i] = c.camera
+            corrections[i] = c
+            done += 1
+            if update:
+                update(done, total)
+        photos = dataclasses.replace(photos, cameras=tuple(cameras))
+        if prepare is not None:
+            views = prepare(photos)
+    for c in corrections.values():
+        log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (to the others' consensus)",
+                 c.index, c.rotation_deg, 1000 * c.translation_m, c.focal_scale)
+    return photos, views, [corrections[v.index] for v in views]
+
+
 def reference_faces(scan: Scan) -> np.ndarray:
     """``(F,) bool`` faces whose input texture can serve as the photometric reference: not untextured
     (black holes) and not touching another UV chart (a capture app's atlas jumps in exposure there,

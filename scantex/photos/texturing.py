@@ -57,6 +57,7 @@ class ProjectiveSettings:
 class _Source:
     camera: Camera  # at the sampling resolution
     image: np.ndarray  # (H, W, 3) uint8 at the sampling resolution
+    to_view: np.ndarray  # (3, 3): a pixel of ``camera`` to the same point's pixel in ``view.camera``
     view: PhotoView  # working-resolution G-buffer and usable mask
     feather: np.ndarray  # (h, w) float32 in [0, 1] at the working resolution
     log_sharpness: float
@@ -103,8 +104,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
         feather = np.clip(distance / max(settings.feather_px, 1e-6), 0, 1).astype(np.float32)
-        sources.append(_Source(cam, image, view, feather, float(np.log(photo_sharpness(view.image) + 1e-8)),
-                               int(group)))
+        sharpness = float(np.log(photo_sharpness(view.image) + 1e-8))
+        if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
+            raise ValueError(f"photo {view.index}: its working view was made at another pose")
+        to_view = view.camera.K @ np.linalg.inv(cam.K)
+        sources.append(_Source(cam, image, to_view, view, feather, sharpness, int(group)))
     if sources:
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
@@ -112,47 +116,53 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
               "temperature": settings.temperature}
 
     def colour(points, normals, face_ids, bary):
-        base = np.asarray(fallback(points, normals, face_ids, bary), np.float32)
         n = len(points)
         if not sources or n == 0:
-            return base
-        P = len(sources)
-        quality = np.full((P, n), -np.inf, np.float32)
-        feather = np.zeros((P, n), np.float32)
-        samples = np.zeros((P, n, 3), np.float32)
-        for k, s in enumerate(sources):
+            return np.asarray(fallback(points, normals, face_ids, bary), np.float32)
+        # first pass: each photo's samples of the points it sees, their quality and feather weight
+        seen_by: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        best = np.full(n, -np.inf, np.float32)
+        for s in sources:
             view = s.view
-            pix, z = view.camera.project(points)
-            ok = np.isfinite(pix).all(axis=1) & (z > 0)
+            full, z = s.camera.project(points)
+            pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
             h, w = view.valid.shape
-            x = np.round(np.nan_to_num(pix[:, 0], nan=-1)).astype(int)
-            y = np.round(np.nan_to_num(pix[:, 1], nan=-1)).astype(int)
-            ok &= (x >= 0) & (x < w) & (y >= 0) & (y < h)
-            idx = np.flatnonzero(ok)
-            xi, yi = x[idx], y[idx]
-            seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z[idx]) < settings.depth_tolerance * z[idx])
-            idx, xi, yi = idx[seen], xi[seen], yi[seen]
+            with np.errstate(invalid="ignore"):
+                x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
+                y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
+            idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
+            z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
+            seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < settings.depth_tolerance * z)
+            idx, z, xi, yi = idx[seen], z[seen], xi[seen], yi[seen]
             if idx.size == 0:
                 continue
             ray = points[idx] - view.camera.center
             ray /= np.linalg.norm(ray, axis=1, keepdims=True)
             cos = np.abs(np.einsum("ij,ij->i", ray, normals[idx]))
-            px_per_m = s.camera.K[0, 0] / z[idx]
-            quality[k, idx] = (np.log(np.maximum(cos, 1e-3)) + np.log(px_per_m) + s.log_sharpness)
-            feather[k, idx] = s.feather[yi, xi]
-            full, _ = s.camera.project(points[idx])
-            rgb = _bilinear(s.image, full).astype(np.float32) / 255.0
+            quality = (np.log(np.maximum(cos, 1e-3)) + np.log(s.camera.K[0, 0] / z) + s.log_sharpness
+                       ).astype(np.float32)
+            rgb = _bilinear(s.image, full[idx]) / np.float32(255.0)
             if canonicalise is not None:
                 rgb = canonicalise(rgb, np.full(len(idx), s.group))
-            samples[k, idx] = rgb
-        best = quality.max(axis=0)
-        seen_any = np.isfinite(best)
-        weights = np.where(np.isfinite(quality), np.exp((quality - np.where(seen_any, best, 0)) /
-                                                        settings.temperature), 0) * feather
-        total = weights.sum(axis=0)
-        blend = np.einsum("pn,pnc->nc", weights, samples) / np.maximum(total, 1e-12)[:, None]
-        alpha = np.clip(feather.max(axis=0), 0, 1)[:, None]
-        return np.clip(np.where(total[:, None] > 0, alpha * blend + (1 - alpha) * base, base), 0, 1)
+            best[idx] = np.maximum(best[idx], quality)  # a photo sees a point once: idx has no repeats
+            seen_by.append((idx, quality, s.feather[yi, xi], rgb))
+        # second pass: the softmax of the quality (relative to each point's best view), feathered
+        total = np.zeros(n, np.float32)
+        blend = np.zeros((n, 3), np.float32)
+        alpha = np.zeros(n, np.float32)
+        for idx, quality, feather, rgb in seen_by:
+            weight = np.exp((quality - best[idx]) / settings.temperature) * feather
+            total[idx] += weight
+            blend[idx] += weight[:, None] * rgb
+            alpha[idx] = np.maximum(alpha[idx], feather)
+        out = blend / np.maximum(total, 1e-12)[:, None]
+        # the fallback only where the photos do not fully cover a point
+        part = np.flatnonzero((total <= 0) | (alpha < 1))
+        if part.size:
+            base = np.asarray(fallback(points[part], normals[part], face_ids[part], bary[part]), np.float32)
+            a = np.where(total[part] > 0, np.clip(alpha[part], 0, 1), 0)[:, None]
+            out[part] = a * out[part] + (1 - a) * base
+        return np.clip(out, 0, 1)
 
     return colour, report
 
@@ -166,12 +176,14 @@ def _replace_sharpness(s: _Source, value: float) -> _Source:
 def _bilinear(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     """``(n, 3) float32`` bilinear samples of ``image (H, W, 3)`` at pixel centres ``pix (n, 2)``."""
     H, W = image.shape[:2]
-    x = np.clip(pix[:, 0], 0, W - 1.001)
-    y = np.clip(pix[:, 1], 0, H - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x = np.clip(pix[:, 0], 0, W - 1.001).astype(np.float32)
+    y = np.clip(pix[:, 1], 0, H - 1.001).astype(np.float32)
+    x0, y0 = np.floor(x), np.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    a, b = image[y0, x0].astype(np.float32), image[y0, x0 + 1].astype(np.float32)
-    c, d = image[y0 + 1, x0].astype(np.float32), image[y0 + 1, x0 + 1].astype(np.float32)
+    flat = image.reshape(-1, image.shape[2])
+    i = y0.astype(np.intp) * W + x0.astype(np.intp)
+    a, b = flat[i].astype(np.float32), flat[i + 1].astype(np.float32)
+    c, d = flat[i + W].astype(np.float32), flat[i + W + 1].astype(np.float32)
     return (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d)
 
 
@@ -248,6 +260,8 @@ def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarr
     offset = transforms[:, 3]
 
     def canonicalise(rgb: np.ndarray, group: np.ndarray) -> np.ndarray:
+        if group.size and (group == group[0]).all():  # one photo's samples (projective_colour's calls)
+            return ((rgb - offset[group[0]]) @ inverse[group[0]]).astype(np.float32)
         return np.einsum("ni,nij->nj", rgb - offset[group], inverse[group]).astype(np.float32)
 
     return canonicalise

@@ -140,8 +140,10 @@ class PhotosConfig:
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame"""
-    refine_poses: bool = False
-    """refine each training photo's pose (small rotation, translation, focal) photometrically against the input texture (textured scans; off: not yet reliable, see bench/RESULTS.md)"""
+    refine_poses: str = "off"
+    """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), or consensus (against the texture the other training photos make together, repeated refine_iterations times). Off by default: refined textures are sharper, but score lower through held-out photos whose own recorded poses are off (bench/RESULTS.md, "real photos")"""
+    refine_iterations: int = 1
+    """refine_poses consensus: rounds of aligning every photo to the others"""
     texturing: str = "projective"
     """texel colours: projective (sampled from the photos that see them, at full resolution, blended smoothly; the input's texels, or the field when it is trained, fill the rest) or field (the field's colour everywhere)"""
     temperature: float = 5.0
@@ -282,7 +284,8 @@ RANGES: dict[str, tuple] = {
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
-    "photos.texturing": ("projective", "field"),
+    "photos.texturing": ("projective", "field"), "photos.refine_poses": ("off", "input", "consensus"),
+    "photos.refine_iterations": (1, 10),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),

@@ -212,7 +212,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         log.info("%s", report.summary())
     train, held = split_photos(len(photos), pc.holdout, seed)
     corrections = []
-    if pc.refine_poses and scan.is_textured:
+    if pc.refine_poses == "input" and scan.is_textured:
         from scantex.photos.poses import refine_poses
 
         # held-out photos keep their recorded poses: they are the score's reference, not training data
@@ -220,7 +220,37 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
-    return PhotoData(photos, views[:len(train)], views[len(train):], report, corrections)
+    train_views, held_views = views[:len(train)], views[len(train):]
+    if pc.refine_poses == "consensus" and len(train) > 1:
+        from scantex.photos.poses import consensus_poses
+
+        if scan.is_textured:
+            canonicalise, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan))
+
+            def fallback(points, normals, face_ids, bary):
+                return shade_hits(scan, face_ids, bary)
+        else:
+            canonicalise = None
+
+            def fallback(points, normals, face_ids, bary):
+                return np.full((len(points), 3), 0.5, np.float32)
+        photos, train_views, corrections = consensus_poses(
+            scan, photos, train_views, canonicalise, caster, fallback, pc.refine_iterations, pc.temperature,
+            prepare=lambda refined: prepare_photos(scan, refined, train, caster, pc.max_side, settings),
+            update=update)
+    return PhotoData(photos, train_views, held_views, report, corrections)
+
+
+def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray):
+    """``(canonicalise, transforms)``: each photo's colour transform onto the input texture's appearance,
+    fitted in closed form (:func:`scantex.photos.texturing.fit_photo_transforms`; ``charts``: the input
+    atlas's chart of each face), and the function that undoes it."""
+    from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
+
+    references = [render(scan, view.camera, caster)[0] for view in views]
+    transforms = fit_photo_transforms(references, views, charts,
+                                      np.bincount(charts, scan.face_areas, int(charts.max()) + 1))
+    return inverse_transforms(transforms), transforms
 
 
 def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
@@ -271,15 +301,11 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     (``charts``: the input atlas's chart of each face)."""
     import torch
 
-    from scantex.photos.texturing import (ProjectiveSettings, fit_photo_transforms, inverse_transforms,
-                                          projective_colour)
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
 
     report: dict = {}
     if fitted is None:
-        references = [render(scan, view.camera, caster)[0] for view in photo.train]
-        transforms = fit_photo_transforms(references, photo.train, charts,
-                                          np.bincount(charts, scan.face_areas, int(charts.max()) + 1))
-        canonicalise = inverse_transforms(transforms)
+        canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts)
         report["colour_transforms"] = "closed form, against the input texture"
         report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
     elif fitted.appearance is not None:
