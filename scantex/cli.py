@@ -202,7 +202,8 @@ def cmd_enhance(args) -> int:
     config = load_config(args.config) if args.config else preset(args.preset)
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
-                                      photos__holdout=args.holdout, refine__enabled=args.refine,
+                                      photos__holdout=args.holdout, photos__refine_poses=args.refine_poses,
+                                      refine__enabled=args.refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
                                       refine__diffusion=True if args.diffusion else None), "the options")
     check_output_early(args.output, args.overwrite)
@@ -499,6 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame)")
+    p.add_argument("--refine-poses", choices=("off", "input", "consensus"), default=None,
+                   help="with --photos: refine each training photo's pose photometrically, against the input "
+                        "texture or the other photos' consensus (default off: sharper textures, but they score "
+                        "lower through held-out photos whose own poses are off)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views of the field with a Vision Transformer trained self-supervised on the "
                         "scan's own views (masked completion, cross-view consistency, internal "

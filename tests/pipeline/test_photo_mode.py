@@ -86,14 +86,17 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
-           str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--photos", str(toy_photos.source),
-           "-o", str(out)]
+           str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--refine-poses", "consensus",
+           "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "2 held-out photos" in run.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
+    corrections = metrics["photos"]["pose_corrections"]  # one per training photo, against its recorded pose
+    assert [c["photo"] for c in corrections] == metrics["photos"]["train"]
+    assert all(c["rotation_deg"] < 3 for c in corrections)
     sheets = sorted((out / "comparisons").glob("held_out_photo_*.png"))
     assert len(sheets) == 2
     from PIL import Image
