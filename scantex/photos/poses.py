@@ -261,13 +261,11 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
     total, done = iterations * len(views), 0
     for _ in range(iterations):
         cameras = list(photos.cameras)
+        colour, _ = projective_colour(photos, views, range(len(views)), canonicalise, fallback,
+                                      ProjectiveSettings(temperature=temperature))
         for k, view in enumerate(views):
-            others = [j for j in range(len(views)) if j != k]
-            colour, _ = projective_colour(photos, [views[j] for j in others], others, canonicalise, fallback,
-                                          ProjectiveSettings(temperature=temperature))
-
-            def reference(fid, bary, colour=colour):
-                return colour(interpolate(fid, bary, corners), scan.face_normals[fid], fid, bary)
+            def reference(fid, bary, k=k):
+                return colour(interpolate(fid, bary, corners), scan.face_normals[fid], fid, bary, without=k)
 
             # from the recorded pose every round (its prior stays the recorded pose): a photo that a first,
             # ghosted consensus pulled into a wrong minimum is not held there

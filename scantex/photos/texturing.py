@@ -87,7 +87,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         fallback: the colour where no photo sees a point.
 
     Returns:
-        ``(colour, report)``: the colour function and a small dict for the metrics.
+        ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
+        ``without=k``: the same blend without view ``k`` (a leave-one-out consensus for pose refinement).
     """
     from PIL import Image
     from scipy import ndimage
@@ -115,14 +116,16 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources[:1]],
               "temperature": settings.temperature}
 
-    def colour(points, normals, face_ids, bary):
+    def colour(points, normals, face_ids, bary, without: int | None = None):
         n = len(points)
         if not sources or n == 0:
             return np.asarray(fallback(points, normals, face_ids, bary), np.float32)
         # first pass: each photo's samples of the points it sees, their quality and feather weight
         seen_by: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         best = np.full(n, -np.inf, np.float32)
-        for s in sources:
+        for k, s in enumerate(sources):
+            if k == without:
+                continue
             view = s.view
             full, z = s.camera.project(points)
             pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size

@@ -16,13 +16,17 @@ from scantex.views.raycast import RayCaster
 from scantex.views.render import shade_hits
 
 
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory):
+def wall_capture(folder, n_photos: int):
+    """A synthetic wall photographed ``n_photos`` times with realistic pose errors, and the true cameras."""
     demo = make_wall(grid=(80, 60), gt_texture_size=2048, scan_texture_size=1024, seed=2)
-    folder = tmp_path_factory.mktemp("poses")
-    capture_photos(demo, folder, PhotoCapture(n_photos=4), seed=4)
+    capture_photos(demo, folder, PhotoCapture(n_photos=n_photos), seed=4)
     truth = [Camera.from_dict(d) for d in json.loads((folder / "true_cameras.json").read_text())["cameras"]]
     return demo, load_photos(folder / "cameras.json"), truth
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return wall_capture(tmp_path_factory.mktemp("poses"), 4)
 
 
 def test_synthetic_pose_errors_are_realistic(capture):
@@ -62,11 +66,7 @@ def test_perturbed_camera_identity_and_focal():
 
 @pytest.fixture(scope="module")
 def capture8(tmp_path_factory):
-    demo = make_wall(grid=(80, 60), gt_texture_size=2048, scan_texture_size=1024, seed=2)
-    folder = tmp_path_factory.mktemp("poses8")
-    capture_photos(demo, folder, PhotoCapture(n_photos=8), seed=4)
-    truth = [Camera.from_dict(d) for d in json.loads((folder / "true_cameras.json").read_text())["cameras"]]
-    return demo, load_photos(folder / "cameras.json"), truth
+    return wall_capture(tmp_path_factory.mktemp("poses8"), 8)
 
 
 def test_consensus_poses_cut_the_reprojection_error(capture8):
