@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours
 from scantex.scan import Scan
 
@@ -127,7 +128,7 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
     j = np.concatenate([fu[:, 1], fu[:, 2], fu[:, 0]])
     keep = i != j
     lo, hi = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
-    pairs = np.unique(np.stack([lo, hi], axis=1), axis=0)
+    pairs = unique_rows(np.stack([lo, hi], axis=1))
     n_e = len(pairs)
     D = coo_matrix((np.tile([1.0, -1.0], n_e), (np.repeat(np.arange(n_e), 2), pairs.ravel())),
                    shape=(n_e, T)).tocsr()

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
 
@@ -62,7 +63,7 @@ def seam_edges(scan: Scan) -> SeamEdges:
         return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
     # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
     # so the two faces of a seam edge do not share vertex indices (an analysis-only weld)
-    _, weld = np.unique(scan.positions, axis=0, return_inverse=True)
+    _, weld = unique_rows(scan.positions, return_inverse=True)
     f = weld.reshape(-1)[scan.faces]
     F = len(f)
     local = np.array([[0, 1], [1, 2], [2, 0]])

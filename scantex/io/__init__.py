@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
 from scantex.scan import Scan
@@ -81,7 +82,7 @@ def _warn_defects(scan: Scan) -> None:
     degenerate = int((repeated | (scan.face_areas <= 0)).sum())
     g = f[~repeated]  # a repeated corner would count its own edge twice
     edges = np.sort(np.concatenate([g[:, [0, 1]], g[:, [1, 2]], g[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    _, counts = unique_rows(edges, return_counts=True)
     non_manifold = int((counts > 2).sum())
     if degenerate or non_manifold:
         log.warning("%s: %d degenerate faces and %d non-manifold edges (kept as they are)",

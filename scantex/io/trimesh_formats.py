@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.errors import ScanError
 from scantex.io.images import image_from_pil
 from scantex.scan import Material, Scan
@@ -245,7 +246,7 @@ def _split_for_gltf(scan: Scan, faces_sel: np.ndarray):
         keys_pos, uv = used, scan.uvs[used]
     else:
         pairs = np.stack([f.ravel(), scan.face_uvs[faces_sel].ravel()], axis=1)
-        uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        uniq, inverse = unique_rows(pairs, return_inverse=True)
         keys_pos, uv = uniq[:, 0], scan.uvs[uniq[:, 1]]
     colors = scan.vertex_colors[keys_pos] if scan.vertex_colors is not None else None
     return scan.positions[keys_pos], inverse.reshape(-1, 3), uv, colors

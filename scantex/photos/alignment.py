@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.errors import ScanError
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
@@ -375,14 +376,14 @@ class _MeshEdges:
 
     @classmethod
     def of(cls, scan: Scan) -> _MeshEdges:
-        _, weld = np.unique(scan.positions, axis=0, return_inverse=True)
+        _, weld = unique_rows(scan.positions, return_inverse=True)
         faces = weld.reshape(-1)[scan.faces]
         e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
         owner = np.tile(np.arange(len(faces)), 3)
         key = np.sort(e, axis=1)
         keep = key[:, 0] != key[:, 1]
         key, owner = key[keep], owner[keep]
-        _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        _, inverse, counts = unique_rows(key, return_inverse=True, return_counts=True)
         inverse = inverse.reshape(-1)
         border = key[counts[inverse] == 1]
         # creases: edges with exactly two faces whose normals differ by more than CREASE_DEG

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.synth.noise import NoiseField
 from scantex.synth.procedural import Panel, finish_relief
 
@@ -78,7 +79,7 @@ def build_mesh(panels: tuple[Panel, ...], rng: np.random.Generator, noise: MeshN
 
     # weld vertices that panels share, on a micrometre grid (two panels may reach the same corner by
     # different floating-point sums)
-    _, weld = np.unique(np.rint(base * 1e6).astype(np.int64), axis=0, return_inverse=True)
+    _, weld = unique_rows(np.rint(base * 1e6).astype(np.int64), return_inverse=True)
     weld = weld.ravel()
     V = int(weld.max()) + 1
     shared = np.bincount(weld, minlength=V) > 1

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.uv.charts import compact
 from scantex.uv.param import lscm, planar_projection
 
@@ -91,7 +92,7 @@ class Merger:
         lo, hi = np.minimum(a, b)[between], np.maximum(a, b)[between]
         if lo.size == 0:
             return
-        keys, inverse = np.unique(np.stack([lo, hi], 1), axis=0, return_inverse=True)
+        keys, inverse = unique_rows(np.stack([lo, hi], 1), return_inverse=True)
         total = np.bincount(inverse.ravel(), length[between], len(keys))
         for (x, y), t in zip(keys.tolist(), total.tolist()):
             if self.small_faces is None or min(self.size[x], self.size[y]) < self.small_faces:
