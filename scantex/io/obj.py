@@ -148,7 +148,7 @@ def read_obj(path: str | Path) -> Scan:
     mat_names: list[str] = []
     mat_index: dict[str, int] = {}
     current = -1  # faces before any usemtl use an implicit default material
-    n_ngons = 0
+    face_lines: list[tuple[str, int, int, int, int, int]] = []  # (line, number, material, v, vt, vn so far)
     for lineno, line in enumerate(text.splitlines(), start=1):
         if line[:1] in (" ", "\t"):
             line = line.lstrip()
@@ -163,35 +163,7 @@ def read_obj(path: str | Path) -> Scan:
             vn_rows.append(line[3:])
             vn_lines.append(lineno)
         elif head.startswith("f ") or head.startswith("f\t"):
-            parts = line.split()[1:]
-            if len(parts) < 3:
-                raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}' "
-                                      "(fewer than 3 corners: is the file truncated?)")
-            try:
-                ids = [p.split("/") for p in parts]
-                vi = [int(p[0]) for p in ids]
-                ti = [int(p[1]) if len(p) > 1 and p[1] else 0 for p in ids]
-                ni = [int(p[2]) if len(p) > 2 and p[2] else 0 for p in ids]
-            except ValueError:
-                raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}'") from None
-            nv, nt, nn = len(v_rows), len(vt_rows), len(vn_rows)
-            # OBJ indices are 1-based; negative ones count back from the latest element. BAD marks an
-            # index that points before the first element (0, or too negative): refused below
-            vi = [i - 1 if i > 0 else nv + i if -nv <= i < 0 else BAD for i in vi]
-            ti = [i - 1 if i > 0 else nt + i if -nt <= i < 0 else -1 if i == 0 else BAD for i in ti]
-            ni = [i - 1 if i > 0 else nn + i if -nn <= i < 0 else -1 if i == 0 else BAD for i in ni]
-            if BAD in vi or BAD in ti or BAD in ni:
-                raise ScanError(path, f"line {lineno}: face '{line.strip()[:60]}' has an index of 0 or one "
-                                      "before the first element (OBJ indices start at 1)")
-            if max(vi + ti + ni) > MAX_INDEX:
-                raise ScanError(path, f"line {lineno}: face index too large '{line.strip()[:60]}'")
-            if len(parts) > 3:
-                n_ngons += 1
-            for k in range(1, len(parts) - 1):  # fan triangulation, as trimesh does
-                corner_v.append((vi[0], vi[k], vi[k + 1]))
-                corner_t.append((ti[0], ti[k], ti[k + 1]))
-                corner_n.append((ni[0], ni[k], ni[k + 1]))
-                face_mat.append(current)
+            face_lines.append((line, lineno, current, len(v_rows), len(vt_rows), len(vn_rows)))
         elif line.startswith("usemtl") and line[6:7] in (" ", "\t"):
             name = line[6:].strip()
             if name not in mat_index:
@@ -201,8 +173,15 @@ def read_obj(path: str | Path) -> Scan:
         elif line.startswith("mtllib") and line[6:7] in (" ", "\t"):
             mtllibs.append(line[6:].strip())
 
+    fast = _triangles_fast(face_lines)
+    if fast is not None:
+        corner_v, corner_t, corner_n = fast
+        face_mat = [current for _, _, current, *_ in face_lines]
+        n_ngons = 0
+    else:
+        n_ngons = _faces(path, face_lines, corner_v, corner_t, corner_n, face_mat)
     positions = _floats(path, v_rows, 3, "vertex", v_lines)
-    if not corner_v:
+    if not len(corner_v):
         raise ScanError(path, "the mesh has no faces" if v_rows else "no vertices or faces: not an OBJ mesh")
     faces = np.array(corner_v, dtype=np.int64)
     vertex_colors = _vertex_colors(v_rows)
@@ -227,6 +206,81 @@ def read_obj(path: str | Path) -> Scan:
     return Scan(positions, faces, uvs, face_uvs, face_materials, materials,
                 vertex_colors=vertex_colors, normals=normals, face_normals_idx=face_normals_idx,
                 source=path, inputs=tuple(inputs))
+
+
+def _faces(path: Path, face_lines: list, corner_v: list, corner_t: list, corner_n: list, face_mat: list) -> int:
+    """Parse face lines one by one (any polygon, negative indices, missing fields) into the corner lists;
+    the number of polygons with more than 3 corners (fan-triangulated) is returned."""
+    n_ngons = 0
+    for line, lineno, current, nv, nt, nn in face_lines:
+        parts = line.split()[1:]
+        if len(parts) < 3:
+            raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}' "
+                                  "(fewer than 3 corners: is the file truncated?)")
+        try:
+            ids = [p.split("/") for p in parts]
+            vi = [int(p[0]) for p in ids]
+            ti = [int(p[1]) if len(p) > 1 and p[1] else 0 for p in ids]
+            ni = [int(p[2]) if len(p) > 2 and p[2] else 0 for p in ids]
+        except ValueError:
+            raise ScanError(path, f"line {lineno}: cannot read face '{line.strip()[:60]}'") from None
+        # OBJ indices are 1-based; negative ones count back from the latest element. BAD marks an
+        # index that points before the first element (0, or too negative): refused below
+        vi = [i - 1 if i > 0 else nv + i if -nv <= i < 0 else BAD for i in vi]
+        ti = [i - 1 if i > 0 else nt + i if -nt <= i < 0 else -1 if i == 0 else BAD for i in ti]
+        ni = [i - 1 if i > 0 else nn + i if -nn <= i < 0 else -1 if i == 0 else BAD for i in ni]
+        if BAD in vi or BAD in ti or BAD in ni:
+            raise ScanError(path, f"line {lineno}: face '{line.strip()[:60]}' has an index of 0 or one "
+                                  "before the first element (OBJ indices start at 1)")
+        if max(vi + ti + ni) > MAX_INDEX:
+            raise ScanError(path, f"line {lineno}: face index too large '{line.strip()[:60]}'")
+        if len(parts) > 3:
+            n_ngons += 1
+        for k in range(1, len(parts) - 1):  # fan triangulation, as trimesh does
+            corner_v.append((vi[0], vi[k], vi[k + 1]))
+            corner_t.append((ti[0], ti[k], ti[k + 1]))
+            corner_n.append((ni[0], ni[k], ni[k + 1]))
+            face_mat.append(current)
+    return n_ngons
+
+
+def _triangles_fast(face_lines: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The corner indices ``(v, vt, vn)`` (``(F, 3)`` int64, 0-based, -1 for an absent field) of face lines
+    that are all triangles written alike with positive indices in range (what scanners and apps write),
+    parsed in bulk; ``None`` when they are not, for :func:`_faces` to read (and refuse) line by line."""
+    if not face_lines:
+        return None
+    tokens = " ".join(line[2:] for line, *_ in face_lines).split()
+    n = len(face_lines)
+    if len(tokens) != 3 * n:
+        return None  # polygons, or a line with too few corners
+    fields = tokens[0].split("/")
+    if len(fields) > 3 or any(t.count("/") != len(fields) - 1 for t in (tokens[0], tokens[-1])):
+        return None
+    present = [bool(f) for f in fields]
+    if not present[0] or " ".join(tokens).count("/") != (len(fields) - 1) * len(tokens):
+        return None
+    try:
+        values = np.array(" ".join(tokens).replace("/", " ").split(), dtype=np.int64)
+    except (ValueError, OverflowError):
+        return None
+    if values.size != 3 * n * sum(present):
+        return None  # a field empty in some corners and not in others
+    values = values.reshape(n, 3, sum(present))
+    if (values <= 0).any():
+        return None  # negative (relative) or zero indices
+    last = np.array([[nv, nt, nn] for *_, nv, nt, nn in face_lines], dtype=np.int64)  # elements so far
+    out, k = [], 0
+    for field, have in enumerate(present + [False] * (3 - len(present))):
+        if not have:
+            out.append(np.full((n, 3), -1, np.int64))
+            continue
+        idx = values[:, :, k]
+        if (idx > last[:, field:field + 1]).any():
+            return None  # an index past the elements read so far: line by line says where
+        out.append(idx - 1)
+        k += 1
+    return out[0], out[1], out[2]
 
 
 #: index of a face corner that points before the first element (refused once the file is read)
@@ -336,20 +390,19 @@ def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) 
     if scan.normals is not None:
         parts.append(_rows("vn ", scan.normals))
     corners = [scan.faces + 1]
+    corner = "{}"  # v, v/vt, v//vn or v/vt/vn
     if scan.uvs is not None:
         corners.append(scan.face_uvs + 1)
+        corner += "/{}"
     if scan.normals is not None:
-        if scan.uvs is None:
-            corners.append(np.zeros_like(scan.faces))  # 'v//vn'
         corners.append(scan.face_normals_idx + 1)
-    stacked = np.stack(corners, axis=-1).tolist()  # [F, 3, k]
-    sep = "/"
+        corner += "/{}" if scan.uvs is not None else "//{}"
+    face_format = f"f {corner} {corner} {corner}\n"
+    flat = np.stack(corners, axis=-1).reshape(scan.n_faces, -1).tolist()
     # keep the file's face order: a usemtl line wherever the material changes
     fm = scan.face_materials
     change = np.flatnonzero(np.diff(fm, prepend=-1) != 0).tolist() + [scan.n_faces]
     for start, stop in zip(change[:-1], change[1:]):
         parts.append(f"usemtl {mat_names[fm[start]]}\n")
-        parts.append("".join(
-            "f " + " ".join(sep.join(str(i) if i else "" for i in c) for c in face) + "\n"
-            for face in stacked[start:stop]))
+        parts.append("".join(face_format.format(*face) for face in flat[start:stop]))
     files.path(obj_path).write_text("".join(parts), encoding="utf-8")

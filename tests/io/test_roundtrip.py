@@ -169,3 +169,39 @@ def test_never_overwrites_the_input(tmp_path, cube):
     with pytest.raises(ScanError, match="overwrite the input"):
         save_scan(scan, tmp_path / "in.obj")
     assert (tmp_path / "in.obj").read_bytes() == before
+
+
+@pytest.mark.parametrize("corner", ["{v}", "{v}/{t}", "{v}//{n}", "{v}/{t}/{n}", "{v}/{t}/{n} mixed", "-{v}"])
+def test_obj_bulk_face_parser_agrees_with_the_line_by_line_one(tmp_path, corner, monkeypatch):
+    """Triangles written alike are parsed in bulk; anything else (here: one face without its vt, relative
+    indices) falls back to the line parser. Both must read the same mesh."""
+    import scantex.io.obj as obj
+
+    rng = np.random.default_rng(0)
+    n = 12
+    lines = [f"v {x} {y} {z}" for x, y, z in rng.random((n, 3))]
+    lines += [f"vt {u} {w}" for u, w in rng.random((n, 2))]
+    lines += [f"vn {x} {y} {z}" for x, y, z in rng.random((n, 3))]
+    pattern = corner.split()[0]
+    for f, tri in enumerate(rng.integers(1, n + 1, (20, 3))):
+        if f == 5:
+            lines.append("usemtl second")
+        write = "{v}//{n}" if "mixed" in corner and f == 7 else pattern
+        if pattern.startswith("-"):
+            tri = tri - n - 1  # relative indices: -1 is the latest vertex
+            write = "{v}"
+        lines.append("f " + " ".join(write.format(v=i, t=i, n=i) for i in tri))
+    path = tmp_path / "m.obj"
+    path.write_text("\n".join(lines) + "\n")
+    parsed = []
+    real = obj._triangles_fast
+    monkeypatch.setattr(obj, "_triangles_fast", lambda face_lines: parsed.append(real(face_lines)) or parsed[-1])
+    bulk = load_scan(path)
+    assert (parsed[0] is not None) == (corner == pattern and not pattern.startswith("-"))  # bulk when alike
+    monkeypatch.setattr(obj, "_triangles_fast", lambda face_lines: None)
+    line_by_line = load_scan(path)
+    for name in ("positions", "faces", "uvs", "face_uvs", "face_materials", "normals", "face_normals_idx"):
+        a, b = getattr(bulk, name), getattr(line_by_line, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            assert np.array_equal(a, b), name
