@@ -31,7 +31,7 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import downsample, render, render_gbuffer, shade_hits
+from scantex.views.render import downsample, render, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -354,6 +354,23 @@ def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
     return h.hexdigest()[:16]
 
 
+def _preload_optimiser_imports() -> None:
+    """Import ``torch._dynamo`` on a background thread. A process's first torch optimiser imports it
+    (about 1.7 s of pure import on 2 cores); done here, it overlaps view planning and ray casting, which
+    spend their time outside the interpreter lock. The first optimiser then finds it loaded."""
+    import sys
+    import threading
+
+    def load() -> None:
+        try:
+            import torch._dynamo  # noqa: F401
+        except Exception:  # the optimiser imports it again, and says what is wrong, if it must
+            pass
+
+    if "torch._dynamo" not in sys.modules:
+        threading.Thread(target=load, name="scantex-preload", daemon=True).start()
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -391,6 +408,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
     torch.set_num_threads(config.threads or os.cpu_count() or 1)
     device = resolve_device(config.device)
+    _preload_optimiser_imports()
     timings: dict[str, float] = {}
     rng_seed = config.seed
     vc, tc = config.views, config.train
@@ -667,8 +685,8 @@ def patch_metrics(scan: Scan, enhanced: Scan, cameras: list[Camera], caster: Ray
 
     scores = []
     for cam in cameras:
-        before, alpha = render(scan, cam, caster, supersample=2)
-        after, _ = render(enhanced, cam, caster, supersample=2)
+        shown = render_scans({"before": scan, "after": enhanced}, cam, caster, supersample=2)
+        (before, alpha), (after, _) = shown["before"], shown["after"]
         scores.append(patch_score(after, before, alpha >= 0.999))
     return {"enhanced_vs_input": round(float(np.mean(scores)), 5) if scores else 0.0,
             "per_view": [round(s, 5) for s in scores], "sigma_share": SIGMA_SHARE, "threshold": THRESHOLD}

@@ -35,31 +35,27 @@ def random_masks(batch: int, height: int, width: int, share: float, patch: int,
 def smooth_fill(x: torch.Tensor, known: torch.Tensor, levels: int = 6) -> torch.Tensor:
     """``x`` with pixels where ``known (B, 1, H, W)`` is False replaced by a smooth colour from around them.
 
-    Normalised averaging over a pyramid: each missing pixel takes the mean of the known pixels in the
-    finest cell (2, 4, 8, ... pixels wide) that has any, as a harmonic fill looks from a distance.
+    Pull-push over a pyramid (Gortler et al., "The Lumigraph", 1996): known pixels are averaged down by
+    halves ``levels`` times; then, coarsest first, each level's empty cells take the bilinear upsample of
+    the level below, so a missing pixel gets the mean of the known pixels in the finest cell (2, 4, 8, ...
+    pixels wide) that has any, blended smoothly, as a harmonic fill looks from a distance. Cells that no
+    level reaches take the image's mean known colour. Work: about 4/3 of one pass over the image.
     """
     B, C, H, W = x.shape
     w = known.to(x.dtype)
-    fill = torch.zeros_like(x)
-    have = torch.zeros_like(w)
-    for level in range(1, levels + 1):
-        k = 2**level
-        if k > max(H, W):
+    pyramid = [torch.cat([x * w, w], dim=1)]  # (sum of colour, weight) per cell: a pull step is a 2x2 mean
+    for _ in range(levels):
+        if max(pyramid[-1].shape[-2:]) <= 1:
             break
-        num = F.avg_pool2d(x * w, k, stride=k, ceil_mode=True)
-        den = F.avg_pool2d(w, k, stride=k, ceil_mode=True)
-        mean = num / den.clamp_min(1e-6)
-        up = F.interpolate(mean, scale_factor=k, mode="bilinear", align_corners=False)[..., :H, :W]
-        up_den = F.interpolate((den > 0).to(x.dtype), scale_factor=k, mode="bilinear",
-                               align_corners=False)[..., :H, :W]
-        # the bilinear upsample mixes empty cells in: renormalise by the share of full ones
-        up_num = F.interpolate(mean * (den > 0), scale_factor=k, mode="bilinear", align_corners=False)[..., :H, :W]
-        ok = (up_den > 0.5) & (have == 0)
-        fill = torch.where(ok, up_num / up_den.clamp_min(1e-6), fill)
-        have = have + ok.to(x.dtype)
-    global_mean = (x * w).sum(dim=(2, 3), keepdim=True) / w.sum(dim=(2, 3), keepdim=True).clamp_min(1)
-    fill = torch.where(have > 0, fill, global_mean)
-    return torch.where(known, x, fill)
+        pyramid.append(F.avg_pool2d(pyramid[-1], 2, stride=2, ceil_mode=True))
+    global_mean = pyramid[0][:, :C].sum(dim=(2, 3), keepdim=True) / w.sum(dim=(2, 3), keepdim=True).clamp_min(1)
+    top = pyramid[-1]
+    value = torch.where(top[:, C:] > 0, top[:, :C] / top[:, C:].clamp_min(1e-12), global_mean)
+    for level in reversed(pyramid[:-1]):
+        h, w_ = level.shape[-2:]
+        up = F.interpolate(value, scale_factor=2, mode="bilinear", align_corners=False)[..., :h, :w_]
+        value = torch.where(level[:, C:] > 0, level[:, :C] / level[:, C:].clamp_min(1e-12), up)
+    return torch.where(known, x, value)
 
 
 def _dct_matrix(n: int = 8, device: torch.device | str = "cpu") -> torch.Tensor:
