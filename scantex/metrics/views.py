@@ -10,7 +10,7 @@ from scantex.metrics.image import psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster, cast_gbuffer
-from scantex.views.render import render
+from scantex.views.render import render_scans
 
 
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], scans: dict[str, Scan],
@@ -36,8 +36,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
-        for name, scan in scans.items():
-            img, _ = render(scan, cam, caster, supersample=supersample)
+        for name, (img, _) in render_scans(scans, cam, caster, supersample=supersample).items():
             out[name]["psnr"].append(psnr(img, ref, mask))
             out[name]["ssim"].append(ssim(img, ref, mask))
             out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))

@@ -128,14 +128,26 @@ def render(scan: Scan, camera: Camera, caster: RayCaster | None = None, *, lit: 
     Returns:
         ``(image, alpha)``: ``(H, W, 3) float32`` in [0, 1] and ``(H, W) float32`` coverage.
     """
-    caster = caster or RayCaster(scan.positions, scan.faces)
+    return render_scans({"": scan}, camera, caster, lit=lit, supersample=supersample, light=light,
+                        background=background)[""]
+
+
+def render_scans(scans: dict[str, Scan], camera: Camera, caster: RayCaster | None = None, *, lit: bool = False,
+                 supersample: int = 1, light: Light = Light(), background=(0.0, 0.0, 0.0)) -> dict:
+    """:func:`render` of several scans that share one geometry (an input, its result, a ground truth):
+    the rays are cast once. Returns ``{name: (image, alpha)}``."""
+    first = next(iter(scans.values()))
+    caster = caster or RayCaster(first.positions, first.faces)
     cam = camera.scaled(supersample) if supersample > 1 else camera
-    g = cast_gbuffer(caster, cam, scan.face_normals)
-    rgb = render_gbuffer(scan, g, background)
-    if lit:
-        rgb = shade_lit(rgb, g, cam, light)
-    alpha = g.mask.astype(np.float32)[..., None]
-    return downsample(rgb, supersample), downsample(alpha, supersample)[..., 0]
+    g = cast_gbuffer(caster, cam, first.face_normals)
+    alpha = downsample(g.mask.astype(np.float32)[..., None], supersample)[..., 0]
+    out = {}
+    for name, scan in scans.items():
+        rgb = render_gbuffer(scan, g, background)
+        if lit:
+            rgb = shade_lit(rgb, g, cam, light)
+        out[name] = (downsample(rgb, supersample), alpha)
+    return out
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:

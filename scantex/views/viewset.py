@@ -75,6 +75,8 @@ def write_views(views: ViewSet, out_dir: str | Path) -> Path:
     """
     from PIL import Image
 
+    from scantex.io.images import PNG_COMPRESS_LEVEL
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     test = set(views.test.tolist())
@@ -82,7 +84,8 @@ def write_views(views: ViewSet, out_dir: str | Path) -> Path:
     with atomic_files() as files:
         for i, (cam, img) in enumerate(zip(views.cameras, views.images)):
             name = f"view_{i:03d}.png"
-            Image.fromarray(to_uint8(img)).save(files.path(out_dir / name), format="PNG")
+            Image.fromarray(to_uint8(img)).save(files.path(out_dir / name), format="PNG",
+                                                    compress_level=PNG_COMPRESS_LEVEL)
             frames.append({"image": name, **cam.to_dict(), "split": "test" if i in test else "train"})
         doc = {"convention": "OpenCV: x_cam = R X + t, +z forward, +y down; pixel = K x_cam / z",
                "frames": frames}
