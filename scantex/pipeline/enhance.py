@@ -354,23 +354,6 @@ def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
     return h.hexdigest()[:16]
 
 
-def _preload_optimiser_imports() -> None:
-    """Import ``torch._dynamo`` on a background thread. A process's first torch optimiser imports it
-    (about 1.7 s of pure import on 2 cores); done here, it overlaps view planning and ray casting, which
-    spend their time outside the interpreter lock. The first optimiser then finds it loaded."""
-    import sys
-    import threading
-
-    def load() -> None:
-        try:
-            import torch._dynamo  # noqa: F401
-        except Exception:  # the optimiser imports it again, and says what is wrong, if it must
-            pass
-
-    if "torch._dynamo" not in sys.modules:
-        threading.Thread(target=load, name="scantex-preload", daemon=True).start()
-
-
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -408,7 +391,6 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
     torch.set_num_threads(config.threads or os.cpu_count() or 1)
     device = resolve_device(config.device)
-    _preload_optimiser_imports()
     timings: dict[str, float] = {}
     rng_seed = config.seed
     vc, tc = config.views, config.train
