@@ -203,6 +203,7 @@ def cmd_enhance(args) -> int:
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
                                       photos__holdout=args.holdout, photos__refine_poses=args.refine_poses,
+                                      photos__final=args.final_texture,
                                       refine__enabled=args.refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
                                       refine__diffusion=True if args.diffusion else None), "the options")
@@ -335,6 +336,10 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+        final = m.get("photos", {}).get("final_texture", {})
+        if final.get("mode") == "all":
+            lines.append(f"texture written: made again from all {final['photos']} photos, the held-out ones "
+                         f"included (the scores above are the texture without them; photos.final)")
     if "held_out_photos_vs_ground_truth" in m:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
@@ -497,6 +502,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
+    p.add_argument("--final-texture", choices=("training", "all"), default=None,
+                   help="with --photos: write the texture the held-out photos scored (training, the default) or, "
+                        "once scored, make it again from every photo (all: one run, both the score and every "
+                        "photo in the texture; a second bake)")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame)")

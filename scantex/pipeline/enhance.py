@@ -512,6 +512,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     if photo is not None:
         photo_scale, density = photo_atlas_scale(scan, photo)
         bake_report.update(density)
+    photo_fallback = colour
     if photo is not None and config.photos.texturing != "field":
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device)
     bake_seconds = time.perf_counter() - t
@@ -590,6 +591,24 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
+    if photo is not None and photo.held_out and projective_report is not None and fitted is None:
+        metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": config.photos.final}
+        if config.photos.final == "all":
+            # scored: the texture made without the held-out photos; written: the one made from every photo
+            t = time.perf_counter()
+            every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
+            colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
+                                                 device)
+            baked, enhanced = bake_and_blend(colour, "baking the texture from every photo")
+            metrics["geometry"] = geometry_metrics(scan, enhanced)
+            metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)
+            metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
+            metrics["photos"]["final_texture"] = {
+                "photos": len(every.train), "mode": "all",
+                "note": f"the held-out scores are those of the texture made from the {len(photo.train)} training "
+                        f"photos; the texture written was made again from all {len(every.train)}",
+                "texturing": final_report}
+            timings["final"] = time.perf_counter() - t
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
     return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)

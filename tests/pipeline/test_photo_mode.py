@@ -55,6 +55,21 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     assert photos["enhanced"]["psnr_matched"] > photos["input"]["psnr_matched"]
 
 
+
+def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos, photo_result):
+    """photos.final training (the default) writes the texture the held-out photo scored; all makes it again
+    from all ten photos once scored: the same score, another texture, the same geometry."""
+    m = photo_result.metrics
+    assert m["photos"]["final_texture"] == {"photos": 9, "mode": "training"}
+    every = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="all"),
+                    ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    final = every.metrics["photos"]["final_texture"]
+    assert final["mode"] == "all" and final["photos"] == 10
+    assert every.metrics["geometry"]["arrays_identical"] and every.metrics["geometry"]["triangles_identical"]
+    assert every.metrics["held_out_photos"] == m["held_out_photos"]  # the same texture was scored
+    written, scored = every.scan.materials[0].image, photo_result.scan.materials[0].image
+    assert written.shape == scored.shape and not np.array_equal(written, scored)
+
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
     """The photos hold what the degraded atlas lost: with them, the held-out views come out closer to the truth."""
     mesh_only = enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth)
@@ -87,13 +102,14 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
            str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--refine-poses", "consensus",
-           "--photos", str(toy_photos.source), "-o", str(out)]
+           "--final-texture", "all", "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert "2 held-out photos" in run.stdout
+    assert "2 held-out photos" in run.stdout and "made again from all 10 photos" in run.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
+    assert metrics["photos"]["final_texture"]["photos"] == 10 and "final" in metrics["timings_s"]
     corrections = metrics["photos"]["pose_corrections"]  # one per training photo, against its recorded pose
     assert [c["photo"] for c in corrections] == metrics["photos"]["train"]
     assert all(c["rotation_deg"] < 3 for c in corrections)
@@ -104,7 +120,7 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     assert Image.open(sheets[0]).size == (3 * 128, 96)  # photo | input | result
     report = (out / "report.html").read_text()
     assert "Held-out photos" in report and "colour-matched" in report
-    bad = subprocess.run(cmd[:-4] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
+    bad = subprocess.run(cmd[:-6] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "nowhere" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out2").exists()
