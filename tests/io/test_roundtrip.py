@@ -175,7 +175,7 @@ def test_never_overwrites_the_input(tmp_path, cube):
 def test_obj_bulk_face_parser_agrees_with_the_line_by_line_one(tmp_path, corner, monkeypatch):
     """Triangles written alike are parsed in bulk; anything else (here: one face without its vt, relative
     indices) falls back to the line parser. Both must read the same mesh."""
-    import scantex.io.obj as obj
+    from scantex.io import obj
 
     rng = np.random.default_rng(0)
     n = 12
