@@ -22,9 +22,9 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
 
     Returns:
-        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...]}}}``:
-        means over the views, and each view's own PSNR and SSIM in the order of ``cameras`` (the report
-        shows them next to each view).
+        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...],
+        "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
+        order of ``cameras`` (the report shows them next to each view).
     """
     from scantex.metrics.patches import patch_score
 
@@ -46,7 +46,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     result = {}
     for name in scans:
         r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
-        r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim")}
+        r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim", "patches")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())
             r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")

@@ -664,8 +664,6 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                             "enhanced": round(seam_visibility(enhanced), 3)},
     }
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
-    if scan.is_textured:
-        metrics["patches"] = patches if patches is not None else patch_metrics(scan, enhanced, test_cams, caster)
     if ground_truth is not None:
         metrics["held_out_vs_ground_truth"] = score_views(
             lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
@@ -675,6 +673,10 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
         metrics["held_out_vs_input"] = score_views(
             lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},
             test_cams, caster, holes)
+        if patches is None:  # scored against the input's renders, that is the patch measure: not twice
+            patches = patch_summary(metrics["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
+    if scan.is_textured:
+        metrics["patches"] = patches if patches is not None else patch_metrics(scan, enhanced, test_cams, caster)
     return metrics
 
 
@@ -682,13 +684,20 @@ def patch_metrics(scan: Scan, enhanced: Scan, cameras: list[Camera], caster: Ray
     """The patch measure of the result against the input at ``cameras`` (see :mod:`scantex.metrics.patches`):
     the share of pixels where the result has a low-frequency edge the input does not. A result that only
     levels exposure smoothly, fills holes and removes noise scores about 0."""
-    from scantex.metrics.patches import SIGMA_SHARE, THRESHOLD, patch_score
+    from scantex.metrics.patches import patch_score
 
     scores = []
     for cam in cameras:
         shown = render_scans({"before": scan, "after": enhanced}, cam, caster, supersample=2)
         (before, alpha), (after, _) = shown["before"], shown["after"]
         scores.append(patch_score(after, before, alpha >= 0.999))
+    return patch_summary(scores)
+
+
+def patch_summary(scores: list[float]) -> dict:
+    """:func:`patch_metrics`'s dict from each view's patch share."""
+    from scantex.metrics.patches import SIGMA_SHARE, THRESHOLD
+
     return {"enhanced_vs_input": round(float(np.mean(scores)), 5) if scores else 0.0,
             "per_view": [round(s, 5) for s in scores], "sigma_share": SIGMA_SHARE, "threshold": THRESHOLD}
 

@@ -60,3 +60,24 @@ def test_the_patch_is_found_at_its_border_and_silhouettes_are_ignored(texture):
 def test_shapes_must_match(texture):
     with pytest.raises(ValueError):
         patch_score(texture[:100], texture)
+
+
+def test_scores_against_the_input_carry_the_same_patch_measure():
+    """measure() takes the patch measure from the held-out scores against the input's renders instead of
+    rendering the same cameras again: both must give the same numbers."""
+    from scantex.metrics.views import score_views
+    from scantex.pipeline.enhance import patch_metrics, patch_summary
+    from scantex.synth import make_wall
+    from scantex.views.planning import plan_views
+    from scantex.views.raycast import RayCaster
+    from scantex.views.render import render
+
+    demo = make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128, n_charts=8)
+    scan, other = demo.scan, demo.ground_truth
+    caster = RayCaster(scan.positions, scan.faces)
+    cameras = plan_views(scan, 3, width=96, height=72, caster=caster)
+    direct = patch_metrics(scan, other, cameras, caster)
+    scores = score_views(lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": other}, cameras,
+                         caster, np.zeros(scan.n_faces, bool))
+    assert patch_summary(scores["enhanced"]["per_view"]["patches"]) == direct
+    assert direct["enhanced_vs_input"] > 0  # the truth has edges the degraded scan lacks: not a vacuous match
