@@ -51,6 +51,13 @@ class ProjectiveSettings:
     """relative depth difference beyond which a point counts as hidden in a photo"""
     max_side: int = 0
     """longest side the photos are sampled at (0: full resolution)"""
+    texel_px_per_cm: float = 0.0
+    """the output atlas's texel density on the surface: a photo that resolves the surface more than
+    ``oversample`` times finer (its median over its usable pixels) is sampled box-filtered down to that, since
+    finer pixels would only be averaged inside a texel, and a hundred 12-megapixel photos would not fit in
+    memory at full size (0: every photo at full resolution)"""
+    oversample: float = 2.0
+    """photo pixels per texel kept at most, per axis (see ``texel_px_per_cm``)"""
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,10 +104,17 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     for view, group in zip(views, groups):
         cam = photos.cameras[view.index]
         image = photos.load_image(view.index)
-        if settings.max_side and max(cam.width, cam.height) > settings.max_side:
+        side = max(cam.width, cam.height)
+        if settings.max_side:
+            side = min(side, settings.max_side)
+        if settings.texel_px_per_cm > 0 and view.valid.any():
+            px_per_cm = float(np.median(cam.K[0, 0] / view.depth[view.valid])) / 100.0
+            side = min(side, max(64, round(max(cam.width, cam.height) * settings.oversample
+                                           * settings.texel_px_per_cm / px_per_cm)))
+        if side < max(cam.width, cam.height):
             from scantex.photos.training import working_camera
 
-            cam = working_camera(cam, settings.max_side)
+            cam = working_camera(cam, side)
             image = np.asarray(Image.fromarray(image).resize((cam.width, cam.height), Image.Resampling.BOX))
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
@@ -113,7 +127,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     if sources:
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
-    report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources[:1]],
+    report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources],
+              "photo_memory_mb": round(sum(s.image.nbytes for s in sources) / 2**20, 1),
               "temperature": settings.temperature}
 
     def colour(points, normals, face_ids, bary, without: int | None = None):

@@ -293,12 +293,13 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
 
 
 def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster,
-                  charts: np.ndarray, device):
+                  charts: np.ndarray, device, texel_px_per_cm: float = 0.0):
     """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
     to the canonical appearance by each photo's inverse colour transform, with ``fallback`` (the field, or
     the input's texels) where no photo sees them. The transforms are the field's (training photo ``k`` is
     appearance group ``k``) when it was trained, else fitted in closed form against the input texture
-    (``charts``: the input atlas's chart of each face)."""
+    (``charts``: the input atlas's chart of each face). ``texel_px_per_cm``: the output atlas's texel density
+    (photos much finer than it are sampled at a lower resolution; 0: full resolution)."""
     import torch
 
     from scantex.photos.texturing import ProjectiveSettings, projective_colour
@@ -316,7 +317,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     else:
         canonicalise = None
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        fallback, ProjectiveSettings(temperature=pc.temperature))
+                                        fallback, ProjectiveSettings(temperature=pc.temperature,
+                                                                     texel_px_per_cm=texel_px_per_cm))
     return colour, {"mode": "projective", **sampled, **report}
 
 
@@ -514,7 +516,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         bake_report.update(density)
     photo_fallback = colour
     if photo is not None and config.photos.texturing != "field":
-        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device)
+        atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * photo_scale
+        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
+                                                  atlas_density)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -598,7 +602,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             t = time.perf_counter()
             every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
-                                                 device)
+                                                 device, atlas_density)
             baked, enhanced = bake_and_blend(colour, "baking the texture from every photo")
             metrics["geometry"] = geometry_metrics(scan, enhanced)
             metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)

@@ -63,7 +63,7 @@ def test_texels_come_from_the_full_resolution_photos(tmp_path):
     scan = smooth_wall()
     photos, views = wall_photos(tmp_path, scan)
     colour, report = projective_colour(photos, views, [0, 1], None, grey)
-    assert report["sampled_at"] == [[640, 480]]
+    assert report["sampled_at"] == [[640, 480], [640, 480]]
     points, normals, f, b = surface_points(scan)
     truth = shade_hits(scan, f, b)
     got = colour(points, normals, f, b)
@@ -73,6 +73,25 @@ def test_texels_come_from_the_full_resolution_photos(tmp_path):
     low, _ = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(max_side=160))
     err_low = np.abs(low(points, normals, f, b)[seen] - truth[seen]).mean()
     assert err < 0.03 and err < 0.6 * err_low
+
+
+
+def test_photos_much_finer_than_the_atlas_are_sampled_at_the_atlas_density(tmp_path):
+    """The 640 px photos resolve this 2 m wall at about 3 px/cm. An atlas of 2.5 texels/cm wants all of
+    them; one of 0.5 texels/cm only about a third (2 photo pixels per texel): they are held at that size."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan)
+    _, fine = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(texel_px_per_cm=2.5))
+    assert fine["sampled_at"] == [[640, 480], [640, 480]]
+    colour, coarse = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(texel_px_per_cm=0.5))
+    assert all(150 < w < 300 and h == round(w * 480 / 640) for w, h in coarse["sampled_at"])
+    assert coarse["photo_memory_mb"] < 0.25 * fine["photo_memory_mb"]
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    blurred = np.clip(np.mean(truth, axis=0), 0, 1)  # still the photos' colours, only less fine
+    got = colour(points, normals, f, b)
+    seen = np.abs(got - 0.5).max(axis=1) > 1e-6
+    assert seen.mean() > 0.5 and np.abs(got[seen].mean(axis=0) - blurred).max() < 0.05
 
 
 def test_unseen_points_get_the_fallback_and_appearance_is_corrected(tmp_path):
