@@ -41,10 +41,11 @@ def geometry_identity(a: Scan, b: Scan) -> dict:
         triangle_multiset_key(a.positions, a.faces), triangle_multiset_key(b.positions, b.faces))
     max_disp = (float(np.abs(a.positions - b.positions).max())
                 if a.positions.shape == b.positions.shape else None)
+    distinct = len(unique_rows(a.positions))
     return {
         "vertices": [a.n_vertices, b.n_vertices],
         "faces": [a.n_faces, b.n_faces],
-        "distinct_positions": [len(unique_rows(a.positions)), len(unique_rows(b.positions))],
+        "distinct_positions": [distinct, distinct if same_arrays else len(unique_rows(b.positions))],
         "arrays_identical": bool(same_arrays),
         "triangles_identical": bool(same_triangles),
         "max_vertex_displacement": max_disp,

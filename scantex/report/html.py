@@ -30,7 +30,7 @@ from scantex.metrics.image import psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
-from scantex.views.render import render, render_scans, to_uint8
+from scantex.views.render import render_scans, to_uint8
 
 log = logging.getLogger(__name__)
 
@@ -248,9 +248,10 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
         shown = render_scans(dict(columns), fine, caster, supersample=1 if factor >= 2 else 2)
         images = {n: to_uint8(im) for n, (im, _) in shown.items()}
         if scores is None and truth is not None:  # metrics without per-view scores: score here, as they would
-            ref, ref_alpha = render(truth, cam, caster, supersample=2)
+            scored = render_scans(dict(columns), cam, caster, supersample=2)  # one cast for the three
+            ref, ref_alpha = scored.pop("ground truth")
             mask = ref_alpha >= 0.999
-            measured = {n: render(s, cam, caster, supersample=2)[0] for n, s in columns if n != "ground truth"}
+            measured = {n: im for n, (im, _) in scored.items()}
             view_scores = ("ground truth", {n: {"psnr": psnr(im, ref, mask), "ssim": ssim(im, ref, mask)}
                                             for n, im in measured.items()})
         elif scores is not None:
