@@ -33,6 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from scantex.refine.optim import Adam
+
 log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int], None]
@@ -342,10 +344,13 @@ def fit_denoiser(images: torch.Tensor, masks: torch.Tensor | None, config: Diffu
         denoiser = Denoiser(config)
     denoiser = denoiser.to(device)
     unet = denoiser.unet.train()
-    optim = torch.optim.Adam(unet.parameters(), lr=config.lr, fused=device.type in ("cpu", "cuda"))  # fused: fewer tiny kernels a step
+    optim = Adam(unet.parameters())  # fused where it can be: fewer tiny kernels a step
     warmup = max(1, config.steps // 20)
-    sched = torch.optim.lr_scheduler.LambdaLR(optim, lambda s: min(1.0, (s + 1) / warmup) * (
-        0.1 + 0.45 * (1 + math.cos(math.pi * min(s, config.steps) / max(1, config.steps)))))
+
+    def lr(s: int) -> float:  # warm-up, then cosine decay to 10 %
+        return config.lr * min(1.0, (s + 1) / warmup) * (
+            0.1 + 0.45 * (1 + math.cos(math.pi * min(s, config.steps) / max(1, config.steps))))
+
     data = images.detach().to(device, torch.float32) * 2 - 1
     usable = masks.detach().to(device, torch.float32)
     t_max = max(1, round(config.train_strength * config.timesteps))
@@ -369,10 +374,9 @@ def fit_denoiser(images: torch.Tensor, masks: torch.Tensor | None, config: Diffu
         eps = torch.randn(x0.shape, generator=gen, device="cpu").to(device)
         x_t = noise_to(x0, denoiser.alphas_cumprod[t][:, None, None, None], eps)
         loss = ((unet(x_t, t.float()) - eps) ** 2 * weight).sum() / (3 * weight.sum()).clamp(min=1)
-        optim.zero_grad(set_to_none=True)
+        optim.zero_grad()
         loss.backward()
-        optim.step()
-        sched.step()
+        optim.step(lr(step))
         losses.append(loss.item())
         if progress:
             progress(step + 1, config.steps)

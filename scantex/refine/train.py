@@ -28,6 +28,7 @@ import torch.nn.functional as F
 
 from scantex.refine.config import RefineConfig
 from scantex.refine.correspond import Correspondence
+from scantex.refine.optim import Adam
 from scantex.refine.pretext import downscale_blur_compress, random_masks, smooth_fill
 from scantex.refine.vit import ViTRefiner
 
@@ -99,13 +100,15 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
         model = ViTRefiner.preset(config.model, patch=config.patch, in_channels=4,
                                   grid=(c // config.patch, c // config.patch))
     model = model.to(device)
-    optim = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4,
-                              fused=device.type in ("cpu", "cuda"))  # fused: one kernel a step, 8x faster here
-    # linear warm-up (the zero head's first moves would otherwise throw the output far off), then
-    # cosine decay to 10 %
+    optim = Adam(model.parameters(), weight_decay=1e-4, decoupled=True)  # AdamW, fused where it can be
+
+    def lr(s: int) -> float:
+        # linear warm-up (the zero head's first moves would otherwise throw the output far off), then
+        # cosine decay to 10 %
+        return config.lr * min(1.0, (s + 1) / warmup) * (
+            0.1 + 0.45 * (1 + np.cos(np.pi * min(1.0, s / max(1, config.steps)))))
+
     warmup = max(1, config.steps // 10)
-    sched = torch.optim.lr_scheduler.LambdaLR(optim, lambda s: min(1.0, (s + 1) / warmup) * (
-        0.1 + 0.45 * (1 + np.cos(np.pi * min(1.0, s / max(1, config.steps))))))
     images = data.images.to(device)
     known = data.known.to(device)
     known_pixels = [np.flatnonzero(k.reshape(-1).cpu().numpy()) for k in data.known]
@@ -148,10 +151,9 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
         loss = (weight * (out - target).abs()).sum() / (3 * weight.sum().clamp_min(1))
         if pair_terms:
             loss = loss + config.cross_view_weight * cross_view_loss(out, pair_terms, c)
-        optim.zero_grad(set_to_none=True)
+        optim.zero_grad()
         loss.backward()
-        optim.step()
-        sched.step()
+        optim.step(lr(step))
         losses.append(loss.item())
         if progress:
             progress(step + 1, config.steps)
