@@ -154,7 +154,7 @@ def test_chart_appearance_inverts():
     chart = torch.randint(0, 3, (50,))
     assert torch.allclose(app.canonical(app(rgb, chart), chart), rgb, atol=1e-5)
     # the regulariser is zero at identity and grows with a common gain
-    assert float(ChartAppearance(3).regulariser()) == 0.0
+    assert float(ChartAppearance(3).regulariser().detach()) == 0.0
 
 
 def test_detail_transfer_keeps_geometry_and_changes_texture(toy_demo):
