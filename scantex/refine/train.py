@@ -101,6 +101,7 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
                                   grid=(c // config.patch, c // config.patch))
     model = model.to(device)
     optim = Adam(model.parameters(), weight_decay=1e-4, decoupled=True)  # AdamW, fused where it can be
+    warmup = max(1, config.steps // 10)
 
     def lr(s: int) -> float:
         # linear warm-up (the zero head's first moves would otherwise throw the output far off), then
@@ -108,7 +109,6 @@ def fit_refiner(data: RefinerData, config: RefineConfig, *, device: torch.device
         return config.lr * min(1.0, (s + 1) / warmup) * (
             0.1 + 0.45 * (1 + np.cos(np.pi * min(1.0, s / max(1, config.steps)))))
 
-    warmup = max(1, config.steps // 10)
     images = data.images.to(device)
     known = data.known.to(device)
     known_pixels = [np.flatnonzero(k.reshape(-1).cpu().numpy()) for k in data.known]
