@@ -12,11 +12,19 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   log(relative sharpness of the photo)``; the weights are a softmax of the quality over the photos
   with ``temperature`` (the best view dominates, but the weights are continuous: no per-face switch,
   no hard seam where the best view changes);
+- **photo-consistency**: a sample far from what the other photos say of the same point (an occluder the
+  mesh does not hold, a passer-by, a specular highlight, a misregistered edge) loses its weight: the blend
+  is an iteratively reweighted mean with a Cauchy weight ``1 / (1 + (r / consistency)^2)`` on each
+  sample's colour distance ``r`` from the current blend (the robust estimate of the colour, as classical
+  texture mappers' photo-consistency checks reject outlier views; it needs three photos to outvote one);
 - **feathering**: each photo's weight fades to zero over ``feather_px`` working pixels towards the
   edge of its usable region (image border, contours, rejected pixels), so a photo's coverage ends
   without a step;
 - **appearance**: each photo's sample is brought to the canonical appearance by the inverse of the
   per-photo affine colour transform the field learned (``canonicalise``);
+- **culling**: given the mesh's faces, a photo is asked only about points on the faces its G-buffer sees
+  (and their one-ring neighbours, for faces smaller than a working pixel), so a texel costs the photos that
+  see it, not every photo of the capture (a room's hundred photos see a few per cent of it each);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 """
@@ -24,6 +32,7 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -34,6 +43,9 @@ from scantex.photos.training import PhotoView
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
+
+#: threads sampling the photos of one chunk of points
+_WORKERS = min(8, os.cpu_count() or 1)
 
 #: ``colour(points (n, 3), normals (n, 3), face_ids (n,), bary (n, 2)) -> (n, 3) float`` in [0, 1]
 SurfaceColour = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -58,6 +70,11 @@ class ProjectiveSettings:
     memory at full size (0: every photo at full resolution)"""
     oversample: float = 2.0
     """photo pixels per texel kept at most, per axis (see ``texel_px_per_cm``)"""
+    consistency: float = 0.0
+    """photo-consistency scale (RGB distance in [0, 1] units): a sample this far from the blend of the
+    others keeps half its weight, one twice as far a fifth (0: a plain weighted mean)"""
+    consistency_rounds: int = 3
+    """reweighting rounds of the robust blend"""
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,6 +86,7 @@ class _Source:
     feather: np.ndarray  # (h, w) float32 in [0, 1] at the working resolution
     log_sharpness: float
     group: int
+    faces: np.ndarray | None  # (F,) bool: faces whose points this photo may see (None: not culled)
 
 
 def photo_sharpness(image: np.ndarray) -> float:
@@ -81,8 +99,8 @@ def photo_sharpness(image: np.ndarray) -> float:
 
 def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequence[int],
                       canonicalise: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
-                      fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings()
-                      ) -> tuple[SurfaceColour, dict]:
+                      fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings(),
+                      faces: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -92,6 +110,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         canonicalise: ``(rgb (n, 3), group (n,)) -> (n, 3)``: a photo's colours brought to the canonical
             appearance; ``None`` leaves them as they are.
         fallback: the colour where no photo sees a point.
+        faces: the mesh's ``(F, 3)`` vertex indices (welded: a position repeated at a UV seam under one
+            index): culls each photo to the faces its G-buffer sees and their one-ring. ``None`` asks every
+            photo about every point: slower, and the same colours but where a point on a face that a
+            photo neither sees nor borders passes its depth test (a sliver behind a seen surface).
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
@@ -100,6 +122,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     from PIL import Image
     from scipy import ndimage
 
+    incidence = _incidence(faces) if faces is not None else None
     sources = []
     for view, group in zip(views, groups):
         cam = photos.cameras[view.index]
@@ -123,7 +146,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
             raise ValueError(f"photo {view.index}: its working view was made at another pose")
         to_view = view.camera.K @ np.linalg.inv(cam.K)
-        sources.append(_Source(cam, image, to_view, view, feather, sharpness, int(group)))
+        seen = None
+        if incidence is not None:
+            seen = np.zeros(len(faces), np.float32)
+            seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
+            seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
+        sources.append(_Source(cam, image, to_view, view, feather, sharpness, int(group), seen))
     if sources:
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
@@ -135,14 +163,18 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         n = len(points)
         if not sources or n == 0:
             return np.asarray(fallback(points, normals, face_ids, bary), np.float32)
-        # first pass: each photo's samples of the points it sees, their quality and feather weight
-        seen_by: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        best = np.full(n, -np.inf, np.float32)
-        for k, s in enumerate(sources):
-            if k == without:
-                continue
+        # first pass: each photo's samples of the points it sees, their quality and feather weight, the
+        # photos side by side on the cores (numpy releases the interpreter lock in the array work)
+        def sample(s: _Source):
             view = s.view
-            full, z = s.camera.project(points)
+            if s.faces is not None:  # only the points on faces this photo sees
+                sub = np.flatnonzero(s.faces[face_ids])
+                if sub.size == 0:
+                    return None
+                full, z = s.camera.project(points[sub])
+            else:
+                sub = None
+                full, z = s.camera.project(points)
             pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
             h, w = view.valid.shape
             with np.errstate(invalid="ignore"):
@@ -153,27 +185,46 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < settings.depth_tolerance * z)
             idx, z, xi, yi = idx[seen], z[seen], xi[seen], yi[seen]
             if idx.size == 0:
-                continue
+                return None
+            full = full[idx]
+            if sub is not None:
+                idx = sub[idx]
             ray = points[idx] - view.camera.center
             ray /= np.linalg.norm(ray, axis=1, keepdims=True)
             cos = np.abs(np.einsum("ij,ij->i", ray, normals[idx]))
             quality = (np.log(np.maximum(cos, 1e-3)) + np.log(s.camera.K[0, 0] / z) + s.log_sharpness
                        ).astype(np.float32)
-            rgb = _bilinear(s.image, full[idx]) / np.float32(255.0)
+            rgb = _bilinear(s.image, full) / np.float32(255.0)
             if canonicalise is not None:
                 rgb = canonicalise(rgb, np.full(len(idx), s.group))
+            return idx, quality, s.feather[yi, xi], rgb
+
+        asked = [s for k, s in enumerate(sources) if k != without]
+        if len(asked) > 1 and _WORKERS > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(min(_WORKERS, len(asked))) as pool:
+                samples = list(pool.map(sample, asked))
+        else:
+            samples = [sample(s) for s in asked]
+        seen_by: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = [x for x in samples if x is not None]
+        best = np.full(n, -np.inf, np.float32)
+        for idx, quality, _, _ in seen_by:
             best[idx] = np.maximum(best[idx], quality)  # a photo sees a point once: idx has no repeats
-            seen_by.append((idx, quality, s.feather[yi, xi], rgb))
         # second pass: the softmax of the quality (relative to each point's best view), feathered
-        total = np.zeros(n, np.float32)
-        blend = np.zeros((n, 3), np.float32)
         alpha = np.zeros(n, np.float32)
-        for idx, quality, feather, rgb in seen_by:
-            weight = np.exp((quality - best[idx]) / settings.temperature) * feather
-            total[idx] += weight
-            blend[idx] += weight[:, None] * rgb
+        weights = []
+        for idx, quality, feather, _ in seen_by:
+            weights.append(np.exp((quality - best[idx]) / settings.temperature) * feather)
             alpha[idx] = np.maximum(alpha[idx], feather)
-        out = blend / np.maximum(total, 1e-12)[:, None]
+        out, total = _weighted_mean(n, seen_by, weights)
+        if settings.consistency > 0:
+            # photo-consistency: each round reweights every sample by its distance from the last blend
+            scale = np.float32(1.0 / settings.consistency ** 2)
+            for _ in range(settings.consistency_rounds):
+                robust = [w / (1 + scale * np.square(rgb - out[idx]).sum(axis=1))
+                          for (idx, _, _, rgb), w in zip(seen_by, weights)]
+                out, _ = _weighted_mean(n, seen_by, robust)
         # the fallback only where the photos do not fully cover a point
         part = np.flatnonzero((total <= 0) | (alpha < 1))
         if part.size:
@@ -183,6 +234,26 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         return np.clip(out, 0, 1)
 
     return colour, report
+
+
+def _incidence(faces: np.ndarray):
+    """``(F, V)`` sparse face-vertex incidence of ``faces (F, 3)``."""
+    from scipy import sparse
+
+    F = len(faces)
+    return sparse.csr_matrix((np.ones(3 * F, np.float32), (np.repeat(np.arange(F), 3), faces.reshape(-1))),
+                             shape=(F, int(faces.max()) + 1 if F else 0))
+
+
+def _weighted_mean(n: int, seen_by: list, weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(blend (n, 3), total weight (n,))`` of the photos' samples ``seen_by`` (``(idx, _, _, rgb)`` each)
+    with ``weights`` (one array per photo)."""
+    total = np.zeros(n, np.float32)
+    blend = np.zeros((n, 3), np.float32)
+    for (idx, _, _, rgb), weight in zip(seen_by, weights):
+        total[idx] += weight
+        blend[idx] += weight[:, None] * rgb
+    return blend / np.maximum(total, 1e-12)[:, None], total
 
 
 def _replace_sharpness(s: _Source, value: float) -> _Source:

@@ -316,9 +316,13 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         report["colour_transforms"] = "the field's"
     else:
         canonicalise = None
+    from scantex.arrays import unique_rows
+
+    _, weld = unique_rows(scan.positions, return_inverse=True)
+    settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
+                                  consistency=pc.consistency)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        fallback, ProjectiveSettings(temperature=pc.temperature,
-                                                                     texel_px_per_cm=texel_px_per_cm))
+                                        fallback, settings, faces=weld.reshape(-1)[scan.faces])
     return colour, {"mode": "projective", **sampled, **report}
 
 
