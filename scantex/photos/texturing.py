@@ -278,7 +278,7 @@ def _bilinear(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
 
 def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoView],
                          charts: np.ndarray | None = None, chart_area: np.ndarray | None = None,
-                         blur_px: float = 1.0, min_pixels: int = 50) -> np.ndarray:
+                         blur_px: float = 1.0, min_pixels: int = 50, pair_weight: float = 0.0) -> np.ndarray:
     """Each photo's colour transform onto the reference texture's appearance, in closed form.
 
     ``reference[k]`` is the reference colour (the input texture rendered through view ``k``'s camera,
@@ -290,9 +290,18 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
     squares with the charts' area-weighted mean log gain held at 0: the photos are brought to the input
     texture's average appearance, not to whichever chart they happen to see most.
 
+    A capture app's atlas need not be one exposure per chart either (a best-view blend switches photos
+    inside a chart), and then the (photo, chart) pairs disagree. Photos that see the same surface say
+    directly how their exposures differ: with ``pair_weight`` > 0, every pair of photos adds the median
+    log ratio of their colours at the surface points both see (each photo's pixels unprojected with its
+    G-buffer depth and looked up in the other, depth-tested), weighted ``pair_weight`` times as much as a
+    (photo, chart) pair of the same size. The photos are then brought to one another's exposure and,
+    together, to the texture's average.
+
     Args:
         charts: ``(F,)`` chart of each face (default: one chart).
         chart_area: ``(C,)`` weights of the gauge (default: equal).
+        pair_weight: weight of the photo-to-photo ratios (0: the photos are tied to the texture only).
 
     Returns:
         ``(P, 4, 3)``: rows 0-2 are ``A`` (diagonal), row 3 is ``b`` (0): ``photo = canonical @ A + b``.
@@ -305,12 +314,14 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
     C = int(charts.max()) + 1
     area = np.ones(C) if chart_area is None else np.asarray(chart_area, np.float64)
     rows: list[tuple[int, int, np.ndarray, float]] = []  # (photo, chart, median log ratio (3,), weight)
+    blurred = [np.stack([ndimage.gaussian_filter(view.image[..., c], blur_px) for c in range(3)], -1)
+               for view in views]
     for k, (view, ref) in enumerate(zip(views, reference)):
         mask = view.valid & (view.face_id >= 0)
         if mask.sum() < min_pixels:
             continue
         x = np.stack([ndimage.gaussian_filter(ref[..., c], blur_px) for c in range(3)], -1)[mask]
-        y = np.stack([ndimage.gaussian_filter(view.image[..., c], blur_px) for c in range(3)], -1)[mask]
+        y = blurred[k][mask]
         chart = charts[view.face_id[mask]]
         ok = ((x > 0.03) & (x < 0.97) & (y > 0.03) & (y < 0.97)).all(axis=1)  # neither dark nor clipped
         ratio, chart = np.log(y[ok]) - np.log(x[ok]), chart[ok]
@@ -323,23 +334,77 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
     out = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (P, 1, 1))
     if not rows:
         return out
-    n = len(rows)
+    pairs = _photo_pairs(views, blurred, min_pixels) if pair_weight > 0 else []
+    n, m = len(rows), len(pairs)
     r = np.arange(n)
     k_idx = np.array([row[0] for row in rows])
     c_idx = np.array([row[1] for row in rows])
     w = np.array([row[3] for row in rows])
+    # photo-to-photo rows: log g_l - log g_k = median log(photo_l / photo_k) at the points both see
+    pw = pair_weight * np.array([pair[3] for pair in pairs], float)
+    pk, pl = np.array([pair[0] for pair in pairs], int), np.array([pair[1] for pair in pairs], int)
+    q = n + np.arange(m)
     # unknowns: log g_photo (P), then log g_chart (C); gauge row: area-weighted mean chart gain 0; a weak
     # ridge keeps charts (and photos) that no pair ties down at gain 1
     A = sparse.vstack([
-        sparse.csr_matrix((np.r_[w, -w], (np.r_[r, r], np.r_[k_idx, P + c_idx])), shape=(n, P + C)),
+        sparse.csr_matrix((np.r_[w, -w, pw, -pw], (np.r_[r, r, q, q], np.r_[k_idx, P + c_idx, pl, pk])),
+                          shape=(n + m, P + C)),
         sparse.csr_matrix((100.0 * w.sum() * area / area.sum(), (np.zeros(C, int), P + np.arange(C))),
                           shape=(1, P + C)),
         1e-3 * sparse.identity(P + C, format="csr")]).tocsr()
     for ch in range(3):
-        rhs = np.r_[w * np.array([row[2][ch] for row in rows]), 0.0, np.zeros(P + C)]
+        rhs = np.r_[w * np.array([row[2][ch] for row in rows]),
+                    pw * np.array([pair[2][ch] for pair in pairs]).reshape(m), 0.0, np.zeros(P + C)]
         solution = lsqr(A, rhs, atol=1e-10, btol=1e-10)[0]
         out[:, ch, ch] = np.exp(np.clip(solution[:P], -2.5, 2.5))
     return out
+
+
+def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_pixels: int,
+                 per_photo: int = 4000, depth_tolerance: float = 0.02, seed: int = 0
+                 ) -> list[tuple[int, int, np.ndarray, float]]:
+    """``(k, l, median log(photo_l / photo_k) (3,), sqrt(points))`` for every ordered pair of photos that
+    see at least ``min_pixels`` of the same surface points: up to ``per_photo`` of photo ``k``'s usable
+    pixels, unprojected with their G-buffer depth, looked up in photo ``l`` where it sees the same point
+    (usable pixel, depth within ``depth_tolerance``); ``blurred``: each photo's working image, blurred
+    (robust to the poses' few pixels of error). Pairs whose faces do not overlap are not projected."""
+    from scipy import sparse
+
+    rng = np.random.default_rng(seed)
+    P = len(views)
+    seen = [np.unique(v.face_id[v.valid & (v.face_id >= 0)]) for v in views]
+    n_faces = max((int(f[-1]) + 1 for f in seen if f.size), default=0)
+    sees = sparse.csr_matrix((np.ones(sum(f.size for f in seen), np.float32),
+                              (np.repeat(np.arange(P), [f.size for f in seen]), np.concatenate(seen or [[]]))),
+                             shape=(P, n_faces))
+    shared = (sees @ sees.T).toarray()  # (P, P) faces both see
+    pairs = []
+    for k, v in enumerate(views):
+        ys, xs = np.nonzero(v.valid)
+        if len(ys) < min_pixels:
+            continue
+        pick = rng.choice(len(ys), min(per_photo, len(ys)), replace=False)
+        ys, xs = ys[pick], xs[pick]
+        K = v.camera.K
+        rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
+        points = (rays * v.depth[ys, xs, None] - v.camera.t) @ v.camera.R  # camera -> world
+        own = blurred[k][ys, xs]
+        for l, u in enumerate(views):
+            if l == k or shared[k, l] < 1:
+                continue
+            pix, z = u.camera.project(points)
+            h, w = u.valid.shape
+            with np.errstate(invalid="ignore"):
+                x = np.round(np.nan_to_num(pix[:, 0], nan=-1)).astype(np.intp)
+                y = np.round(np.nan_to_num(pix[:, 1], nan=-1)).astype(np.intp)
+            ok = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
+            ok = ok[u.valid[y[ok], x[ok]] & (np.abs(u.depth[y[ok], x[ok]] - z[ok]) < depth_tolerance * z[ok])]
+            a, b = own[ok], blurred[l][y[ok], x[ok]]
+            good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)  # neither dark nor clipped
+            if good.sum() >= min_pixels:
+                ratio = np.median(np.log(b[good]) - np.log(a[good]), axis=0)
+                pairs.append((k, l, ratio, float(np.sqrt(good.sum()))))
+    return pairs
 
 
 def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:

@@ -225,7 +225,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         from scantex.photos.poses import consensus_poses
 
         if scan.is_textured:
-            canonicalise, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan))
+            canonicalise, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan), pc.pair_weight)
 
             def fallback(points, normals, face_ids, bary):
                 return shade_hits(scan, face_ids, bary)
@@ -241,15 +241,18 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     return PhotoData(photos, train_views, held_views, report, corrections)
 
 
-def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray):
+def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray,
+                           pair_weight: float = 0.0):
     """``(canonicalise, transforms)``: each photo's colour transform onto the input texture's appearance,
     fitted in closed form (:func:`scantex.photos.texturing.fit_photo_transforms`; ``charts``: the input
-    atlas's chart of each face), and the function that undoes it."""
+    atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
+    function that undoes it."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
 
     references = [render(scan, view.camera, caster)[0] for view in views]
     transforms = fit_photo_transforms(references, views, charts,
-                                      np.bincount(charts, scan.face_areas, int(charts.max()) + 1))
+                                      np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
+                                      pair_weight=pair_weight)
     return inverse_transforms(transforms), transforms
 
 
@@ -306,7 +309,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
 
     report: dict = {}
     if fitted is None:
-        canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts)
+        canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts, pc.pair_weight)
         report["colour_transforms"] = "closed form, against the input texture"
         report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
     elif fitted.appearance is not None:

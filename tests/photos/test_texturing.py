@@ -196,3 +196,22 @@ def test_culling_to_the_faces_each_photo_sees_keeps_the_colours(tmp_path):
     every, _ = projective_colour(photos, views, [0, 1], None, grey)
     culled, _ = projective_colour(photos, views, [0, 1], None, grey, faces=scan.faces)
     np.testing.assert_array_equal(culled(points, normals, f, b), every(points, normals, f, b))
+
+
+def test_photo_pairs_level_photos_whose_texture_is_a_patchwork(tmp_path):
+    """The input atlas is one chart but two exposures (its left half 30 % darker, as a best-view blend
+    switching photos inside a chart leaves it); two photos at gains 1.0 and 0.8 see mostly one half each.
+    Tied to the texture alone, their fitted gains take in the halves' difference; with the photos' ratio
+    to one another, the ratio of their gains is about the true 0.8."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(1.0, 0.8))
+    image = scan.materials[0].image.astype(np.float32)
+    image[:, : image.shape[1] // 2] *= 0.7
+    patchwork = dataclasses.replace(scan, materials=(dataclasses.replace(scan.materials[0], image=image.astype(np.uint8)),))
+    caster = RayCaster(scan.positions, scan.faces)
+    references = [render(patchwork, v.camera, caster)[0] for v in views]
+    alone = fit_photo_transforms(references, views)
+    paired = fit_photo_transforms(references, views, pair_weight=4.0)
+    ratio = lambda t: np.diagonal(t[1, :3]) / np.diagonal(t[0, :3])  # noqa: E731
+    assert np.abs(ratio(alone) - 0.8).min() > 0.15  # the patchwork misleads the texture-only fit (0.57)
+    np.testing.assert_allclose(ratio(paired), 0.8, atol=0.03)  # 0.78: the texture still pulls a little
