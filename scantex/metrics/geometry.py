@@ -37,8 +37,10 @@ def geometry_identity(a: Scan, b: Scan) -> dict:
     """
     same_arrays = (a.positions.shape == b.positions.shape and a.faces.shape == b.faces.shape
                    and np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces))
-    same_triangles = a.n_faces == b.n_faces and np.array_equal(
-        triangle_multiset_key(a.positions, a.faces), triangle_multiset_key(b.positions, b.faces))
+    # identical arrays hold identical triangles by definition; the canonical sort (0.3 s a 79k-face mesh)
+    # is only needed to recognise the same triangles stored another way
+    same_triangles = same_arrays or (a.n_faces == b.n_faces and np.array_equal(
+        triangle_multiset_key(a.positions, a.faces), triangle_multiset_key(b.positions, b.faces)))
     max_disp = (float(np.abs(a.positions - b.positions).max())
                 if a.positions.shape == b.positions.shape else None)
     distinct = len(unique_rows(a.positions))

@@ -12,10 +12,17 @@ from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster, cast_gbuffer
 from scantex.views.render import render_scans
 
+#: the key a reference scan is rendered under, beside the scored scans (no name of theirs can equal it)
+_REFERENCE = object()
 
-def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], scans: dict[str, Scan],
+
+def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
                 cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = 2) -> dict:
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
+
+    ``reference`` is a function giving a camera's ``(image, alpha)``, or a scan of the same geometry (a
+    ground truth): that one is rendered with ``scans`` from the same rays, as ``render(reference, cam,
+    caster, supersample=supersample)`` would render it, with one ray cast fewer per camera.
 
     Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
     one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
@@ -31,12 +38,18 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]], sc
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": [], "hole_psnr": []}
                             for name in scans}
     hole_pixels = {name: [] for name in scans}
+    truth = reference if isinstance(reference, Scan) else None
     for cam in cameras:
-        ref, ref_alpha = reference(cam)
+        if truth is None:
+            ref, ref_alpha = reference(cam)
+            shown = render_scans(scans, cam, caster, supersample=supersample)
+        else:
+            shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample)
+            ref, ref_alpha = shown.pop(_REFERENCE)
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
-        for name, (img, _) in render_scans(scans, cam, caster, supersample=supersample).items():
+        for name, (img, _) in shown.items():
             out[name]["psnr"].append(psnr(img, ref, mask))
             out[name]["ssim"].append(ssim(img, ref, mask))
             out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))

@@ -676,9 +676,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     }
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
     if ground_truth is not None:
-        metrics["held_out_vs_ground_truth"] = score_views(
-            lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
-            test_cams, caster, holes)
+        metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced},
+                                                          test_cams, caster, holes)
     elif scan.is_textured:
         # no truth: how faithfully the result reproduces the input where the input has colour
         metrics["held_out_vs_input"] = score_views(

@@ -19,7 +19,34 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of ``image (H, W, C)`` at ``uv (N, 2)``, repeating outside [0, 1].
 
     Returns ``(N, C) float32`` in [0, 1] for uint8 images (values as stored for float images).
+    The four texels are gathered by flat index (``take`` on the ``(H * W, C)`` image), about twice as
+    fast as indexing rows and columns; the arithmetic is :func:`sample_texture_reference`'s, bit for bit.
     """
+    H, W = image.shape[:2]
+    scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+    x = uv[:, 0] * W - 0.5
+    y = (1.0 - uv[:, 1]) * H - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0).astype(np.float32)[:, None]
+    fy = (y - y0).astype(np.float32)[:, None]
+    x0 = x0.astype(np.int64) % W
+    y0 = y0.astype(np.int64) % H
+    x1 = x0 + 1
+    x1[x1 == W] = 0
+    row0 = y0 * W
+    row1 = y0 + 1
+    row1[row1 == H] = 0
+    row1 *= W
+    texels = image.reshape(H * W, -1)
+    gx = 1 - fx
+    top = texels.take(row0 + x0, axis=0) * gx + texels.take(row0 + x1, axis=0) * fx
+    bottom = texels.take(row1 + x0, axis=0) * gx + texels.take(row1 + x1, axis=0) * fx
+    return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
+
+
+def sample_texture_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Slow, plainly written twin of :func:`sample_texture` (rows and columns indexed); for tests."""
     H, W = image.shape[:2]
     scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
     x = uv[:, 0] * W - 0.5

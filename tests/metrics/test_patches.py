@@ -81,3 +81,25 @@ def test_scores_against_the_input_carry_the_same_patch_measure():
                          caster, np.zeros(scan.n_faces, bool))
     assert patch_summary(scores["enhanced"]["per_view"]["patches"]) == direct
     assert direct["enhanced_vs_input"] > 0  # the truth has edges the degraded scan lacks: not a vacuous match
+
+
+def test_a_reference_scan_scores_as_its_renders():
+    """score_views renders a reference scan (a ground truth) with the scored scans from one ray cast: the
+    scores must be those against its own renders."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.metrics.views import score_views
+    from scantex.synth import make_wall
+    from scantex.views.planning import plan_views
+    from scantex.views.raycast import RayCaster
+    from scantex.views.render import render
+
+    demo = make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128, n_charts=8)
+    truth, scan = demo.ground_truth, demo.scan
+    caster = RayCaster(scan.positions, scan.faces)
+    cameras = plan_views(scan, 3, width=96, height=72, caster=caster)
+    holes = untextured_faces(scan)
+    assert holes.any()  # hole PSNR is compared too
+    scans = {"input": scan, "truth itself": truth}
+    by_renders = score_views(lambda cam: render(truth, cam, caster, supersample=2), scans, cameras, caster, holes)
+    assert score_views(truth, scans, cameras, caster, holes) == by_renders
+    assert by_renders["truth itself"]["psnr"] == float("inf")

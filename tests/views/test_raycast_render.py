@@ -8,7 +8,7 @@ import trimesh
 
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster, cast_gbuffer, interpolate
-from scantex.views.render import render, render_gbuffer, sample_texture, shade_lit
+from scantex.views.render import render, render_gbuffer, sample_texture, sample_texture_reference, shade_lit
 from tests.conftest import grid_wall
 
 
@@ -107,6 +107,16 @@ def test_sample_texture_bilinear_and_wrap():
     # texel centres: (u, v) = (0.25, 0.75) is the top-left texel
     got = sample_texture(img, np.array([[0.25, 0.75], [0.75, 0.25], [0.5, 0.75], [1.25, 0.75]]))[:, 0] * 255
     assert np.allclose(got, [0, 255, 50, 0], atol=1e-3)
+
+
+def test_sample_texture_equals_its_reference():
+    rng = np.random.default_rng(3)
+    uv = np.concatenate([rng.uniform(-1.5, 2.5, (5000, 2)),  # repeats outside [0, 1]
+                         (rng.integers(0, 7, (500, 2)) + 0.5) / 7,  # texel centres
+                         [[0.0, 0.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.0]]])  # the atlas's corners
+    for image in (rng.integers(0, 256, (7, 5, 3), dtype=np.uint8), rng.integers(0, 256, (4, 9, 4), dtype=np.uint8),
+                  rng.random((6, 6, 3), dtype=np.float32), rng.integers(0, 256, (1, 1, 3), dtype=np.uint8)):
+        assert np.array_equal(sample_texture(image, uv), sample_texture_reference(image, uv))
 
 
 def test_unlit_render_shows_the_texture():
