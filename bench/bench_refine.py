@@ -11,7 +11,10 @@ Rows, per scene, all with the same preset, seed and therefore the same views and
 - + ViT with the default terms (masked completion + super-resolution; cross-view consistency is off by
   default because leaving it out measured better), and with all three terms;
 - + ViT without one of the three terms, and with super-resolution only (per-term ablations);
-- + ViT + diffusion: the refined views also denoised by the diffusion model (``--diffusion``).
+- + ViT + diffusion: the refined views also denoised by the diffusion model (``--diffusion``);
+- the default bake of a textured scan (the input's own texels, levelled) without and with the refiner
+  (``refine.over_input``, ``--refine``): the rows above all bake the field's colour (``bake.source`` field),
+  where the refiner is on by default.
 
 Every run is its own process. Scores: unlit renders at held-out cameras planned with their own seed
 (seen by no run) against the ground truth's, as in bench_suite; seam visibility of the output atlas along
@@ -63,7 +66,10 @@ print(json.dumps({"seconds": seconds, "scores": scores, "timings": result.metric
 ALL = {"refine__enabled": True, "refine__masked": True, "refine__cross_view": True, "refine__super_resolution": True}
 OFF = {"refine__masked": False, "refine__cross_view": False, "refine__super_resolution": False}
 DEFAULT = {**ALL, "refine__cross_view": False}  # what the presets use (see RefineConfig)
-ROWS = [
+# the refiner is on by default where the bake is the field's colour, so the ablations bake the field; the last
+# two rows are the default bake of a textured scan (its own texels, levelled) without and with the refiner
+FIELD = {"bake__source": "field"}
+ROWS = [(name, {**FIELD, **override}) for name, override in [
     ("field only", {"refine__enabled": False}),
     ("+ ViT, default terms (masked + super-resolution)", DEFAULT),
     ("+ ViT without self-supervision (plain reconstruction)", {**ALL, **OFF}),
@@ -72,12 +78,16 @@ ROWS = [
     ("+ ViT, all but super-resolution", {**ALL, "refine__super_resolution": False}),
     ("+ ViT, super-resolution only", {**ALL, **OFF, "refine__super_resolution": True}),
     ("+ ViT (default terms) + diffusion", {**DEFAULT, "refine__diffusion": True}),
+]]
+INPUT_ROWS = [
+    ("input texels levelled (the default bake), no refiner", {"bake__source": "input"}),
+    ("input texels levelled + ViT (`refine.over_input`)", {**DEFAULT, "bake__source": "input", "refine__over_input": True}),
 ]
 
 SCENES = {
     "full": [
-        ("demo wall (79k faces, 1024² atlas), `fast`", "wall", {}, "fast", ROWS[:4] + ROWS[-1:]),
-        ("room (4.8k faces, 256² atlas), `fast`", "room", {}, "fast", ROWS[:4] + ROWS[-1:]),
+        ("demo wall (79k faces, 1024² atlas), `fast`", "wall", {}, "fast", ROWS[:4] + ROWS[-1:] + INPUT_ROWS),
+        ("room (4.8k faces, 256² atlas), `fast`", "room", {}, "fast", ROWS[:4] + ROWS[-1:] + INPUT_ROWS),
     ],
     "quick": [
         ("toy wall", "wall", {"grid": (24, 18), "gt_texture_size": 256, "scan_texture_size": 64}, "fast",
@@ -115,7 +125,7 @@ def main() -> None:
     eval_views, eval_size = (2, (96, 72)) if args.quick else (6, (320, 240))
     for scene, kind, make, preset, rows in SCENES["quick" if args.quick else "full"]:
         if args.per_term and not args.quick:
-            rows = rows[:-1] + ROWS[4:7] + rows[-1:]
+            rows = rows[:-3] + ROWS[4:7] + rows[-3:]
         for name, override in rows:
             r = run({"scene": kind, "make": make, "preset": preset, "override": override,
                      "eval_views": eval_views, "eval_size": eval_size})

@@ -529,7 +529,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
-    if config.refine.enabled and (photo is None or config.refine.with_photos):
+    # mesh-only mode's default bake keeps the input's own texels, levelled: refining them measured a loss
+    over_input = photo is None and bake_report["source"] == "input"
+    if (config.refine.enabled and (photo is None or config.refine.with_photos)
+            and (not over_input or config.refine.over_input)):
         from scantex.refine.stage import refine_colour
 
         t = time.perf_counter()

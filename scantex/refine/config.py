@@ -8,8 +8,13 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class RefineConfig:
     enabled: bool = True
-    """refine views of the field's colour with a self-supervised ViT and fuse them back into the atlas
-    (on in every preset: +0.33 dB on the demo wall for 10 s, neutral on the room; bench/bench_refine.py)"""
+    """refine views of the field's colour with a self-supervised ViT and fuse them back into the atlas, where
+    the bake is the field's colour (bake.source field, an untextured mesh): +0.35 dB on the demo wall for
+    about 20 s (fast; bench/bench_refine.py)"""
+    over_input: bool = False
+    """also refine where the bake keeps the input's own texels (mesh-only mode's default): off, since there
+    it measured -0.26 dB (fast) and -0.06 dB (default) on the demo wall and 0.00 dB on the real facade, for
+    10-23 s (bench/RESULTS.md, "enhance"); the CLI's --refine turns it on"""
     with_photos: bool = False
     """also refine in photo mode (off: there it trains on renders of the input texture, which the photos
     outclass; measured -0.12 dB on the demo wall with photos, bench/bench_photos.py)"""

@@ -99,7 +99,7 @@ from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: E402,F401  (a fix
 from tests.pipeline.test_photo_mode import CAPTURE  # noqa: E402
 
 #: mesh-only mode with every torch stage on: the field, the ViT refiner and the diffusion denoiser
-ALL_STAGES = TOY.override(train__steps=20, refine__enabled=True, refine__steps=3, refine__batch=4,
+ALL_STAGES = TOY.override(train__steps=20, refine__enabled=True, refine__over_input=True, refine__steps=3, refine__batch=4,
                           refine__max_views=2, refine__diffusion=True, refine__diffusion_steps=3)
 
 

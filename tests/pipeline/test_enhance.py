@@ -181,7 +181,7 @@ def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypa
     the input's (holes filled, seams blended), and the metrics say why."""
     import scantex.pipeline.enhance as pipeline
 
-    cfg = TOY.override(train__steps=5, refine__enabled=True, refine__steps=2)
+    cfg = TOY.override(train__steps=5, refine__enabled=True, refine__over_input=True, refine__steps=2)
     monkeypatch.setattr(pipeline, "PATCH_LIMIT", 2.0)  # no result "has patches"
     kept = enhance(toy_demo.scan, cfg).metrics
     assert "safety" not in kept["bake"] and kept["bake"]["levelling_offset_max"] > 0 and "refine" in kept
