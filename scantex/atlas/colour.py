@@ -17,8 +17,8 @@ Two sources, chosen by ``bake.source``:
      part smaller than ``noise_threshold`` is removed (clipped in magnitude): compression and sensor
      noise go, detail stronger than the noise stays.
 
-  Holes (untextured faces and the ring of faces whose lookups bleed into them) get a harmonic
-  interpolation over the mesh of the colours around them.
+  Holes (untextured faces) get a harmonic interpolation over the mesh of the colours around them; the
+  ring of faces around a hole (whose lookups bleed into it) keeps its own texels but where they are black.
 
 - ``"field"``: the paper's bake: the field's canonical colour on every taught face (optionally mixed
   with ``detail`` of the input), the canonical input where no training ray reached, hole fill as above.
@@ -116,9 +116,20 @@ def atlas_noise(scan: Scan, exclude: np.ndarray | None = None) -> float:
     return total / weight if weight else 0.0
 
 
-def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray) -> SurfaceColour:
+#: input texels up to this many 8-bit levels above the black level blend from the hole fill into their own colour
+DARK_RAMP = 24.0
+
+
+def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.ndarray | None = None
+                    ) -> SurfaceColour:
     """``base`` outside the ``fill`` faces; inside, a harmonic interpolation over the mesh of ``base``'s
-    colours at the vertices around them (read through a non-fill face each)."""
+    colours at the vertices around them (read through a non-fill face each).
+
+    ``ring``: ``(F,) bool`` fill faces that have texels of their own (the ring around a hole, kept out of
+    training and of the fill's seeds because lookups near the hole read its black texels): there each point
+    keeps ``base`` unless the input's texel there is black, blending into the fill over ``DARK_RAMP`` levels.
+    On a coarse mesh a ring face is a large part of the surface, whose own texture the fill would replace
+    by a smooth gradient (a patch the input does not have)."""
     outside = np.flatnonzero(~fill)
     corner_face = np.full(scan.n_vertices, -1)
     corner_slot = np.zeros(scan.n_vertices, int)
@@ -147,6 +158,14 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray) -> Surfac
             b = bary[hole].astype(np.float64)
             w = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)
             rgb[hole] = np.einsum("nk,nkc->nc", w, corners)
+            own = np.flatnonzero(hole)[ring[face_ids[hole]]] if ring is not None else np.zeros(0, np.intp)
+            if own.size:
+                from scantex.atlas.holes import BLACK_LEVEL
+
+                f, b = face_ids[own], bary[own]
+                texel = shade_hits(scan, f, b).max(axis=1) * 255.0
+                keep = np.clip((texel - BLACK_LEVEL) / DARK_RAMP, 0, 1)[:, None].astype(np.float32)
+                rgb[own] = keep * base(points[own], normals[own], f, b) + (1 - keep) * rgb[own]
         return rgb
 
     return colour
@@ -261,4 +280,6 @@ def levelled_input_colour(scan: Scan, offsets: np.ndarray, fill: np.ndarray, *, 
                 rgb[sel] -= high * np.minimum(1.0, noise_threshold / np.maximum(size, 1e-12))
         return np.clip(rgb, 0, 1)
 
-    return _with_hole_fill(scan, base, fill)
+    from scantex.atlas.holes import untextured_faces
+
+    return _with_hole_fill(scan, base, fill, ring=fill & ~untextured_faces(scan))

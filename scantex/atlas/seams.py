@@ -56,6 +56,12 @@ class SeamEdges:
     def __len__(self) -> int:
         return len(self.faces)
 
+    def smooth(self, normals: np.ndarray, max_crease_deg: float) -> SeamEdges:
+        """The seam edges whose two faces (``normals (F, 3)``, unit) meet at no sharper crease than
+        ``max_crease_deg``: one surface stored twice, not two surfaces (a wall meeting the floor)."""
+        keep = (normals[self.faces[:, 0]] * normals[self.faces[:, 1]]).sum(axis=1) >= np.cos(np.radians(max_crease_deg))
+        return SeamEdges(self.faces[keep], self.corners[keep])
+
 
 def seam_edges(scan: Scan) -> SeamEdges:
     """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped)."""

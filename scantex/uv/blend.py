@@ -1,7 +1,7 @@
 """Seam blending after a bake, and moving a texture onto a new UV layout.
 
 Along a seam the same 3D points are stored twice, once in each chart. :func:`blend_seams` levels the two
-copies: at every point of a seam edge it measures the colour on both sides (just inside each chart),
+copies (on seams that are no sharp crease: there the two sides are two surfaces): at every point of a seam edge it measures the colour on both sides (just inside each chart),
 and moves the texels of each side towards their mean. Texels within ``core_texels`` of the seam (the ones
 bilinear filtering reads at the seam) move all the way, so both sides end equal; the shift then falls
 off linearly to nothing at ``band_texels``, so texture detail is kept and no step appears inside the
@@ -32,7 +32,7 @@ CANDIDATES_PER_BATCH = 2_000_000
 
 
 def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
-                edges: SeamEdges | None = None) -> Scan:
+                edges: SeamEdges | None = None, max_crease_deg: float = 60.0) -> Scan:
     """The same scan with seam-blended material images (see the module docstring).
 
     Args:
@@ -41,10 +41,15 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         core_texels: texels within this distance of a seam take the mean of both sides fully.
         inset_texels: how far inside each chart the two sides are read.
         edges: the seam edges (default: all of :func:`scantex.atlas.seams.seam_edges`).
+        max_crease_deg: seams on a sharper crease are left alone, as seam levelling leaves them: where a
+            wall meets the floor the colour changes for real, and blending it would bleed each surface's
+            colour onto the other over the band (on a coarse atlas, centimetres; 180 blends every seam).
     """
     if band_texels <= 0:
         raise ValueError(f"band_texels must be positive, got {band_texels}")
     edges = seam_edges(scan) if edges is None else edges
+    if max_crease_deg < 180:
+        edges = edges.smooth(scan.face_normals, max_crease_deg)
     if not scan.is_textured or len(edges) == 0:
         return scan
     core = min(core_texels, 0.999 * band_texels)

@@ -180,3 +180,44 @@ def test_denoising_against_a_perfect_field_removes_noise_and_keeps_strong_detail
     err_out = np.abs(out - clean)[inside].mean()
     assert err_out < 0.5 * err_in
     assert out[61:67, 31:37].mean() - clean[61:67, 31:37].mean() > 0.2  # the mark is kept
+
+
+def test_the_ring_around_a_hole_keeps_its_own_texels():
+    """A hole (one black face) and the ring of faces around it: the hole takes the harmonic fill, the ring
+    keeps its own texels (a coarse mesh's ring is a large part of the surface); only black texels blend in."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.inpaint import grow_faces
+    from scantex.views.raycast import interpolate
+
+    scan = two_chart_wall(n=4)
+    image = scan.materials[0].image.copy()
+    hole = 10
+    uv = scan.triangle_uvs[hole]  # paint the hole face's UV triangle black, a little beyond its edges
+    H, W = image.shape[:2]
+    ys, xs = np.mgrid[0:H, 0:W]
+    u, v = (xs + 0.5) / W, 1 - (ys + 0.5) / H
+    a, b, c = uv
+    d = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
+    l1 = ((b[1] - c[1]) * (u - c[0]) + (c[0] - b[0]) * (v - c[1])) / d
+    l2 = ((c[1] - a[1]) * (u - c[0]) + (a[0] - c[0]) * (v - c[1])) / d
+    image[(l1 > -0.02) & (l2 > -0.02) & (1 - l1 - l2 > -0.02)] = 0
+    scan = scan.replace(materials=(Material("wall", image),))
+    holes = untextured_faces(scan)
+    assert holes[hole] and holes.sum() == 1
+    fill = grow_faces(scan, holes)
+    ring = np.flatnonzero(fill & ~holes)
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), fill)
+    rng = np.random.default_rng(0)
+    f = np.repeat(ring, 50)
+    bary = rng.dirichlet([4, 4, 4], len(f))[:, 1:].astype(np.float32)  # inside the faces, off their edges
+    from scantex.views.render import shade_hits
+
+    own = shade_hits(scan, f, bary)
+    got = colour(interpolate(f, bary, scan.triangles), scan.face_normals[f], f, bary)
+    lit = own.max(axis=1) > 0.2  # the ring's own texels, not the black ones
+    assert lit.mean() > 0.8
+    np.testing.assert_allclose(got[lit], own[lit], atol=1e-5)
+    centre = np.full((1, 2), 1 / 3, np.float32)
+    at = np.array([hole])
+    filled = colour(interpolate(at, centre, scan.triangles), scan.face_normals[at], at, centre)
+    assert filled.max() > 0.2  # the hole itself is filled from around it, not black

@@ -43,7 +43,19 @@ def test_blending_across_materials():
                                     Material("b", np.full((64, 64, 3), 220, np.uint8))))
     before = seam_visibility(solid)
     assert before > 50
-    assert seam_visibility(blend_seams(solid)) < 0.2 * before
+    assert seam_visibility(blend_seams(solid, max_crease_deg=180)) < 0.2 * before
+
+
+def test_blending_leaves_sharp_creases_alone():
+    """A cube's faces meet at 90 degrees: the colour may change there for real (a wall meeting the floor),
+    so the default blend leaves those seams as they are; a smooth seam is still blended (the cylinder)."""
+    cube = textured_cube(materials=2)
+    solid = cube.replace(materials=(Material("a", np.full((64, 64, 3), 40, np.uint8)),
+                                    Material("b", np.full((64, 64, 3), 220, np.uint8))))
+    kept = blend_seams(solid)
+    for a, b in zip(kept.materials, solid.materials):
+        assert np.array_equal(a.image, b.image)
+    assert seam_visibility(blend_seams(cylinder_with_one_seam())) < 5.0
 
 
 def test_blending_lowers_seam_visibility_on_the_demo_wall():
@@ -91,12 +103,13 @@ def test_blending_in_strips_is_blending_the_whole_atlas(rows, batch, monkeypatch
 
     scans = [cylinder_with_one_seam(), textured_cube(),
              make_wall(grid=(16, 12), gt_texture_size=192, scan_texture_size=96, seed=2).scan]
-    whole = [blend_seams(s, band_texels=3.0) for s in scans]  # default strips: one strip each
+    # every seam blended, the cube's creases too (the strips are what is tested)
+    whole = [blend_seams(s, band_texels=3.0, max_crease_deg=180) for s in scans]  # default strips: one strip each
     monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", rows)
     monkeypatch.setattr(scantex.atlas.padding, "ROWS_PER_STRIP", rows)
     monkeypatch.setattr(scantex.uv.blend, "CANDIDATES_PER_BATCH", batch)
     for scan, ref in zip(scans, whole):
-        out = blend_seams(scan, band_texels=3.0)
+        out = blend_seams(scan, band_texels=3.0, max_crease_deg=180)
         for a, b, before in zip(out.materials, ref.materials, scan.materials):
             assert before.image.shape[0] < 512  # so that `whole` was one strip
             diff = np.abs(a.image.astype(int) - b.image.astype(int))
