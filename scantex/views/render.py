@@ -24,14 +24,7 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """
     H, W = image.shape[:2]
     scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
-    x = uv[:, 0] * W - 0.5
-    y = (1.0 - uv[:, 1]) * H - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0).astype(np.float32)[:, None]
-    fy = (y - y0).astype(np.float32)[:, None]
-    x0 = x0.astype(np.int64) % W
-    y0 = y0.astype(np.int64) % H
+    x0, y0, fx, fy = _texel_corner(uv, W, H)
     x1 = x0 + 1
     x1[x1 == W] = 0
     row0 = y0 * W
@@ -45,18 +38,23 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
 
 
-def sample_texture_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Slow, plainly written twin of :func:`sample_texture` (rows and columns indexed); for tests."""
-    H, W = image.shape[:2]
-    scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+def _texel_corner(uv: np.ndarray, W: int, H: int):
+    """The top-left texel ``x0, y0 (N,) int64`` (wrapped) of the bilinear lookups at ``uv (N, 2)`` in a
+    ``W x H`` image, and the weights ``fx, fy (N, 1) float32`` of the texels right of and below it."""
     x = uv[:, 0] * W - 0.5
     y = (1.0 - uv[:, 1]) * H - 0.5
     x0 = np.floor(x)
     y0 = np.floor(y)
     fx = (x - x0).astype(np.float32)[:, None]
     fy = (y - y0).astype(np.float32)[:, None]
-    x0 = x0.astype(np.int64) % W
-    y0 = y0.astype(np.int64) % H
+    return x0.astype(np.int64) % W, y0.astype(np.int64) % H, fx, fy
+
+
+def sample_texture_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Slow, plainly written twin of :func:`sample_texture` (rows and columns indexed); for tests."""
+    H, W = image.shape[:2]
+    scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+    x0, y0, fx, fy = _texel_corner(uv, W, H)
     x1 = (x0 + 1) % W
     y1 = (y0 + 1) % H
     img = image.reshape(H, W, -1)
