@@ -93,7 +93,8 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
         return np.zeros((0 if scan.uvs is None else len(scan.uvs), 3))
     T = len(scan.uvs)
     offsets = np.zeros((T, 3))
-    edges = seam_edges(scan) if edges is None else edges
+    # seams on a sharp crease join two surfaces, whose colours differ for real
+    edges = (seam_edges(scan) if edges is None else edges).smooth(scan.face_normals, max_crease_deg)
     if len(edges) == 0:
         return offsets
     S = samples_per_edge
@@ -105,8 +106,6 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
     cb = seam_side_colours(scan, fb, corners_b, t, inset_texels)
     usable = (ca.min(axis=1) > MIN_LEVEL) & (cb.min(axis=1) > MIN_LEVEL)
     usable &= np.abs(cb - ca).max(axis=1) <= max_step
-    normals = scan.face_normals
-    usable &= (normals[fa] * normals[fb]).sum(axis=1) >= np.cos(np.radians(max_crease_deg))
     if exclude is not None:
         usable &= ~exclude[fa] & ~exclude[fb]
     if not usable.any():

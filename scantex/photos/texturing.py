@@ -176,14 +176,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 sub = None
                 full, z = s.camera.project(points)
             pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
-            h, w = view.valid.shape
-            with np.errstate(invalid="ignore"):
-                x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
-                y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
-            idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
-            z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
-            seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < settings.depth_tolerance * z)
-            idx, z, xi, yi = idx[seen], z[seen], xi[seen], yi[seen]
+            idx, xi, yi = _seen_in(view, pix, z, settings.depth_tolerance)
+            z = z[idx]
             if idx.size == 0:
                 return None
             full = full[idx]
@@ -243,6 +237,21 @@ def _incidence(faces: np.ndarray):
     F = len(faces)
     return sparse.csr_matrix((np.ones(3 * F, np.float32), (np.repeat(np.arange(F), 3), faces.reshape(-1))),
                              shape=(F, int(faces.max()) + 1 if F else 0))
+
+
+def _seen_in(view: PhotoView, pix: np.ndarray, z: np.ndarray, depth_tolerance: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(idx, x, y)``: the points (of working-resolution pixels ``pix (n, 2)`` and camera depths ``z (n,)``)
+    that ``view`` sees, a usable pixel whose depth agrees within ``depth_tolerance`` (relative), and their
+    nearest pixel."""
+    h, w = view.valid.shape
+    with np.errstate(invalid="ignore"):
+        x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
+        y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
+    idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
+    z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
+    seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < depth_tolerance * z)
+    return idx[seen], xi[seen], yi[seen]
 
 
 def _weighted_mean(n: int, seen_by: list, weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -392,14 +401,8 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
         for l, u in enumerate(views):
             if l == k or shared[k, l] < 1:
                 continue
-            pix, z = u.camera.project(points)
-            h, w = u.valid.shape
-            with np.errstate(invalid="ignore"):
-                x = np.round(np.nan_to_num(pix[:, 0], nan=-1)).astype(np.intp)
-                y = np.round(np.nan_to_num(pix[:, 1], nan=-1)).astype(np.intp)
-            ok = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
-            ok = ok[u.valid[y[ok], x[ok]] & (np.abs(u.depth[y[ok], x[ok]] - z[ok]) < depth_tolerance * z[ok])]
-            a, b = own[ok], blurred[l][y[ok], x[ok]]
+            ok, x, y = _seen_in(u, *u.camera.project(points), depth_tolerance)
+            a, b = own[ok], blurred[l][y, x]
             good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)  # neither dark nor clipped
             if good.sum() >= min_pixels:
                 ratio = np.median(np.log(b[good]) - np.log(a[good]), axis=0)
