@@ -61,6 +61,8 @@ class PhotoView:
         depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z).
         valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed).
         rejected: pixels that hit the mesh but failed the test, by reason (for the report).
+        bary: ``(H, W, 2) float32`` barycentric coordinates of the hit at the pixel centre (with
+            ``face_id``: the surface point the pixel sees, for :func:`texture_seen`), or ``None``.
     """
 
     index: int
@@ -70,6 +72,7 @@ class PhotoView:
     depth: np.ndarray
     valid: np.ndarray
     rejected: dict
+    bary: np.ndarray | None = None
 
 
 def working_camera(camera: Camera, max_side: int) -> Camera:
@@ -103,15 +106,28 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
 
     s = max(1, settings.supersample)
     g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, scan.face_normals)
+    # the s x s sub-samples of each pixel as s * s (H, W) views, combined elementwise (a reduction over
+    # the strided axes of an (H, s, W, s) array is several times slower)
     fid = g.face_id.reshape(H, s, W, s)
-    hit = fid >= 0
     depth = g.depth.reshape(H, s, W, s)
-    n_hit = hit.sum(axis=(1, 3))
-    mean_depth = (np.where(hit, depth, 0).sum(axis=(1, 3)) / np.maximum(n_hit, 1)).astype(np.float32)
-    spread = np.where(hit, depth, -np.inf).max(axis=(1, 3)) - np.where(hit, depth, np.inf).min(axis=(1, 3))
+    subs = [(a, b) for a in range(s) for b in range(s)]
+    hits = [fid[:, a, :, b] >= 0 for a, b in subs]
+    n_hit = np.sum(hits, axis=0, dtype=np.int32) if s > 1 else hits[0].astype(np.int32)
+    depth_sum = np.zeros((H, W), np.float32)
+    near = np.full((H, W), np.inf, np.float32)
+    far = np.full((H, W), -np.inf, np.float32)
+    for (a, b), hit in zip(subs, hits):
+        d = depth[:, a, :, b]
+        depth_sum += np.where(hit, d, 0)
+        np.minimum(near, np.where(hit, d, np.inf), out=near)
+        np.maximum(far, np.where(hit, d, -np.inf), out=far)
+    mean_depth = (depth_sum / np.maximum(n_hit, 1)).astype(np.float32)
+    spread = far - near
     centre = fid[:, s // 2, :, s // 2]
+    bary = g.bary.reshape(H, s, W, s, 2)[:, s // 2, :, s // 2]
     any_hit = n_hit > 0
-    clean = hit.all(axis=(1, 3)) & (spread < 0.02 * mean_depth)
+    with np.errstate(invalid="ignore"):  # inf - inf where no sub-sample hits
+        clean = (n_hit == s * s) & (spread < 0.02 * mean_depth)
 
     contours = contour_map(any_hit, np.where(any_hit, mean_depth, np.inf))
     if settings.edge_margin_px > 0:
@@ -137,7 +153,22 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     valid = clean & ~near_edge & ~grazing & ~disagree & (centre >= 0)
     rejected = {"edge": int((any_hit & near_edge).sum()), "grazing": int((grazing & ~near_edge).sum()),
                 "depth_map": int((disagree & ~near_edge & ~grazing).sum())}
-    return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected)
+    return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected,
+                     np.ascontiguousarray(bary, dtype=np.float32))
+
+
+def texture_seen(scan: Scan, view: PhotoView, caster: RayCaster) -> np.ndarray:
+    """``(H, W, 3) float32``: ``scan``'s texture at the surface points ``view``'s pixels see (black where
+    none): the scan rendered through the view's camera, from the ray cast the view was prepared with."""
+    from scantex.views.render import render, shade_hits
+
+    if view.bary is None:
+        return render(scan, view.camera, caster)[0]
+    H, W = view.face_id.shape
+    out = np.zeros((H * W, 3), np.float32)
+    hit = np.flatnonzero(view.face_id.reshape(-1) >= 0)
+    out[hit] = shade_hits(scan, view.face_id.reshape(-1)[hit], view.bary.reshape(-1, 2)[hit])
+    return out.reshape(H, W, 3)
 
 
 def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster: RayCaster, max_side: int,
@@ -223,7 +254,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
     """
     from scantex.metrics.image import psnr, ssim
     from scantex.photos.poses import PoseSettings, align_camera
-    from scantex.views.render import render, shade_hits
+    from scantex.views.render import render, render_scans, shade_hits
 
     scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
     for view in views:
@@ -231,8 +262,9 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         if mask.sum() < 64:
             continue
         row = [view.image]
+        renders = render_scans(scans, view.camera, caster, supersample=supersample)  # one ray cast for all
         for name, scan in scans.items():
-            img, _ = render(scan, view.camera, caster, supersample=supersample)
+            img, _ = renders[name]
             row.append(img)
             matched = colour_match(img, view.image, mask)
             s = scores[name]

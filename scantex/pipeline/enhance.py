@@ -248,8 +248,9 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
     atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
     function that undoes it."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
+    from scantex.photos.training import texture_seen
 
-    references = [render(scan, view.camera, caster)[0] for view in views]
+    references = [texture_seen(scan, view, caster) for view in views]
     transforms = fit_photo_transforms(references, views, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       pair_weight=pair_weight)
@@ -437,13 +438,18 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     t = time.perf_counter()
     data = gather_rays(tv, charts, tv.views.train)
     n_groups, chart_offset, appearance_weights = int(charts.max()) + 1, 0, None
+    ray_counts = (0, len(data))
     if photo is not None:
-        synthetic = data if scan.is_textured else None  # an untextured scan's renders teach nothing
-        data, chart_offset, appearance_weights = photo_mode_rays(synthetic, photo, n_groups,
-                                                                 config.photos.synthetic_weight,
-                                                                 config.photos.canonical)
-        n_groups += chart_offset
-    if len(data) == 0:
+        synthetic_rays = len(data) if scan.is_textured and config.photos.synthetic_weight > 0 else 0
+        ray_counts = (sum(int(v.valid.sum()) for v in photo.train), synthetic_rays)
+        if not photos_need_no_field(scan, config, photos):
+            # every photo pixel as a ray (48 bytes each: 1.5 GB for a hundred VGA photos): only for the field
+            synthetic = data if scan.is_textured else None  # an untextured scan's renders teach nothing
+            data, chart_offset, appearance_weights = photo_mode_rays(synthetic, photo, n_groups,
+                                                                     config.photos.synthetic_weight,
+                                                                     config.photos.canonical)
+            n_groups += chart_offset
+    if sum(ray_counts) == 0:
         raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
                                      "(are its faces degenerate or collinear?)")
     lo, hi = scan.bounds
@@ -600,7 +606,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             metrics["refine"] = refine_report
         if photo is not None:
             sheets: dict = {}
-            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, data, holes, caster, sheets))
+            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, ray_counts, holes, caster, sheets))
             metrics["photos"]["texturing"] = projective_report or {"mode": "field"}
             comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
@@ -628,20 +634,21 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)
 
 
-def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData, rays,
-                  holes: np.ndarray, caster: RayCaster, images: dict | None = None) -> dict:
+def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData,
+                  ray_counts: tuple[int, int], holes: np.ndarray, caster: RayCaster,
+                  images: dict | None = None) -> dict:
     """Photo mode: what the photos gave, and the input and the result scored on the held-out photos
     (and, when known, against the ground truth rendered through the held-out photos' cameras).
+    ``ray_counts``: the training photos' usable pixels and the synthetic views' rays.
     ``images`` receives a photo | input | result image per held-out photo."""
     from scantex.photos.training import score_photos
 
-    P = len(photo.train)
     rejected = {k: sum(v.rejected[k] for v in photo.train) for k in ("edge", "grazing", "depth_map")}
     out: dict = {"photos": {
         "source": str(photo.photos.source), "format": photo.photos.format, "total": len(photo.photos),
         "train": [int(v.index) for v in photo.train], "held_out": [int(v.index) for v in photo.held_out],
         "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
-        "photo_rays": int((rays.chart < P).sum()), "synthetic_rays": int((rays.chart >= P).sum()),
+        "photo_rays": ray_counts[0], "synthetic_rays": ray_counts[1],
         "rejected_pixels": rejected,
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": None if photo.alignment is None else {
