@@ -56,7 +56,7 @@ def test_aligned_photos_pass(tmp_path):
 
 def test_photos_are_compared_at_max_side(tmp_path):
     scan, photos = cube_photos(tmp_path)
-    report = check_alignment(scan, photos, n_photos=2, max_side=48)
+    report = check_alignment(scan, photos, n_photos=2, max_photos=2, max_side=48)
     assert [p.size for p in report.photos] == [(48, 36), (48, 36)] and report.ok
 
 
@@ -135,6 +135,47 @@ def test_moved_or_turned_partial_wall_is_refused_saying_by_how_much(tmp_path, of
         assert 0.10 < report.offset_m < 0.20
     with pytest.raises(ScanError, match=r"the mesh is not in the cameras' frame: it sits about \d+\.\d cm"):
         require_alignment(bad, photos)
+
+
+def bare_and_smudged_wall(tmp_path):
+    """A 4 m wall: its left third bare (one flat colour), the rest printed with blobs. The scan's atlas has
+    the blobs right in the middle third and unrelated ones in the right third (a capture app's smudge).
+    Photos 0, 2, 5 and 7 (those checked first) see the bare third; 1 and 3 the middle; 4 and 6 the right."""
+    from scipy import ndimage
+
+    def blobs(seed):
+        rng = np.random.default_rng(seed)
+        t = ndimage.gaussian_filter(rng.uniform(0, 1, (256, 256, 3)), (4, 4, 0))
+        return np.clip((t - t.mean()) * 6 + 0.5, 0, 1)
+
+    truth, atlas = blobs(3), blobs(4)
+    truth[:, :86] = 0.5
+    atlas[:, :171] = truth[:, :171]
+    wall = grid_wall(n=41, size=4.0)
+    textured = [dataclasses.replace(wall, materials=(dataclasses.replace(wall.materials[0], image=to_uint8(t)),))
+                for t in (truth, atlas)]
+    at = {"bare": 0.65, "middle": 2.0, "right": 3.35}
+    where = ["bare", "middle", "bare", "middle", "right", "bare", "right", "bare"]
+    cams = [Camera.look_at((at[w] + 0.1 * (k % 3 - 1), -1.6, 1.7 + 0.25 * (k % 2)), (at[w], 0.0, 2.0),
+                           fov_deg=40, width=160, height=120) for k, w in enumerate(where)]
+    return textured[1], photograph(textured[0], cams, tmp_path)
+
+
+def test_photos_of_bare_and_smudged_walls_do_not_refuse_an_aligned_scan(tmp_path):
+    """A room's photos of bare walls show no edges to compare, and where its atlas is smudged the render's
+    edges match nothing: neither is evidence that the mesh is elsewhere. More photos are checked, and the
+    verdict rests on the photos whose edges do match."""
+    scan, photos = bare_and_smudged_wall(tmp_path)
+    report = require_alignment(scan, photos)
+    assert report.ok and len(report.photos) == 8
+    by_index = {p.index: p for p in report.photos}
+    assert all(not np.isfinite(by_index[i].ratio) for i in (0, 2, 5, 7))  # bare: nothing to compare
+    assert all(by_index[i].ratio < 0.3 for i in (1, 3)) and all(by_index[i].ratio > 0.6 for i in (4, 6))
+    assert report.offset_m < 0.05 and report.turn_deg < 1.0
+    # the same scan 15 cm away, and in another frame altogether, is still refused
+    assert not check_alignment(moved(scan, offset=(0.15, 0.0, 0.0)), photos).ok
+    far = check_alignment(moved(scan, offset=(1.3, 0.0, 0.0)), photos)
+    assert not far.ok
 
 
 def test_contour_map_marks_the_nearer_side():
