@@ -157,6 +157,28 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
                      np.ascontiguousarray(bary, dtype=np.float32))
 
 
+def halved(view: PhotoView) -> PhotoView:
+    """``view`` at half its working resolution (for fits that need many pixels, not fine ones): the image
+    box-filtered, a pixel usable where all four of its pixels are, face, depth and barycentrics those of
+    its top-left pixel (half a working pixel off: below the poses' own error)."""
+    H, W = view.face_id.shape
+    h, w = H // 2, W // 2
+    if h < 1 or w < 1:
+        return view
+    corners = [(slice(a, 2 * h, 2), slice(b, 2 * w, 2)) for a in (0, 1) for b in (0, 1)]
+    image = sum(view.image[c] for c in corners) * np.float32(0.25)  # elementwise: reductions over strided
+    valid = np.logical_and.reduce([view.valid[c] for c in corners])  # axes are several times slower
+    camera = resized_camera(view.camera, w, h) if (2 * w, 2 * h) == (W, H) else \
+        resized_camera(crop_camera(view.camera, 2 * w, 2 * h), w, h)
+    return PhotoView(view.index, camera, image, view.face_id[:2 * h:2, :2 * w:2], view.depth[:2 * h:2, :2 * w:2],
+                     valid, view.rejected, None if view.bary is None else view.bary[:2 * h:2, :2 * w:2])
+
+
+def crop_camera(camera: Camera, width: int, height: int) -> Camera:
+    """``camera`` with its image cut to the top-left ``width x height`` pixels."""
+    return Camera(camera.K, camera.world_to_camera, width, height)
+
+
 def texture_seen(scan: Scan, view: PhotoView, caster: RayCaster) -> np.ndarray:
     """``(H, W, 3) float32``: ``scan``'s texture at the surface points ``view``'s pixels see (black where
     none): the scan rendered through the view's camera, from the ray cast the view was prepared with."""

@@ -248,12 +248,14 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
     atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
     function that undoes it."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
-    from scantex.photos.training import texture_seen
+    from scantex.photos.training import halved, texture_seen
 
-    references = [texture_seen(scan, view, caster) for view in views]
-    transforms = fit_photo_transforms(references, views, charts,
+    # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
+    small = [halved(view) for view in views]
+    references = [texture_seen(scan, view, caster) for view in small]
+    transforms = fit_photo_transforms(references, small, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
-                                      pair_weight=pair_weight)
+                                      blur_px=0.5, pair_weight=pair_weight)
     return inverse_transforms(transforms), transforms
 
 

@@ -9,8 +9,9 @@ import pytest
 from PIL import Image
 
 from scantex.photos import PhotoSet
-from scantex.photos.training import (VisibilitySettings, colour_match, photo_rays, prepare_photo, resize_depth,
-                                     score_photos, split_photos, taught_by_photos, working_camera)
+from scantex.photos.training import (VisibilitySettings, colour_match, halved, photo_rays, prepare_photo,
+                                     resize_depth, score_photos, split_photos, taught_by_photos, texture_seen,
+                                     working_camera)
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster, cast_gbuffer
 from scantex.views.render import render, to_uint8
@@ -61,6 +62,40 @@ def test_valid_pixels_see_what_the_photo_shows(tmp_path):
 
     assert not (view.valid & ~ndimage.binary_erosion(hit, iterations=2)).any()
     assert view.rejected["edge"] > 0
+
+
+def test_texture_seen_is_the_render_from_the_views_own_ray_cast(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    view = prepare_photo(scan, photos, 0, caster, max_side=96)
+    seen = texture_seen(scan, view, caster)
+    again, _ = render(scan, view.camera, caster)
+    # the view's ray cast is supersampled: its surface points are a quarter pixel off the centres
+    assert np.abs(seen[view.valid] - again[view.valid]).mean() < 0.02
+    # a view without barycentrics (made elsewhere) is rendered again
+    assert np.array_equal(texture_seen(scan, dataclasses.replace(view, bary=None), caster), again)
+    assert (seen[view.face_id < 0] == 0).all()
+
+
+def test_halved_view_is_the_same_photo_at_half_size(tmp_path):
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    view = prepare_photo(scan, photos, 0, caster, max_side=96)
+    half = halved(view)
+    assert half.image.shape == (36, 48, 3) and half.valid.shape == half.face_id.shape == half.depth.shape == (36, 48)
+    assert (half.camera.width, half.camera.height) == (48, 36)
+    assert np.allclose(half.image[5, 7], view.image[10:12, 14:16].mean(axis=(0, 1)))
+    # usable only where all four pixels are
+    assert np.array_equal(half.valid, view.valid[0::2, 0::2] & view.valid[1::2, 0::2] & view.valid[0::2, 1::2]
+                          & view.valid[1::2, 1::2])
+    # a surface point lands at half the pixel coordinates (centres kept: x' = (x + 0.5) / 2 - 0.5)
+    point = np.array([[0.5, 0.2, 0.6]])
+    full, _ = view.camera.project(point)
+    small, _ = half.camera.project(point)
+    assert np.allclose(small, (full + 0.5) / 2 - 0.5)
+    # the texture at the halved view's pixels is the render at half size, near enough for an exposure fit
+    seen = texture_seen(scan, half, caster)
+    assert np.abs(seen[half.valid] - half.image[half.valid]).mean() < 0.05
 
 
 def test_photos_are_box_filtered_to_max_side(tmp_path):
