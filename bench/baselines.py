@@ -264,9 +264,7 @@ def best_view_projective(scan: Scan, photos, views, *, size: int = 0) -> Scan:
         photos: the :class:`~scantex.photos.PhotoSet` (full-resolution images).
         views: the training photos' :class:`~scantex.photos.training.PhotoView` (working resolution).
     """
-    from scantex.atlas.bake import bake
-    from scantex.photos.texturing import ProjectiveSettings, projective_colour
-    from scantex.views.render import render_gbuffer, shade_hits
+    from scantex.views.render import render_gbuffer
 
     caster = RayCaster(scan.positions, scan.faces)
     gains = []
@@ -289,10 +287,26 @@ def best_view_projective(scan: Scan, photos, views, *, size: int = 0) -> Scan:
     def level(rgb, group):
         return rgb * G[group] + O[group]
 
+    return blend_seams(_with_images(scan, _best_view_bake(scan, photos, views, level, size), "bestview"))
+
+
+def _best_view_bake(scan: Scan, photos, views, canonicalise, size: int) -> tuple:
+    """The atlases of a near-hard best-view choice per texel (softmax temperature 0.02, 1 px feather), each
+    photo's colours through ``canonicalise`` (``None``: as they are); texels no photo sees keep the scan's."""
+    from scantex.atlas.bake import bake
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.views.render import shade_hits
+
     def input_colour(points, normals, face_ids, bary):
         return shade_hits(scan, face_ids, bary) if scan.is_textured else np.full((len(points), 3), 0.5, np.float32)
 
-    colour, _ = projective_colour(photos, views, range(len(views)), level, input_colour,
+    colour, _ = projective_colour(photos, views, range(len(views)), canonicalise, input_colour,
                                   ProjectiveSettings(temperature=0.02, feather_px=1.0))
-    images = bake(scan, colour, size=size)
-    return blend_seams(_with_images(scan, images, "bestview"))
+    return bake(scan, colour, size=size)
+
+
+def app_style_bake(scan: Scan, photos, views, *, size: int = 0) -> Scan:
+    """What a capture app exports, as ``../shared/data``'s app-style inputs were made: per texel the photo
+    that sees it best, as it is (no exposure levelling, no seam blending), baked on the scan's own UV layout
+    at ``size``; texels no photo sees keep the scan's colour."""
+    return _with_images(scan, _best_view_bake(scan, photos, views, None, size), "app")
