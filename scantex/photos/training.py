@@ -35,7 +35,7 @@ from scantex.photos.alignment import contour_map, resized_camera
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +92,28 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     return depth[ys[:, None], xs[None, :]]
 
 
+def consistent_depth(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, tolerance: float,
+                     source=None) -> np.ndarray:
+    """``measured`` (a photo's depth map at the working size, metres) in the mesh's scale: when most of the
+    pixels both see disagree by more than ``tolerance`` and one factor brings at least 80 % of them within it,
+    the map's unit is off (millimetres read as another unit, a tenth-millimetre sensor) and it is rescaled,
+    with a warning; a map that no single factor fixes is returned as it is (its disagreeing pixels are then
+    rejected: a moved object, or a depth camera that is not the colour camera). ``hit``: the pixels that see
+    the mesh cleanly."""
+    both = hit & np.isfinite(measured) & (measured > 0)
+    if both.sum() < 100:
+        return measured
+    m, d = measured[both], mesh_depth[both]
+    if (np.abs(m - d) <= tolerance * d).mean() >= 0.5:
+        return measured
+    factor = float(np.median(d / m))
+    if (np.abs(m * factor - d) <= tolerance * d).mean() < 0.8:
+        return measured
+    log.warning("%s: the depth map is %.4g times the mesh's depth where both see the surface; read in the mesh's "
+                "scale", source or "depth map", 1 / factor)
+    return measured * np.float32(factor)
+
+
 def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_side: int,
                   settings: VisibilitySettings = VisibilitySettings()) -> PhotoView:
     """Photo ``i`` at the working resolution, ray cast and tested for visibility."""
@@ -107,28 +129,12 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
 
     s = max(1, settings.supersample)
     g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, scan.face_normals)
-    # the s x s sub-samples of each pixel as s * s (H, W) views, combined elementwise (a reduction over
-    # the strided axes of an (H, s, W, s) array is several times slower)
+    n_hit, all_hit, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s)
     fid = g.face_id.reshape(H, s, W, s)
-    depth = g.depth.reshape(H, s, W, s)
-    subs = [(a, b) for a in range(s) for b in range(s)]
-    hits = [fid[:, a, :, b] >= 0 for a, b in subs]
-    n_hit = np.sum(hits, axis=0, dtype=np.int32) if s > 1 else hits[0].astype(np.int32)
-    depth_sum = np.zeros((H, W), np.float32)
-    near = np.full((H, W), np.inf, np.float32)
-    far = np.full((H, W), -np.inf, np.float32)
-    for (a, b), hit in zip(subs, hits):
-        d = depth[:, a, :, b]
-        depth_sum += np.where(hit, d, 0)
-        np.minimum(near, np.where(hit, d, np.inf), out=near)
-        np.maximum(far, np.where(hit, d, -np.inf), out=far)
-    mean_depth = (depth_sum / np.maximum(n_hit, 1)).astype(np.float32)
-    spread = far - near
     centre = fid[:, s // 2, :, s // 2]
     bary = g.bary.reshape(H, s, W, s, 2)[:, s // 2, :, s // 2]
     any_hit = n_hit > 0
-    with np.errstate(invalid="ignore"):  # inf - inf where no sub-sample hits
-        clean = (n_hit == s * s) & (spread < 0.02 * mean_depth)
+    clean = all_hit & (spread < 0.02 * mean_depth)
 
     contours = contour_map(any_hit, np.where(any_hit, mean_depth, np.inf))
     if settings.edge_margin_px > 0:
@@ -145,7 +151,8 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
 
     measured = photos.load_depth(i)
     if measured is not None:
-        measured = resize_depth(measured, W, H)
+        measured = consistent_depth(resize_depth(measured, W, H), mean_depth, clean, settings.depth_tolerance,
+                                    photos.depths[i])
         disagree = any_hit & np.isfinite(measured) & (
             np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
     else:

@@ -30,7 +30,7 @@ from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
-from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
 from scantex.views.render import downsample, render, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
@@ -95,21 +95,14 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
         g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, normals)
         rgb = render_gbuffer(scan, g)
         H, W = cam.height, cam.width
-        fid = g.face_id.reshape(H, s, W, s)
-        ok = fid >= 0
-        ok &= usable[np.where(fid >= 0, fid, 0)]
-        hit = g.mask.reshape(H, s, W, s)
-        depth = g.depth.reshape(H, s, W, s)
-        n_hit = hit.sum(axis=(1, 3))
-        mean_depth = np.where(hit, depth, 0).sum(axis=(1, 3)) / np.maximum(n_hit, 1)
-        spread = np.where(hit, depth, -np.inf).max(axis=(1, 3)) - np.where(hit, depth, np.inf).min(axis=(1, 3))
+        _, all_usable, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s, usable)
         # a pixel is a clean sample of one surface when all its sub-samples hit usable faces at
         # nearly the same depth (no silhouette, no hole border)
-        valid = ok.all(axis=(1, 3)) & (spread < 0.02 * mean_depth)
+        valid = all_usable & (spread < 0.02 * mean_depth)
         images.append(downsample(rgb, s))
         alpha.append(downsample(g.mask.astype(np.float32)[..., None], s)[..., 0])
-        fids.append(fid[:, s // 2, :, s // 2])
-        depths.append(mean_depth.astype(np.float32))
+        fids.append(g.face_id.reshape(H, s, W, s)[:, s // 2, :, s // 2])
+        depths.append(mean_depth)
         valids.append(valid)
         update(i + 1, len(cameras))
     train, test = split_train_test(len(cameras), test_fraction, seed)

@@ -160,3 +160,33 @@ def cast_gbuffer(caster: RayCaster, camera: Camera, face_normals: np.ndarray) ->
     normal[hits.face_id < 0] = 0  # ...so misses are cleared
     # directions have unit camera-z, so the ray parameter is the depth
     return GBuffer(face_id, hits.bary.reshape(H, W, 2), hits.t.reshape(H, W), normal.reshape(H, W, 3))
+
+
+def pixel_footprints(face_id: np.ndarray, depth: np.ndarray, s: int, usable: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the ``s x s`` sub-samples of each pixel of a supersampled G-buffer (``face_id``, ``depth``:
+    ``(H * s, W * s)``) hit: ``(hits (H, W) int32, all_usable (H, W) bool, mean_depth (H, W) float32, spread
+    (H, W) float32)``: how many hit the mesh, whether all hit a face that ``usable (F,) bool`` allows (any
+    face when ``None``), the mean and the range (far - near; -inf where none hits) of their depths.
+    The sub-samples are combined elementwise, as ``s * s`` strided ``(H, W)`` views: a reduction over the
+    strided axes of an ``(H, s, W, s)`` array is several times slower."""
+    H, W = face_id.shape[0] // s, face_id.shape[1] // s
+    fid = face_id.reshape(H, s, W, s)
+    d = depth.reshape(H, s, W, s)
+    hits = np.zeros((H, W), np.int32)
+    all_usable = np.ones((H, W), bool)
+    total = np.zeros((H, W), np.float32)
+    near = np.full((H, W), np.inf, np.float32)
+    far = np.full((H, W), -np.inf, np.float32)
+    for a in range(s):
+        for b in range(s):
+            f, z = fid[:, a, :, b], d[:, a, :, b]
+            hit = f >= 0
+            hits += hit
+            all_usable &= hit if usable is None else hit & usable[np.where(hit, f, 0)]
+            total += np.where(hit, z, 0)
+            np.minimum(near, np.where(hit, z, np.inf), out=near)
+            np.maximum(far, np.where(hit, z, -np.inf), out=far)
+    with np.errstate(invalid="ignore"):  # inf - inf where no sub-sample hits
+        spread = far - near
+    return hits, all_usable, (total / np.maximum(hits, 1)).astype(np.float32), spread

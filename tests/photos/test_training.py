@@ -115,16 +115,34 @@ def test_grazing_pixels_are_rejected(tmp_path):
     assert strict.valid.sum() < loose.valid.sum() and strict.rejected["grazing"] > 0
 
 
-@pytest.mark.parametrize("error", [0.0, 0.2])
-def test_depth_maps_that_disagree_reject_pixels(tmp_path, error):
+@pytest.mark.parametrize("error", [0.0, 0.2, -0.9])
+def test_depth_maps_in_another_unit_are_rescaled(tmp_path, error, caplog):
+    """A depth map that agrees (at half size, in mm) rejects (almost) nothing; one 20 % off everywhere, or
+    in tenths of its unit, is off as a whole (its unit, not the mesh): read in the mesh's scale, with a
+    warning, it rejects (almost) nothing either."""
     scan, photos = cube_set(tmp_path, depth_error=error)
     caster = RayCaster(scan.positions, scan.faces)
-    view = prepare_photo(scan, photos, 0, caster, 96)
+    with caplog.at_level("WARNING"):
+        view = prepare_photo(scan, photos, 0, caster, 96)
     plain = prepare_photo(scan, dataclasses.replace(photos, depths=(None,) * 4), 0, caster, 96)
-    if error == 0:  # a depth map that agrees (at half size, in mm) rejects (almost) nothing
-        assert view.valid.sum() >= 0.95 * plain.valid.sum()
-    else:
-        assert view.valid.sum() == 0 and view.rejected["depth_map"] > 0
+    assert view.valid.sum() >= 0.95 * plain.valid.sum()
+    assert ("times the mesh's depth" in caplog.text) == (error != 0)
+
+
+def test_depth_maps_that_disagree_in_places_reject_those_pixels(tmp_path):
+    """Where the depth map sees something nearer than the mesh (an object moved after the scan), the
+    pixels are rejected; the rest of the photo stays usable."""
+    scan, photos = cube_set(tmp_path, depth_error=0.0)
+    caster = RayCaster(scan.positions, scan.faces)
+    plain = prepare_photo(scan, dataclasses.replace(photos, depths=(None,) * 4), 0, caster, 96)
+    depth = np.asarray(Image.open(photos.depths[0])).astype(np.uint16)
+    h, w = depth.shape
+    depth[: h // 2, : w // 2] = (depth[: h // 2, : w // 2] * 0.6).astype(np.uint16)  # a quarter 40 % nearer
+    Image.fromarray(depth).save(photos.depths[0])
+    view = prepare_photo(scan, photos, 0, caster, 96)
+    assert view.rejected["depth_map"] > 0
+    assert not view.valid[:36, :48].any() or view.valid[:36, :48].sum() < 0.1 * plain.valid[:36, :48].sum()
+    assert view.valid[36:, 48:].sum() >= 0.95 * plain.valid[36:, 48:].sum()
 
 
 def test_resize_depth_is_nearest_and_keeps_nan():
