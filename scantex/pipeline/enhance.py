@@ -86,12 +86,26 @@ def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
 
 def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray, supersample: int,
                           caster: RayCaster, test_fraction: float, seed: int,
-                          update: Update) -> TrainingViews:
-    """Unlit renders (box-filtered supersamples) plus per-pixel validity for training."""
+                          update: Update, render_train: bool = True) -> TrainingViews:
+    """Unlit renders (box-filtered supersamples) plus per-pixel validity for training. With ``render_train``
+    False only the held-out (test) views are rendered; the training views are left empty (no pixel valid):
+    for a run that trains nothing on them."""
     s = supersample
+    train, test = split_train_test(len(cameras), test_fraction, seed)
+    rendered = np.zeros(len(cameras), bool)
+    rendered[test] = True
+    rendered[train] = render_train
     images, alpha, fids, depths, valids = [], [], [], [], []
     normals = scan.face_normals
     for i, cam in enumerate(cameras):
+        if not rendered[i]:
+            images.append(np.zeros((cam.height, cam.width, 3), np.float32))
+            alpha.append(np.zeros((cam.height, cam.width), np.float32))
+            fids.append(np.full((cam.height, cam.width), -1, np.int32))
+            depths.append(np.full((cam.height, cam.width), np.inf, np.float32))
+            valids.append(np.zeros((cam.height, cam.width), bool))
+            update(i + 1, len(cameras))
+            continue
         g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, normals)
         rgb = render_gbuffer(scan, g)
         H, W = cam.height, cam.width
@@ -105,7 +119,6 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
         depths.append(mean_depth)
         valids.append(valid)
         update(i + 1, len(cameras))
-    train, test = split_train_test(len(cameras), test_fraction, seed)
     views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test)
     return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
 
@@ -418,9 +431,13 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     timings["plan"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    # photo mode without a field (and without the refiner) trains nothing on the synthetic views: only the
+    # held-out ones are rendered, for the report's fidelity score
+    trains_on_views = not photos_need_no_field(scan, config, photos) or (
+        config.refine.enabled and config.refine.with_photos)
     with reporter.stage("rendering views") as update:
         tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
-                                   rng_seed, update)
+                                   rng_seed, update, render_train=trains_on_views)
     timings["render"] = time.perf_counter() - t
 
     photo = None

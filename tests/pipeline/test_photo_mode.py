@@ -48,7 +48,9 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     assert photo_result.scan.positions is toy_demo.scan.positions
     assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
     assert m["photos"]["total"] == 10 and len(m["photos"]["held_out"]) == 1 and len(m["photos"]["train"]) == 9
-    assert m["photos"]["photo_rays"] > 0 and m["photos"]["synthetic_rays"] > 0
+    # no field is trained (projective texturing, colour transforms in closed form): the synthetic training
+    # views would teach nothing, and are not rendered
+    assert m["photos"]["photo_rays"] > 0 and m["photos"]["synthetic_rays"] == 0 and "why" in m["field"]
     truth = m["held_out_photos_vs_ground_truth"]
     assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
     photos = m["held_out_photos"]
