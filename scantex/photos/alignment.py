@@ -37,7 +37,7 @@ after the best rigid correction the edges of the best third of the photos match 
 show only a blurred atlas's smudges in its photos of bare walls); or when the correction moves the mesh's
 image by more than ``MAX_DISPLACEMENT`` of the image side (real captures' poses are off by 1-5 px, about
 0.1-0.4 %, per photo; a correction shared by all photos averages those out). Four photos are checked;
-when they show few edges or would refuse the mesh, up to twelve. Measured values are in
+when fewer than three of them show edges, or their edges miss, up to twelve. Measured values are in
 ``bench/RESULTS.md`` ("alignment").
 """
 
@@ -200,9 +200,10 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_phot
     edges, and which rigid motion of the mesh would make them meet best (see the module docstring).
 
     ``n_photos`` are checked first. When fewer than ``MIN_JUDGED`` of them show edges to compare (a room's
-    photos of bare walls), or when they would refuse the mesh, more photos are checked, spread among the
-    others, up to ``max_photos`` in all, and the verdict is taken over all of them: a refusal rests on more
-    than a few photos, and a pass costs no more than before.
+    photos of bare walls), or when their edges miss the photos' edges, more photos are checked, spread among
+    the others, up to ``max_photos`` in all, and the verdict is taken over all of them: a refusal for edges
+    that miss rests on more than a few photos, and a pass costs no more than before. A mesh refused because
+    it sits a measured amount away is refused from the first photos (the amount is measured well there).
 
     Args:
         scan: the mesh, in the frame it will be textured in.
@@ -221,14 +222,14 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_phot
     order = _spread_order(len(photos), n_photos)
     first = min(n_photos, len(photos))
     checked = [_check_photo(scan, photos, int(i), max_side, caster, edges) for i in order[:first]]
-    report = _verdict(scan, checked)
+    report, edges_miss = _verdict(scan, checked)
     judged = sum(sample is not None for _, sample in checked)
-    if (not report.ok or judged < MIN_JUDGED) and len(checked) < min(max_photos, len(photos)):
+    if (edges_miss or judged < MIN_JUDGED) and len(checked) < min(max_photos, len(photos)):
         more = order[first:max(first, min(max_photos, len(photos)))]
-        log.info("alignment: %s after %d photos; checking %d more", "doubtful" if not report.ok else
+        log.info("alignment: %s after %d photos; checking %d more", "edges miss" if edges_miss else
                  f"{judged} photos with edges", len(checked), len(more))
         checked += [_check_photo(scan, photos, int(i), max_side, caster, edges) for i in more]
-        report = _verdict(scan, checked)
+        report, _ = _verdict(scan, checked)
     log.info("%s", report.summary())
     return report
 
@@ -250,12 +251,15 @@ def _spread_order(n: int, first: int) -> np.ndarray:
     return np.asarray(picks, int)
 
 
-def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]]) -> AlignmentReport:
-    """The :class:`AlignmentReport` of the photos checked so far (see the module docstring)."""
+def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]]) -> tuple[AlignmentReport, bool]:
+    """The :class:`AlignmentReport` of the photos checked so far (see the module docstring), and whether it
+    refuses the mesh because its edges miss the photos' (the verdict that more photos can overturn; the
+    rigid correction's amount is measured well from a few photos)."""
     results = [c[0] for c in checked]
     covered = [k for k, p in enumerate(results) if p.coverage >= MIN_COVERAGE]
     size = float(np.linalg.norm(np.ptp(scan.positions, axis=0)))
     problem = None
+    edges_miss = False
     offset = turn = displacement = float("nan")
     if 2 * len(covered) <= len(results):
         problem = (f"it projects outside {len(results) - len(covered)} of the {len(results)} photos "
@@ -290,6 +294,7 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
             best = [np.fmin(results[k].corrected_ratio, results[k].ratio) for k in covered]
             fitted = _nanquantile(best, MATCH_QUANTILE)
             if not fitted <= MAX_EDGE_RATIO:
+                edges_miss = True
                 problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
                            f"moved at random, even after the best small correction; aligned data gives "
                            f"< {MAX_EDGE_RATIO})")
@@ -297,7 +302,7 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
                 problem = (f"it sits about {_length(offset)} and {turn:.1f} degrees away from where the "
                            f"photos see it (its image would move {100 * displacement:.1f} % of the photo "
                            f"side to match)")
-    return AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size)
+    return AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size), edges_miss
 
 
 def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport:
