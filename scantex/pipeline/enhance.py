@@ -213,9 +213,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     from scantex.photos.alignment import require_alignment
     from scantex.photos.training import VisibilitySettings, prepare_photos, split_photos
 
-    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
-    if report is not None:
-        log.info("%s", report.summary())
+    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None  # logs its summary
     train, held = split_photos(len(photos), pc.holdout, seed)
     corrections = []
     if pc.refine_poses == "input" and scan.is_textured:
