@@ -219,13 +219,13 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_phot
         raise ValueError("no photos to check")
     caster = caster or RayCaster(scan.positions, scan.faces)
     edges = _MeshEdges.of(scan)
-    order = _spread_order(len(photos), n_photos)
     first = min(n_photos, len(photos))
+    order = _spread_order(len(photos), first, max(first, min(max_photos, len(photos))))
     checked = [_check_photo(scan, photos, int(i), max_side, caster, edges) for i in order[:first]]
     report, edges_miss = _verdict(scan, checked)
     judged = sum(sample is not None for _, sample in checked)
-    if (edges_miss or judged < MIN_JUDGED) and len(checked) < min(max_photos, len(photos)):
-        more = order[first:max(first, min(max_photos, len(photos)))]
+    if (edges_miss or judged < MIN_JUDGED) and len(order) > first:
+        more = order[first:]
         log.info("alignment: %s after %d photos; checking %d more", "edges miss" if edges_miss else
                  f"{judged} photos with edges", len(checked), len(more))
         checked += [_check_photo(scan, photos, int(i), max_side, caster, edges) for i in more]
@@ -234,19 +234,14 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_phot
     return report
 
 
-def _spread_order(n: int, first: int) -> np.ndarray:
-    """All of ``0 .. n-1``: ``first`` evenly spread indices (the ends included), then the others in an order
+def _spread_order(n: int, first: int, count: int) -> np.ndarray:
+    """``count`` of ``0 .. n-1``: ``first`` evenly spread indices (the ends included), then others in an order
     that keeps every prefix spread out (each next index the farthest from those taken)."""
-    picks = list(np.unique(np.linspace(0, n - 1, min(first, n)).round().astype(int)))
-    taken = np.zeros(n, bool)
-    taken[picks] = True
-    distance = np.full(n, np.inf)
-    for i in picks:
-        distance = np.minimum(distance, np.abs(np.arange(n) - i))
-    while not taken.all():
-        i = int(np.argmax(np.where(taken, -1, distance)))
+    picks = list(np.unique(np.linspace(0, n - 1, first).round().astype(int)))
+    distance = np.min(np.abs(np.arange(n)[:, None] - np.asarray(picks)[None, :]), axis=1).astype(float)
+    while len(picks) < count:
+        i = int(np.argmax(distance))  # taken indices are at distance 0, below any other
         picks.append(i)
-        taken[i] = True
         distance = np.minimum(distance, np.abs(np.arange(n) - i))
     return np.asarray(picks, int)
 
@@ -616,9 +611,7 @@ def _gray(rgb: np.ndarray) -> np.ndarray:
 
 
 def _nanmedian(values) -> float:
-    values = np.asarray(values, dtype=np.float64)
-    values = values[np.isfinite(values)]
-    return float(np.median(values)) if values.size else float("nan")
+    return _nanquantile(values, 0.5)
 
 
 def _nanquantile(values, q: float) -> float:

@@ -176,8 +176,7 @@ def halved(view: PhotoView) -> PhotoView:
     corners = [(slice(a, 2 * h, 2), slice(b, 2 * w, 2)) for a in (0, 1) for b in (0, 1)]
     image = sum(view.image[c] for c in corners) * np.float32(0.25)  # elementwise: reductions over strided
     valid = np.logical_and.reduce([view.valid[c] for c in corners])  # axes are several times slower
-    camera = resized_camera(view.camera, w, h) if (2 * w, 2 * h) == (W, H) else \
-        resized_camera(crop_camera(view.camera, 2 * w, 2 * h), w, h)
+    camera = resized_camera(crop_camera(view.camera, 2 * w, 2 * h), w, h)  # an odd last row or column dropped
     return PhotoView(view.index, camera, image, view.face_id[:2 * h:2, :2 * w:2], view.depth[:2 * h:2, :2 * w:2],
                      valid, view.rejected, None if view.bary is None else view.bary[:2 * h:2, :2 * w:2])
 
@@ -190,15 +189,11 @@ def crop_camera(camera: Camera, width: int, height: int) -> Camera:
 def texture_seen(scan: Scan, view: PhotoView, caster: RayCaster) -> np.ndarray:
     """``(H, W, 3) float32``: ``scan``'s texture at the surface points ``view``'s pixels see (black where
     none): the scan rendered through the view's camera, from the ray cast the view was prepared with."""
-    from scantex.views.render import render, shade_hits
+    from scantex.views.render import render, shade_pixels
 
     if view.bary is None:
         return render(scan, view.camera, caster)[0]
-    H, W = view.face_id.shape
-    out = np.zeros((H * W, 3), np.float32)
-    hit = np.flatnonzero(view.face_id.reshape(-1) >= 0)
-    out[hit] = shade_hits(scan, view.face_id.reshape(-1)[hit], view.bary.reshape(-1, 2)[hit])
-    return out.reshape(H, W, 3)
+    return shade_pixels(scan, view.face_id, view.bary)
 
 
 def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster: RayCaster, max_side: int,

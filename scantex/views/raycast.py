@@ -187,6 +187,4 @@ def pixel_footprints(face_id: np.ndarray, depth: np.ndarray, s: int, usable: np.
             total += np.where(hit, z, 0)
             np.minimum(near, np.where(hit, z, np.inf), out=near)
             np.maximum(far, np.where(hit, z, -np.inf), out=far)
-    with np.errstate(invalid="ignore"):  # inf - inf where no sub-sample hits
-        spread = far - near
-    return hits, all_usable, (total / np.maximum(hits, 1)).astype(np.float32), spread
+    return hits, all_usable, (total / np.maximum(hits, 1)).astype(np.float32), far - near

@@ -93,12 +93,18 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
 
 def render_gbuffer(scan: Scan, gbuffer: GBuffer, background=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Unlit colours ``(H, W, 3) float32`` in [0, 1] of the surface each pixel sees."""
-    H, W = gbuffer.shape
+    return shade_pixels(scan, gbuffer.face_id, gbuffer.bary, background)
+
+
+def shade_pixels(scan: Scan, face_id: np.ndarray, bary: np.ndarray, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Unlit colours ``(H, W, 3) float32`` of the surface points ``face_id (H, W)`` (-1: none, ``background``)
+    and ``bary (H, W, 2)`` that an image's pixels see."""
+    H, W = face_id.shape
     image = np.empty((H * W, 3), dtype=np.float32)
     image[:] = background
-    fid = gbuffer.face_id.reshape(-1)
+    fid = face_id.reshape(-1)
     hit = np.flatnonzero(fid >= 0)
-    image[hit] = shade_hits(scan, fid[hit], gbuffer.bary.reshape(-1, 2)[hit])
+    image[hit] = shade_hits(scan, fid[hit], bary.reshape(-1, 2)[hit])
     return image.reshape(H, W, 3)
 
 
