@@ -32,7 +32,7 @@ def output_size(scan: Scan, material: int, requested: int = 0, cap: int = 8192, 
     return max(H, min(scale * H, cap)), max(W, min(scale * W, cap))
 
 
-def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, chunk: int = 16384,
+def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, chunk: int = 65536,
          progress: Callable[[int, int], None] | None = None) -> tuple[np.ndarray, ...]:
     """New ``(H, W, 3) uint8`` images, one per material (``None`` for materials without UVs/faces).
 
@@ -97,7 +97,7 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
 
 
 def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2,
-                   chunk: int = 16384) -> tuple[np.ndarray, ...]:
+                   chunk: int = 65536) -> tuple[np.ndarray, ...]:
     """Slow, plainly correct twin of :func:`bake`: the whole atlas's texel map, points and colours at
     once (~100 bytes a texel: 6-7 GB at 8192^2; for tests)."""
     corners = scan.triangles

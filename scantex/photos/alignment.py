@@ -328,52 +328,96 @@ def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.nda
     from scipy.spatial.transform import Rotation
 
     centre = np.concatenate([s.points for s in samples]).mean(axis=0)
-    sharp = samples
     spread = max(float(np.linalg.norm(np.concatenate([s.points for s in samples]).std(axis=0))), 1e-9)
 
-    def residuals(x):
-        R = Rotation.from_rotvec(x[:3]).as_matrix()
-        t = x[3:] * spread
-        out = []
-        for s in samples:
-            pix, z = s.camera.project((s.points - centre) @ R.T + centre + t)
-            pix[z <= 0] = np.nan
-            out.append(_lookup(s.distance, pix))
-        return np.concatenate(out)
-
-    # start from the translation that best explains each photo's own best image shift (a brute-force
-    # search, which repeated structure such as a façade's windows cannot trap the way it traps a local
-    # fit), then settle the translation alone, then all six parameters, on sharper distance fields
     def sharp_cost(x):
-        r = residuals(x) / 2.0
+        r = _edge_residuals(samples, centre, spread, x) / 2.0
         return float(np.mean(2 * (np.sqrt(1 + r * r) - 1)))
 
-    prior = 0.05 * np.sqrt(sum(len(s.points) for s in sharp))
+    # start from the translation that best explains each photo's own best image shift (an exhaustive
+    # search, which repeated structure such as a façade's windows cannot trap the way it traps a local
+    # fit), then settle the translation alone, then all six parameters, on sharper distance fields
+    prior = 0.05 * np.sqrt(sum(len(s.points) for s in samples))
     x = np.zeros(6)
     start = x.copy()
-    start[3:] = _translation_from_shifts(sharp, centre) / spread
+    start[3:] = _translation_from_shifts(samples, centre) / spread
     if sharp_cost(start) < sharp_cost(x):
         x = start
     for sigma, free in ((3.0, slice(3, 6)), (3.0, slice(0, 6)), (1.0, slice(0, 6))):
-        samples = [_blur(s, sigma) for s in sharp]
+        blurred = [_blur(s, sigma) for s in samples]
 
-        def partial(y, free=free):
+        def residuals(y, free=free, blurred=blurred):
             full = x.copy()
             full[free] = y
             # a weak prior towards no motion: with few edges (a small or flat mesh) a fit may otherwise
             # trade a turn against a shift that the edges hardly tell apart
-            return np.concatenate([residuals(full), prior * full / PRIOR_SCALE])
+            return np.concatenate([_edge_residuals(blurred, centre, spread, full), prior * full / PRIOR_SCALE])
 
-        fit = least_squares(partial, x[free], loss="soft_l1", f_scale=2.0, diff_step=1e-3, max_nfev=40)
+        def jacobian(y, free=free, blurred=blurred):
+            full = x.copy()
+            full[free] = y
+            return np.concatenate([_edge_jacobian(blurred, centre, spread, full),
+                                   np.diag(prior / PRIOR_SCALE)])[:, free]
+
+        fit = least_squares(residuals, x[free], jac=jacobian, loss="soft_l1", f_scale=2.0, max_nfev=40)
         trial = x.copy()
         trial[free] = fit.x
-        samples = sharp
         # keep a step only when the sharp edges agree better: a blurred field can pull a sparse set of
         # edge points off a perfect fit
         if sharp_cost(trial) < 0.97 * sharp_cost(x):  # a real improvement, not noise
             x = trial
-    samples = sharp
     return Rotation.from_rotvec(x[:3]).as_matrix(), x[3:] * spread, centre
+
+
+def _edge_residuals(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray) -> np.ndarray:
+    """``(n,)``: each sample's edge points moved by ``x`` (rotation vector about ``centre``, then translation
+    ``x[3:] * spread``), their distance (px) to the photo's nearest edge."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(x[:3]).as_matrix()
+    t = x[3:] * spread
+    out = []
+    for s in samples:
+        pix, z = s.camera.project((s.points - centre) @ R.T + centre + t)
+        pix[z <= 0] = np.nan
+        out.append(_lookup(s.distance, pix))
+    return np.concatenate(out)
+
+
+def _edge_jacobian(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray) -> np.ndarray:
+    """``(n, 6)``: the derivatives of :func:`_edge_residuals` in ``x`` (the chain rule through the distance
+    field's bilinear gradient, the projection and the rotation vector's left Jacobian)."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(x[:3]).as_matrix()
+    turn = _left_jacobian(x[:3])
+    out = []
+    for s in samples:
+        moved = (s.points - centre) @ R.T  # R (X - centre)
+        cam = (moved + centre + x[3:] * spread) @ s.camera.R.T + s.camera.t
+        h = cam @ s.camera.K.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pix = h[:, :2] / h[:, 2:3]
+        pix[cam[:, 2] <= 0] = np.nan
+        grad = _lookup_gradient(s.distance, pix)  # (n, 2); 0 off the image
+        # d pix / d world = ([I | -pix] / h_z) K R_cam
+        KR = s.camera.K @ s.camera.R
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d_h = (grad[:, :, None] * (KR[None, :2] - np.nan_to_num(pix)[:, :, None] * KR[None, 2:3])).sum(1)
+            d_world = np.nan_to_num(d_h / h[:, 2:3])  # (n, 3): d residual / d world point
+        # d world / d rotation vector = -[R (X - centre)]x J_l, so g . that = (R (X - centre) x g) . J_l;
+        # d world / d x[3:] = spread I
+        out.append(np.concatenate([np.cross(moved, d_world) @ turn, spread * d_world], axis=1))
+    return np.concatenate(out)
+
+
+def _left_jacobian(rotvec: np.ndarray) -> np.ndarray:
+    """``(3, 3)``: the left Jacobian of SO(3) at ``rotvec``: ``R(v + d) = exp(J d) R(v)`` to first order."""
+    a = float(np.linalg.norm(rotvec))
+    k = np.array([[0, -rotvec[2], rotvec[1]], [rotvec[2], 0, -rotvec[0]], [-rotvec[1], rotvec[0], 0]])
+    if a < 1e-8:
+        return np.eye(3) + 0.5 * k
+    return np.eye(3) + (1 - np.cos(a)) / a ** 2 * k + (a - np.sin(a)) / a ** 3 * (k @ k)
 
 
 def _translation_from_shifts(samples: list[_EdgeSample], centre: np.ndarray) -> np.ndarray:
@@ -384,14 +428,7 @@ def _translation_from_shifts(samples: list[_EdgeSample], centre: np.ndarray) -> 
         pix, _ = s.camera.project(s.points)
         H, W = s.distance.shape
         r = max(2, round(0.06 * max(H, W)))
-        step = max(1, r // 12)
-        best, shift = np.inf, (0.0, 0.0)
-        field = _blur(s, 2.0).distance
-        for dy in range(-r, r + 1, step):
-            for dx in range(-r, r + 1, step):
-                cost = float(_lookup(field, pix + (dx, dy)).mean())
-                if cost < best - 1e-9 or (abs(cost - best) < 1e-9 and dx * dx + dy * dy < sum(v * v for v in shift)):
-                    best, shift = cost, (float(dx), float(dy))
+        shift = _best_shift(_blur(s, 2.0).distance, pix, r, max(1, r // 12))
         # image motion of the centre under a small translation: d pix = J dt (finite differences)
         p0 = s.camera.project(centre[None])[0][0]
         h = 1e-4 * max(1.0, float(np.linalg.norm(centre - s.camera.center)))
@@ -402,6 +439,41 @@ def _translation_from_shifts(samples: list[_EdgeSample], centre: np.ndarray) -> 
     # a little ridge: depth along the view is barely observed by near-parallel views
     lam = 1e-3 * float(np.trace(A.T @ A)) / 3
     return np.linalg.solve(A.T @ A + lam * np.eye(3), A.T @ b)
+
+
+def _best_shift(field: np.ndarray, pix: np.ndarray, r: int, step: int) -> tuple[float, float]:
+    """``(dx, dy)``: the whole-pixel shift of ``pix (n, 2)``, on a grid of ``step`` within ``+-r``, whose
+    mean :func:`_lookup` of ``field`` is least (the smallest such shift on a tie).
+
+    Every shift's cost at once, as a correlation: each point's four bilinear weights are spread over an image,
+    whose correlation with ``field`` (padded ``r`` pixels with the value an off-image point reads) gives the
+    summed lookups at every shift. The same as looking up every shift apart but within a pixel of the image
+    border, where an off-image point read the padding's value a fraction of a pixel early before.
+    """
+    from scipy.signal import fftconvolve
+
+    H, W = field.shape
+    outside = float(field.max())
+    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
+    # points off the image at every shift read the padding's value whatever the shift
+    near = (p[:, 0] >= -r) & (p[:, 0] <= W - 1 + r) & (p[:, 1] >= -r) & (p[:, 1] <= H - 1 + r)
+    x, y = p[near, 0] + r, p[near, 1] + r  # in the padded frame
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    shape = (H + 2 * r + 1, W + 2 * r + 1)
+    weights = sum(np.bincount(np.ravel_multi_index((y0 + dy, x0 + dx), shape), w, shape[0] * shape[1])
+                  for dy, dx, w in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)), (1, 0, (1 - fx) * fy),
+                                    (1, 1, fx * fy))).reshape(shape)
+    # the field with room for every shift: a pixel q of ``weights`` shifted by d reads padded[q + d + r + 1]
+    padded = np.pad(field.astype(np.float64), 2 * r + 1, constant_values=outside)
+    cost = fftconvolve(padded, weights[::-1, ::-1], mode="valid")  # cost[d + r + 1]: the correlation
+    grid = np.arange(-r, r + 1, step)
+    cost = cost[np.ix_(grid + r + 1, grid + r + 1)] + outside * float(np.count_nonzero(~near))
+    dy, dx = np.meshgrid(grid, grid, indexing="ij")
+    # the least cost, and on a tie (a flat field) the smallest shift
+    order = np.lexsort(((dx ** 2 + dy ** 2).ravel(), np.round(cost.ravel() / max(len(p), 1), 9)))
+    k = order[0]
+    return float(dx.ravel()[k]), float(dy.ravel()[k])
 
 
 def _blur(sample: _EdgeSample, sigma: float) -> _EdgeSample:
@@ -639,6 +711,23 @@ def _lookup(field: np.ndarray, pix: np.ndarray, outside: float | None = None) ->
     out = ((1 - fy) * ((1 - fx) * field[y0, x0] + fx * field[y0, x0 + 1])
            + fy * ((1 - fx) * field[y0 + 1, x0] + fx * field[y0 + 1, x0 + 1]))
     out[off] = float(field.max()) if outside is None else outside
+    return out
+
+
+def _lookup_gradient(field: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """``(n, 2)``: the gradient (d/dx, d/dy) of :func:`_lookup`'s bilinear samples of ``field`` at ``pix
+    (n, 2)``; 0 off the image (where the lookup reads a constant)."""
+    H, W = field.shape
+    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
+    off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
+    x = np.clip(p[:, 0], 0, W - 1.001)
+    y = np.clip(p[:, 1], 0, H - 1.001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    a, b = field[y0, x0], field[y0, x0 + 1]
+    c, d = field[y0 + 1, x0], field[y0 + 1, x0 + 1]
+    out = np.stack([(1 - fy) * (b - a) + fy * (d - c), (1 - fx) * (c - a) + fx * (d - b)], axis=1)
+    out[off] = 0
     return out
 
 

@@ -249,3 +249,40 @@ def test_facade_partial_scan_passes_and_a_moved_one_is_refused():
     assert require_alignment(scan, photos).ok
     # 5 cm on a 1.2 m object is 43 cm on this 10 m façade
     assert not check_alignment(moved(scan, offset=(0.43, 0.0, 0.0)), photos).ok
+
+
+def test_every_shift_at_once_is_the_shift_search_one_by_one():
+    """The best image shift from one correlation is the one a search over every shift finds (points
+    away from the border, where the two read the image the same way)."""
+    from scipy import ndimage
+
+    from scantex.photos.alignment import _best_shift, _lookup
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        H, W = rng.integers(60, 160, 2)
+        field = ndimage.gaussian_filter(rng.random((H, W)) * 10, 3)
+        r = max(2, round(0.06 * max(H, W)))
+        step = max(1, r // 12)
+        n = int(rng.integers(1, 400))
+        pix = np.stack([rng.uniform(r + 2, W - r - 3, n), rng.uniform(r + 2, H - r - 3, n)], axis=1)
+        shifts = [(dx, dy) for dy in range(-r, r + 1, step) for dx in range(-r, r + 1, step)]
+        costs = [float(_lookup(field, pix + s).mean()) for s in shifts]
+        assert _best_shift(field, pix, r, step) == shifts[int(np.argmin(costs))]
+
+
+def test_the_rigid_fit_jacobian_is_the_residuals_derivative():
+    from scipy import ndimage
+
+    from scantex.photos.alignment import _edge_jacobian, _edge_residuals, _EdgeSample
+
+    rng = np.random.default_rng(2)
+    cams = [Camera.look_at(e, (0.0, 0.0, 0.0), fov_deg=50, width=160, height=120)
+            for e in [(0.3, -2.0, 0.5), (-1.5, -1.2, 0.8)]]
+    samples = [_EdgeSample(cam, rng.uniform(-0.4, 0.4, (300, 3)),
+                           ndimage.gaussian_filter(rng.random((120, 160)) * 30, 4)) for cam in cams]
+    centre, spread = np.array([0.05, 0.0, -0.02]), 0.3
+    x = np.array([0.02, -0.03, 0.01, 0.05, -0.02, 0.03])
+    numeric = np.stack([(_edge_residuals(samples, centre, spread, x + 1e-6 * e)
+                         - _edge_residuals(samples, centre, spread, x - 1e-6 * e)) / 2e-6 for e in np.eye(6)], axis=1)
+    np.testing.assert_allclose(_edge_jacobian(samples, centre, spread, x), numeric, atol=1e-5 * np.abs(numeric).max())

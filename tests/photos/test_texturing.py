@@ -215,3 +215,42 @@ def test_photo_pairs_level_photos_whose_texture_is_a_patchwork(tmp_path):
     ratio = lambda t: np.diagonal(t[1, :3]) / np.diagonal(t[0, :3])  # noqa: E731
     assert np.abs(ratio(alone) - 0.8).min() > 0.15  # the patchwork misleads the texture-only fit (0.57)
     np.testing.assert_allclose(ratio(paired), 0.8, atol=0.03)  # 0.78: the texture still pulls a little
+
+
+def test_packed_photo_samples_are_bilinear():
+    """Samples of a photo packed four bytes a pixel are plain bilinear interpolation of its pixels."""
+    from scipy import ndimage
+
+    from scantex.photos.texturing import _bilinear, _packed
+
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    pix = np.stack([rng.uniform(0, 51.9, 500), rng.uniform(0, 35.9, 500)], axis=1)
+    got = _bilinear(_packed(image), 53, 37, pix.astype(np.float32))
+    want = np.stack([ndimage.map_coordinates(image[..., c].astype(np.float64), [pix[:, 1], pix[:, 0]], order=1)
+                     for c in range(3)], axis=1) / 255
+    np.testing.assert_allclose(got, want, atol=1e-4)
+
+
+def test_a_scene_far_from_the_origin_gets_the_same_colours(tmp_path):
+    """Georeferenced coordinates (hundreds of kilometres): the photos are sampled in float32 about the
+    cameras' centre, so the colours are those of the same scene at the origin."""
+    offset = np.array([512_000.0, 4_300_000.0, 120.0])
+    scan = smooth_wall()
+    far = dataclasses.replace(scan, positions=scan.positions + offset)
+    (tmp_path / "near").mkdir()
+    (tmp_path / "far").mkdir()
+    photos, views = wall_photos(tmp_path / "near", scan)
+    eyes = [(0.7, -2.2, 1.0), (1.3, -2.0, 1.1)]
+    cams = [Camera.look_at(np.add(e, offset), np.add((1.0, 0.0, 1.0), offset), fov_deg=55, width=640, height=480)
+            for e in eyes]
+    far_photos = photograph(far, cams, tmp_path / "far")
+    far_views = prepare_photos(far, far_photos, range(2), RayCaster(far.positions, far.faces), 160,
+                               VisibilitySettings(supersample=2))
+    points, normals, f, b = surface_points(scan, 20000)
+    near_colour, _ = projective_colour(photos, views, [0, 1], None, grey, faces=scan.faces)
+    far_colour, _ = projective_colour(far_photos, far_views, [0, 1], None, grey, faces=far.faces)
+    want = near_colour(points, normals, f, b)
+    got = far_colour(points + offset, normals, f, b)
+    assert (np.abs(want - 0.5).max(axis=1) > 1e-6).mean() > 0.5  # most points are seen
+    assert np.abs(got - want).max(axis=1).mean() < 2 / 255
