@@ -31,7 +31,7 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
 from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
-from scantex.views.render import downsample, render, render_gbuffer, render_scans, shade_hits
+from scantex.views.render import downsample, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
 log = logging.getLogger(__name__)
@@ -672,8 +672,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
                                               images=images)
         if ground_truth is not None:
             out["held_out_photos_vs_ground_truth"] = score_views(
-                lambda cam: render(ground_truth, cam, caster, supersample=2),
-                {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)
+                ground_truth, {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)
     return out
 
 
@@ -700,9 +699,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                                                           test_cams, caster, holes)
     elif scan.is_textured:
         # no truth: how faithfully the result reproduces the input where the input has colour
-        metrics["held_out_vs_input"] = score_views(
-            lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced},
-            test_cams, caster, holes)
+        metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes)
         if patches is None:  # scored against the input's renders, that is the patch measure: not twice
             patches = patch_summary(metrics["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
     if scan.is_textured:
