@@ -136,11 +136,16 @@ def interpolate(face_id: np.ndarray, bary: np.ndarray, corner_values: np.ndarray
     fid = face_id.reshape(-1)
     b = bary.reshape(-1, 2).astype(np.float64)
     hit = fid >= 0
-    out = np.zeros((fid.size, corner_values.shape[-1]), dtype=np.float64)
-    c = corner_values[fid[hit]]  # [n, 3, C]
-    b = b[hit]
+    every = bool(hit.all())  # the usual case (hits only): no copies of the hits
+    c = corner_values[fid if every else fid[hit]]  # [n, 3, C]
+    if not every:
+        b = b[hit]
     # w0 c0 + w1 c1 + w2 c2 in that order, as einsum would sum it, in 2-3x less time
-    out[hit] = c[:, 0] * (1 - b[:, 0] - b[:, 1])[:, None] + c[:, 1] * b[:, :1] + c[:, 2] * b[:, 1:]
+    values = c[:, 0] * (1 - b[:, 0] - b[:, 1])[:, None] + c[:, 1] * b[:, :1] + c[:, 2] * b[:, 1:]
+    if every:
+        return values.astype(np.float64, copy=False).reshape(*shape, corner_values.shape[-1])
+    out = np.zeros((fid.size, corner_values.shape[-1]), dtype=np.float64)
+    out[hit] = values
     return out.reshape(*shape, corner_values.shape[-1])
 
 

@@ -63,24 +63,25 @@ def sample_texture_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
 
 
-def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
+def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
     """Unlit RGB ``(N, 3) float32`` of surface points given as ``face_id (N,)`` (all >= 0), ``bary (N, 2)``.
 
     Texture (per material) when the scan has UVs, else vertex colours, else face colours, else the
-    material's base colour.
+    material's base colour. ``uv``: the points' texture coordinates ``(N, 2)`` when already interpolated
+    (:func:`hit_uvs`; scans that share a UV layout share them).
     """
     N = len(face_id)
     rgb = np.empty((N, 3), dtype=np.float32)
     mat_of_hit = scan.face_materials[face_id]
-    tri_uv = scan.uvs[scan.face_uvs] if scan.has_uvs else None
+    if uv is None and scan.has_uvs and any(m.image is not None for m in scan.materials):
+        uv = hit_uvs(scan, face_id, bary)
     for m, material in enumerate(scan.materials):
-        sel = np.flatnonzero(mat_of_hit == m)
+        sel = np.flatnonzero(mat_of_hit == m) if len(scan.materials) > 1 else np.arange(N)
         if sel.size == 0:
             continue
         base = np.asarray(material.diffuse[:3], dtype=np.float32)
-        if material.image is not None and tri_uv is not None:
-            uv = interpolate(face_id[sel], bary[sel], tri_uv)
-            rgb[sel] = sample_texture(material.image, uv)[:, :3] * base
+        if material.image is not None and uv is not None:
+            rgb[sel] = sample_texture(material.image, uv if sel.size == N else uv[sel])[:, :3] * base
         elif scan.vertex_colors is not None:
             corner = scan.vertex_colors[scan.faces][:, :, :3].astype(np.float32) / 255.0
             rgb[sel] = interpolate(face_id[sel], bary[sel], corner)
@@ -91,20 +92,27 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
     return rgb
 
 
+def hit_uvs(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """``(N, 2)``: the texture coordinates of the surface points ``face_id (N,)`` (all >= 0), ``bary (N, 2)``."""
+    return interpolate(face_id, bary, scan.uvs[scan.face_uvs])
+
+
 def render_gbuffer(scan: Scan, gbuffer: GBuffer, background=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Unlit colours ``(H, W, 3) float32`` in [0, 1] of the surface each pixel sees."""
     return shade_pixels(scan, gbuffer.face_id, gbuffer.bary, background)
 
 
-def shade_pixels(scan: Scan, face_id: np.ndarray, bary: np.ndarray, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+def shade_pixels(scan: Scan, face_id: np.ndarray, bary: np.ndarray, background=(0.0, 0.0, 0.0),
+                 uv: np.ndarray | None = None) -> np.ndarray:
     """Unlit colours ``(H, W, 3) float32`` of the surface points ``face_id (H, W)`` (-1: none, ``background``)
-    and ``bary (H, W, 2)`` that an image's pixels see."""
+    and ``bary (H, W, 2)`` that an image's pixels see (``uv``: as :func:`shade_hits` takes it, for the pixels
+    that see the surface, in row-major order)."""
     H, W = face_id.shape
     image = np.empty((H * W, 3), dtype=np.float32)
     image[:] = background
     fid = face_id.reshape(-1)
     hit = np.flatnonzero(fid >= 0)
-    image[hit] = shade_hits(scan, fid[hit], bary.reshape(-1, 2)[hit])
+    image[hit] = shade_hits(scan, fid[hit], bary.reshape(-1, 2)[hit], uv)
     return image.reshape(H, W, 3)
 
 
@@ -173,8 +181,17 @@ def render_scans(scans: dict[str, Scan], camera: Camera, caster: RayCaster | Non
     g = cast_gbuffer(caster, cam, first.face_normals)
     alpha = downsample(g.mask.astype(np.float32)[..., None], supersample)[..., 0]
     out = {}
+    layouts: dict[tuple[int, int], np.ndarray] = {}  # the hits' UVs, once for scans sharing a UV layout
     for name, scan in scans.items():
-        rgb = render_gbuffer(scan, g, background)
+        uv = None
+        if scan.has_uvs:
+            key = (id(scan.uvs), id(scan.face_uvs))
+            if key not in layouts:
+                fid = g.face_id.reshape(-1)
+                hit = np.flatnonzero(fid >= 0)
+                layouts[key] = hit_uvs(scan, fid[hit], g.bary.reshape(-1, 2)[hit])
+            uv = layouts[key]
+        rgb = shade_pixels(scan, g.face_id, g.bary, background, uv)
         if lit:
             rgb = shade_lit(rgb, g, cam, light)
         out[name] = (downsample(rgb, supersample), alpha)
