@@ -22,6 +22,13 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   without a step;
 - **appearance**: each photo's sample is brought to the canonical appearance by the inverse of the
   per-photo affine colour transform the field learned (``canonicalise``);
+- **saturation**: a sample with a channel at the photo's white point (an over-exposed photo's clipped
+  highlights) says only "at least this bright": brought to the canonical appearance, a clipped red under a
+  photo's high gain turns a yellow wall blue. What the other photos' unclipped samples say of the point,
+  taken back through this photo's transform (``recorded``), tells how far the photo would have gone past its
+  white point; the clipped sample's weight falls from 1 at no overshoot to 1/1000 at ``overshoot``. The
+  decision follows the consensus, not the sample's own value: a surface near white in every photo, clipped
+  in some samples by noise, keeps its blend (where no photo sees a point unclipped, they blend as before);
 - **culling**: given the mesh's faces, a photo is asked only about points on the faces its G-buffer sees
   (and their one-ring neighbours, for faces smaller than a working pixel), so a texel costs the photos that
   see it, not every photo of the capture (a room's hundred photos see a few per cent of it each);
@@ -35,6 +42,7 @@ import logging
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,6 +67,11 @@ class ProjectiveSettings:
     """softmax temperature on the view quality (log units): lower picks the best view more sharply"""
     feather_px: float = 6.0
     """a photo's weight fades in over this many working pixels from the edge of its usable region"""
+    clip_level: float = 0.99
+    """a sample with a channel at or above this (as the photo recorded it, in [0, 1]) counts as clipped"""
+    overshoot: float = 0.1
+    """a clipped sample's weight is 1/1000 where the other photos say its photo would have recorded this
+    much above its white point (in [0, 1] units; 0: clipped samples blend as any other)"""
     depth_tolerance: float = 0.02
     """relative depth difference beyond which a point counts as hidden in a photo"""
     max_side: int = 0
@@ -104,7 +117,9 @@ def photo_sharpness(image: np.ndarray) -> float:
 def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequence[int],
                       canonicalise: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
                       fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings(),
-                      faces: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
+                      faces: np.ndarray | None = None,
+                      recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                      ) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -118,6 +133,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             index): culls each photo to the faces its G-buffer sees and their one-ring. ``None`` asks every
             photo about every point: slower, and the same colours but where a point on a face that a
             photo neither sees nor borders passes its depth test (a sliver behind a seen surface).
+        recorded: ``canonicalise``'s inverse (canonical colours as photo ``group`` recorded them): clipped
+            samples give way where the other photos say their photo overshot its white point. ``None``:
+            the identity when ``canonicalise`` is ``None``, else clipped samples blend as any other.
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
@@ -169,6 +187,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
               "photo_memory_mb": round(sum(s.pixels.nbytes for s in sources) / 2**20, 1),
               "temperature": settings.temperature}
 
+    to_recorded = recorded if recorded is not None or canonicalise is not None else (lambda rgb, group: rgb)
+
     def colour(points, normals, face_ids, bary, without: int | None = None):
         n = len(points)
         if not sources or n == 0:
@@ -202,9 +222,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
                 + np.float32(s.log_sharpness)
             rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full)
+            clipped = rgb.max(axis=1) >= np.float32(settings.clip_level)
             if canonicalise is not None:
                 rgb = canonicalise(rgb, np.full(len(idx), s.group))
-            return idx, quality, s.feather[yi, xi], rgb
+            return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
         asked = [s for k, s in enumerate(sources) if k != without]
         if len(asked) > 1 and _WORKERS > 1:
@@ -214,23 +235,25 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 samples = list(pool.map(sample, asked))
         else:
             samples = [sample(s) for s in asked]
-        seen_by: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = [x for x in samples if x is not None]
+        seen_by: list[_Samples] = [x for x in samples if x is not None]
         best = np.full(n, -np.inf, np.float32)
-        for idx, quality, _, _ in seen_by:
-            best[idx] = np.maximum(best[idx], quality)  # a photo sees a point once: idx has no repeats
+        for x in seen_by:
+            best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
         # second pass: the softmax of the quality (relative to each point's best view), feathered
         alpha = np.zeros(n, np.float32)
         weights = []
-        for idx, quality, feather, _ in seen_by:
-            weights.append(np.exp((quality - best[idx]) / settings.temperature) * feather)
-            alpha[idx] = np.maximum(alpha[idx], feather)
+        for x in seen_by:
+            weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
+            alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
+        if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
+            weights = _censored(n, seen_by, weights, to_recorded, settings.overshoot)
         out, total = _weighted_mean(n, seen_by, weights)
         if settings.consistency > 0:
             # photo-consistency: each round reweights every sample by its distance from the last blend
             scale = np.float32(1.0 / settings.consistency ** 2)
             for _ in range(settings.consistency_rounds):
-                robust = [w / (1 + scale * np.square(rgb - out[idx]).sum(axis=1))
-                          for (idx, _, _, rgb), w in zip(seen_by, weights)]
+                robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
+                          for x, w in zip(seen_by, weights)]
                 out, _ = _weighted_mean(n, seen_by, robust)
         # the fallback only where the photos do not fully cover a point
         part = np.flatnonzero((total <= 0) | (alpha < 1))
@@ -267,14 +290,50 @@ def _seen_in(view: PhotoView, pix: np.ndarray, z: np.ndarray, depth_tolerance: f
     return idx[seen], xi[seen], yi[seen]
 
 
-def _weighted_mean(n: int, seen_by: list, weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """``(blend (n, 3), total weight (n,))`` of the photos' samples ``seen_by`` (``(idx, _, _, rgb)`` each)
-    with ``weights`` (one array per photo)."""
+class _Samples(NamedTuple):
+    """One photo's samples of the points it sees."""
+
+    idx: np.ndarray
+    """``(m,)`` the points"""
+    quality: np.ndarray
+    """``(m,)`` the photo's view quality for each"""
+    feather: np.ndarray
+    """``(m,)`` its feather weight there"""
+    rgb: np.ndarray
+    """``(m, 3)`` its colours, canonical"""
+    clipped: np.ndarray
+    """``(m,)`` bool: a channel at the photo's white point"""
+    group: int
+    """the photo's appearance group"""
+
+
+def _censored(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
+              recorded: Callable[[np.ndarray, np.ndarray], np.ndarray], overshoot: float) -> list[np.ndarray]:
+    """``weights`` with each clipped sample's weight scaled by how far its photo overshot its white point
+    there, as the blend of the other photos' unclipped samples says (taken back through ``recorded``): 1 at
+    no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the point unclipped."""
+    unclipped, support = _weighted_mean(n, seen_by, [np.where(x.clipped, 0, w) for x, w in zip(seen_by, weights)])
+    out = []
+    for x, w in zip(seen_by, weights):
+        at = np.flatnonzero(x.clipped)
+        if at.size:
+            point = x.idx[at]
+            predicted = recorded(unclipped[point], np.full(at.size, x.group)).max(axis=1)
+            scale = np.clip((1 - (predicted - 1) / np.float32(overshoot)), 1e-3, 1)
+            w = w.copy()
+            w[at] *= np.where(support[point] > 0, scale, 1).astype(np.float32)
+        out.append(w)
+    return out
+
+
+def _weighted_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``(blend (n, 3), total weight (n,))`` of the photos' samples ``seen_by`` with ``weights`` (one array
+    per photo)."""
     total = np.zeros(n, np.float32)
     blend = np.zeros((n, 3), np.float32)
-    for (idx, _, _, rgb), weight in zip(seen_by, weights):
-        total[idx] += weight
-        blend[idx] += weight[:, None] * rgb
+    for x, weight in zip(seen_by, weights):
+        total[x.idx] += weight
+        blend[x.idx] += weight[:, None] * x.rgb
     return blend / np.maximum(total, 1e-12)[:, None], total
 
 
@@ -449,3 +508,16 @@ def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarr
         return np.einsum("ni,nij->nj", rgb - offset[group], inverse[group]).astype(np.float32)
 
     return canonicalise
+
+
+def recorded_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``recorded(rgb (n, 3), group (n,))`` for :func:`projective_colour`: canonical colours as photo ``group``
+    recorded them (the transforms of :func:`fit_photo_transforms` themselves; ``inverse_transforms``'s
+    inverse)."""
+    gain = transforms[:, :3].astype(np.float32)
+    offset = transforms[:, 3].astype(np.float32)
+
+    def recorded(rgb: np.ndarray, group: np.ndarray) -> np.ndarray:
+        return (np.einsum("ni,nij->nj", rgb, gain[group]) + offset[group]).astype(np.float32)
+
+    return recorded

@@ -159,6 +159,8 @@ class PhotosConfig:
     """closed-form colour transforms (a textured scan, no field): weight of what photos seeing the same surface say of their exposures relative to one another, against what each says relative to the input texture's charts (0: the texture's charts alone, which a capture app's patchwork atlas misleads: on the facade the photos then still disagreed by 7 % in exposure, 0.6 % with 4; held-out scores unchanged)"""
     consistency: float = 0.0
     """projective texturing: photo-consistency scale (RGB distance, 0-1 units). A photo's sample this far from what the others say of the same point keeps half its weight (occluders the mesh lacks, highlights, misregistered edges); 0 blends every sample by its view quality alone"""
+    clip_overshoot: float = 0.1
+    """projective texturing: a photo's clipped sample (a channel at its white point) gives way where the other photos' unclipped samples say that photo overshot its white point there; its weight is 1/1000 at this overshoot (0-1 units of the photo's range) and beyond (an over-exposed photo's clipped red otherwise turns a yellow wall blue; the room capture +0.27 dB, the bolster and facade unchanged); 0 blends clipped samples as any other"""
     canonical: str = "input"
     """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 
@@ -297,7 +299,7 @@ RANGES: dict[str, tuple] = {
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
     "photos.texturing": ("projective", "field"), "photos.refine_poses": ("off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training"), "photos.consistency": (0.0, 10.0),
-    "photos.pair_weight": (0.0, 1e6),
+    "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),

@@ -312,17 +312,24 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     (photos much finer than it are sampled at a lower resolution; 0: full resolution)."""
     import torch
 
-    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour, recorded_transforms
 
     report: dict = {}
+    recorded = None
     if fitted is None:
         canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts, pc.pair_weight)
+        recorded = recorded_transforms(transforms)
         report["colour_transforms"] = "closed form, against the input texture"
         report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
     elif fitted.appearance is not None:
         def canonicalise(rgb, group):
             return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
                                                torch.as_tensor(group, device=device)).cpu().numpy()
+
+        @torch.no_grad()
+        def recorded(rgb, group):
+            return fitted.appearance(torch.as_tensor(rgb, device=device),
+                                     torch.as_tensor(group, device=device)).cpu().numpy()
         report["colour_transforms"] = "the field's"
     else:
         canonicalise = None
@@ -330,9 +337,9 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
 
     _, weld = unique_rows(scan.positions, return_inverse=True)
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
-                                  consistency=pc.consistency)
+                                  consistency=pc.consistency, overshoot=pc.clip_overshoot)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        fallback, settings, faces=weld.reshape(-1)[scan.faces])
+                                        fallback, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded)
     return colour, {"mode": "projective", **sampled, **report}
 
 

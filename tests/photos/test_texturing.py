@@ -13,6 +13,7 @@ from scantex.photos.texturing import (
     inverse_transforms,
     photo_sharpness,
     projective_colour,
+    recorded_transforms,
 )
 from scantex.photos.training import VisibilitySettings, prepare_photos
 from scantex.views.camera import Camera
@@ -254,3 +255,37 @@ def test_a_scene_far_from_the_origin_gets_the_same_colours(tmp_path):
     got = far_colour(points + offset, normals, f, b)
     assert (np.abs(want - 0.5).max(axis=1) > 1e-6).mean() > 0.5  # most points are seen
     assert np.abs(got - want).max(axis=1).mean() < 2 / 255
+
+
+def test_clipped_samples_give_way_to_a_photo_that_sees_the_point_unclipped(tmp_path):
+    """One photo over-exposed 1.8x (its bright half clipped): brought back by its true gain, a clipped sample is
+    too dark in the clipped channels, and blending it in tints the surface. Where the other photo sees the point
+    unclipped and says this one overshot, the clipped sample gives way; where both photos record the same
+    exposure (a surface near white in both, clipped by either), nothing changes."""
+    scan = smooth_wall()
+    transforms = np.stack([np.vstack([np.eye(3) * g, np.zeros((1, 3))]) for g in (1.0, 1.8)])
+    photos, views = wall_photos(tmp_path, scan, gains=(1.0, 1.8))
+    points, normals, f, b = surface_points(scan, 20000)
+    truth = shade_hits(scan, f, b)
+
+    def blends(photos, views, transforms):
+        canonical, recorded = inverse_transforms(transforms), recorded_transforms(transforms)
+        censored, _ = projective_colour(photos, views, [0, 1], canonical, grey, recorded=recorded)
+        plain, _ = projective_colour(photos, views, [0, 1], canonical, grey, ProjectiveSettings(overshoot=0),
+                                     recorded=recorded)
+        return censored(points, normals, f, b), plain(points, normals, f, b)
+
+    got, was = blends(photos, views, transforms)
+    seen = np.abs(was - 0.5).max(axis=1) > 1e-6
+    clipped = (truth.max(axis=1) * 1.8 > 1.1) & seen  # clipped by more than the overshoot in one photo
+    assert clipped.mean() > 0.2
+    err, err_plain = (np.abs(got - truth).max(axis=1)[clipped].mean(),
+                      np.abs(was - truth).max(axis=1)[clipped].mean())
+    assert err_plain > 0.05 and err < 0.5 * err_plain
+    assert np.abs(got - was).max(axis=1)[seen & (truth.max(axis=1) * 1.8 < 0.99)].max() < 1e-5  # unclipped: as was
+
+    (tmp_path / "same").mkdir()
+    photos, views = wall_photos(tmp_path / "same", scan, gains=(1.8, 1.8))  # both clipped alike: no one to defer to
+    same = np.stack([transforms[1]] * 2)
+    got, was = blends(photos, views, same)
+    assert np.abs(got - was).max() < 1e-5
