@@ -36,7 +36,8 @@ class ViewsConfig:
     test_fraction: float = 0.2
     """share of views held out for scoring"""
     adaptive: bool = True
-    """add views where per-face coverage is low (the paper's future work)"""
+    """add views where per-face coverage is low (the paper's future work); not in photo mode when nothing is
+    trained on the synthetic views (they only score the result's fidelity there)"""
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,7 @@ class PhotosConfig:
     consistency: float = 0.0
     """projective texturing: photo-consistency scale (RGB distance, 0-1 units). A photo's sample this far from what the others say of the same point keeps half its weight (occluders the mesh lacks, highlights, misregistered edges); 0 blends every sample by its view quality alone"""
     clip_overshoot: float = 0.1
-    """projective texturing: a photo's clipped sample (a channel at its white point) gives way where the other photos' unclipped samples say that photo overshot its white point there; its weight is 1/1000 at this overshoot (0-1 units of the photo's range) and beyond (an over-exposed photo's clipped red otherwise turns a yellow wall blue; the room capture +0.27 dB, the bolster and facade unchanged); 0 blends clipped samples as any other"""
+    """projective texturing: a photo's clipped sample (a channel at its white point) gives way where the other photos' unclipped samples say that photo overshot its white point there; its weight is 1/1000 at this overshoot (0-1 units of the photo's range) and beyond (an over-exposed photo's clipped red otherwise turns a yellow wall blue; the synthetic room with an over-exposed photo +0.27 dB, the real bolster and facade unchanged); 0 blends clipped samples as any other"""
     canonical: str = "input"
     """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 

@@ -425,10 +425,14 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     excluded = grow_faces(scan, holes, rings=1)
     charts = uv_shells(scan)
     up = up_axis(scan, vc.up)
+    # photo mode without a field (and without the refiner) trains nothing on the synthetic views: only the
+    # held-out ones are rendered, for the report's fidelity score, and no views are added for coverage
+    trains_on_views = not photos_need_no_field(scan, config, photos) or (
+        config.refine.enabled and config.refine.with_photos)
     with reporter.stage("planning views") as update:
         cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height,
                              fov_deg=vc.fov_deg, seed=rng_seed, up=up, caster=caster)
-        if vc.adaptive:
+        if vc.adaptive and trains_on_views:
             cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4),
                                              up=up, seed=rng_seed, caster=caster)
         coverage = face_coverage(scan, cameras, caster=caster)
@@ -436,10 +440,6 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     timings["plan"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    # photo mode without a field (and without the refiner) trains nothing on the synthetic views: only the
-    # held-out ones are rendered, for the report's fidelity score
-    trains_on_views = not photos_need_no_field(scan, config, photos) or (
-        config.refine.enabled and config.refine.with_photos)
     with reporter.stage("rendering views") as update:
         tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
                                    rng_seed, update, render_train=trains_on_views)
