@@ -312,7 +312,13 @@ def _censored(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
     """``weights`` with each clipped sample's weight scaled by how far its photo overshot its white point
     there, as the blend of the other photos' unclipped samples says (taken back through ``recorded``): 1 at
     no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the point unclipped."""
-    unclipped, support = _weighted_mean(n, seen_by, [np.where(x.clipped, 0, w) for x, w in zip(seen_by, weights)])
+    touched = np.zeros(n, bool)  # the points some photo saw clipped: the consensus is needed there only
+    for x in seen_by:
+        touched[x.idx[x.clipped]] = True
+    parts = [np.flatnonzero(touched[x.idx]) for x in seen_by]
+    near = [x._replace(idx=x.idx[k], rgb=x.rgb[k], clipped=x.clipped[k]) for x, k in zip(seen_by, parts)]
+    unclipped, support = _weighted_mean(n, near, [np.where(x.clipped, 0, w[k])
+                                                  for x, w, k in zip(near, weights, parts)])
     out = []
     for x, w in zip(seen_by, weights):
         at = np.flatnonzero(x.clipped)
@@ -520,6 +526,8 @@ def recorded_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndar
     offset = transforms[:, 3].astype(np.float32)
 
     def recorded(rgb: np.ndarray, group: np.ndarray) -> np.ndarray:
+        if group.size and (group == group[0]).all():  # one photo's samples (projective_colour's calls)
+            return (rgb @ gain[group[0]] + offset[group[0]]).astype(np.float32)
         return (np.einsum("ni,nij->nj", rgb, gain[group]) + offset[group]).astype(np.float32)
 
     return recorded

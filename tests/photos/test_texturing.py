@@ -289,3 +289,15 @@ def test_clipped_samples_give_way_to_a_photo_that_sees_the_point_unclipped(tmp_p
     same = np.stack([transforms[1]] * 2)
     got, was = blends(photos, views, same)
     assert np.abs(got - was).max() < 1e-5
+
+
+def test_recorded_transforms_undo_the_canonical_ones():
+    rng = np.random.default_rng(3)
+    transforms = np.concatenate([np.eye(3)[None] + 0.1 * rng.normal(size=(4, 3, 3)),
+                                 0.05 * rng.normal(size=(4, 1, 3))], axis=1)
+    canonical, recorded = inverse_transforms(transforms), recorded_transforms(transforms)
+    rgb = rng.uniform(0, 1, (500, 3)).astype(np.float32)
+    for group in (rng.integers(0, 4, 500), np.full(500, 2)):  # mixed photos, and one photo's samples
+        assert np.abs(recorded(canonical(rgb, group), group) - rgb).max() < 1e-5
+        want = np.einsum("ni,nij->nj", rgb, transforms[group, :3]) + transforms[group, 3]
+        assert np.abs(recorded(rgb, group) - want).max() < 1e-5
