@@ -337,6 +337,8 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+        lines.append("  (held out from the result only: a capture app's input texture was most likely made from these "
+                     "photos too, which favours the input)")
         final = m.get("photos", {}).get("final_texture", {})
         if final.get("mode") == "all":
             lines.append(f"texture written: made again from all {final['photos']} photos, the held-out ones "
@@ -345,6 +347,11 @@ def enhance_summary(m: dict) -> str:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
                      f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+    clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
+    if clipped.get("gave_way"):
+        lines.append(f"over-exposed photos: {100 * clipped['clipped'] / max(clipped['samples'], 1):.1f} % of the "
+                     f"photos' samples clipped; {100 * clipped['gave_way'] / max(clipped['samples'], 1):.2f} % "
+                     f"gave way to photos that saw the surface unclipped (photos.clip_overshoot)")
     if "safety" in m.get("bake", {}):
         lines.append(f"safety fallback: {m['bake']['safety']['why']}; the result keeps the input's texels "
                      f"(holes filled, seams blended)")

@@ -185,7 +185,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
     report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources],
               "photo_memory_mb": round(sum(s.pixels.nbytes for s in sources) / 2**20, 1),
-              "temperature": settings.temperature}
+              "temperature": settings.temperature,
+              # filled in as the bake samples (the dict is shared by the report's copies)
+              "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
 
     to_recorded = recorded if recorded is not None or canonicalise is not None else (lambda rgb, group: rgb)
 
@@ -245,8 +247,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         for x in seen_by:
             weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
             alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
+        tally = report["clipped"]
+        tally["samples"] += sum(len(x.idx) for x in seen_by)
+        tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
         if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
-            weights = _censored(n, seen_by, weights, to_recorded, settings.overshoot)
+            weights, gave_way = _censored(n, seen_by, weights, to_recorded, settings.overshoot)
+            tally["gave_way"] += gave_way
         out, total = _weighted_mean(n, seen_by, weights)
         if settings.consistency > 0:
             # photo-consistency: each round reweights every sample by its distance from the last blend
@@ -308,10 +314,12 @@ class _Samples(NamedTuple):
 
 
 def _censored(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
-              recorded: Callable[[np.ndarray, np.ndarray], np.ndarray], overshoot: float) -> list[np.ndarray]:
-    """``weights`` with each clipped sample's weight scaled by how far its photo overshot its white point
-    there, as the blend of the other photos' unclipped samples says (taken back through ``recorded``): 1 at
-    no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the point unclipped."""
+              recorded: Callable[[np.ndarray, np.ndarray], np.ndarray], overshoot: float
+              ) -> tuple[list[np.ndarray], int]:
+    """``(weights, gave_way)``: ``weights`` with each clipped sample's weight scaled by how far its photo
+    overshot its white point there, as the blend of the other photos' unclipped samples says (taken back
+    through ``recorded``): 1 at no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the
+    point unclipped. ``gave_way``: how many samples kept less than half their weight."""
     touched = np.zeros(n, bool)  # the points some photo saw clipped: the consensus is needed there only
     for x in seen_by:
         touched[x.idx[x.clipped]] = True
@@ -319,17 +327,18 @@ def _censored(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
     near = [x._replace(idx=x.idx[k], rgb=x.rgb[k], clipped=x.clipped[k]) for x, k in zip(seen_by, parts)]
     unclipped, support = _weighted_mean(n, near, [np.where(x.clipped, 0, w[k])
                                                   for x, w, k in zip(near, weights, parts)])
-    out = []
+    out, gave_way = [], 0
     for x, w in zip(seen_by, weights):
         at = np.flatnonzero(x.clipped)
         if at.size:
             point = x.idx[at]
             predicted = recorded(unclipped[point], np.full(at.size, x.group)).max(axis=1)
-            scale = np.clip((1 - (predicted - 1) / np.float32(overshoot)), 1e-3, 1)
+            scale = np.where(support[point] > 0, np.clip(1 - (predicted - 1) / np.float32(overshoot), 1e-3, 1), 1)
             w = w.copy()
-            w[at] *= np.where(support[point] > 0, scale, 1).astype(np.float32)
+            w[at] *= scale.astype(np.float32)
+            gave_way += int((scale < 0.5).sum())
         out.append(w)
-    return out
+    return out, gave_way
 
 
 def _weighted_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

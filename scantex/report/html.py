@@ -163,7 +163,9 @@ def _headline(m: dict) -> str:
         i, e = photos["input"], photos["enhanced"]
         rows.append((f"Held-out photos ({i.get('photos', 0)})",
                      f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB (colour-matched {_num(i['psnr_matched'])} → "
-                     f"{_num(e['psnr_matched'])}), SSIM {i['ssim']:.3f} → {e['ssim']:.3f}",
+                     f"{_num(e['psnr_matched'])}), SSIM {i['ssim']:.3f} → {e['ssim']:.3f}; held out from the "
+                     "result only: a capture app's input texture was most likely made from these photos too, which "
+                     "favours the input",
                      "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
     sv = m.get("seam_visibility")
     if sv:

@@ -301,3 +301,16 @@ def test_recorded_transforms_undo_the_canonical_ones():
         assert np.abs(recorded(canonical(rgb, group), group) - rgb).max() < 1e-5
         want = np.einsum("ni,nij->nj", rgb, transforms[group, :3]) + transforms[group, 3]
         assert np.abs(recorded(rgb, group) - want).max() < 1e-5
+
+
+def test_the_report_counts_the_clipped_samples_and_those_that_gave_way(tmp_path):
+    scan = smooth_wall()
+    transforms = np.stack([np.vstack([np.eye(3) * g, np.zeros((1, 3))]) for g in (1.0, 1.8)])
+    photos, views = wall_photos(tmp_path, scan, gains=(1.0, 1.8))
+    points, normals, f, b = surface_points(scan, 20000)
+    colour, report = projective_colour(photos, views, [0, 1], inverse_transforms(transforms), grey,
+                                       recorded=recorded_transforms(transforms))
+    colour(points, normals, f, b)
+    tally = report["clipped"]
+    assert tally["samples"] > 20000  # most points seen by both photos
+    assert 0 < tally["gave_way"] <= tally["clipped"] < tally["samples"]

@@ -108,9 +108,12 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "2 held-out photos" in run.stdout and "made again from all 10 photos" in run.stdout
+    assert "held out from the result only" in run.stdout  # the input's texture may have seen them
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
+    tally = metrics["photos"]["texturing"]["clipped"]
+    assert tally["samples"] > 0 and 0 <= tally["gave_way"] <= tally["clipped"] <= tally["samples"]
     assert metrics["photos"]["final_texture"]["photos"] == 10 and "final" in metrics["timings_s"]
     corrections = metrics["photos"]["pose_corrections"]  # one per training photo, against its recorded pose
     assert [c["photo"] for c in corrections] == metrics["photos"]["train"]
