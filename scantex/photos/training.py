@@ -93,13 +93,16 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def consistent_depth(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, tolerance: float,
-                     source=None) -> np.ndarray:
-    """``measured`` (a photo's depth map at the working size, metres) in the mesh's scale: when most of the
-    pixels both see disagree by more than ``tolerance`` and one factor brings at least 80 % of them within it,
-    the map's unit is off (millimetres read as another unit, a tenth-millimetre sensor) and it is rescaled,
-    with a warning; a map that no single factor fixes is returned as it is (its disagreeing pixels are then
-    rejected: a moved object, or a depth camera that is not the colour camera). ``hit``: the pixels that see
-    the mesh cleanly."""
+                     source=None) -> np.ndarray | None:
+    """``measured`` (a photo's depth map at the working size, metres) in the mesh's scale, or ``None``.
+
+    Where at least half of the pixels both see agree within ``tolerance``, the map is returned as it is (its
+    disagreeing pixels are then rejected: an object moved after the scan). When most disagree and one factor
+    brings at least 80 % of them within it, the map's unit is off (millimetres read as another unit, a
+    tenth-millimetre sensor) and it is rescaled, with a warning. When no factor does, the map is not of this
+    photo's view (a depth camera not registered to the colour camera, another frame's map): ``None``, with a
+    warning, so that the photo is used without it rather than losing most of its pixels. ``hit``: the pixels
+    that see the mesh cleanly."""
     both = hit & np.isfinite(measured) & (measured > 0)
     if both.sum() < 100:
         return measured
@@ -108,7 +111,10 @@ def consistent_depth(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarr
         return measured
     factor = float(np.median(d / m))
     if (np.abs(m * factor - d) <= tolerance * d).mean() < 0.8:
-        return measured
+        log.warning("%s: the depth map disagrees with the mesh on %.0f %% of the pixels both see, in any unit: "
+                    "not this photo's view (a depth camera not registered to the colour camera?); the photo is "
+                    "used without it", source or "depth map", 100 * (np.abs(m - d) > tolerance * d).mean())
+        return None
     log.warning("%s: the depth map is %.4g times the mesh's depth where both see the surface; read in the mesh's "
                 "scale", source or "depth map", 1 / factor)
     return measured * np.float32(factor)
@@ -153,6 +159,7 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     if measured is not None:
         measured = consistent_depth(resize_depth(measured, W, H), mean_depth, clean, settings.depth_tolerance,
                                     photos.depths[i])
+    if measured is not None:
         disagree = any_hit & np.isfinite(measured) & (
             np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
     else:

@@ -145,6 +145,22 @@ def test_depth_maps_that_disagree_in_places_reject_those_pixels(tmp_path):
     assert view.valid[36:, 48:].sum() >= 0.95 * plain.valid[36:, 48:].sum()
 
 
+def test_a_depth_map_of_another_view_is_set_aside_not_used_to_reject_the_photo(tmp_path, caplog):
+    """A depth map that disagrees with the mesh almost everywhere, in any unit (another frame's map, a depth
+    camera not registered to the colour camera), says nothing about what this photo sees: the photo is used
+    without it, with a warning, instead of losing most of its pixels."""
+    scan, photos = cube_set(tmp_path, depth_error=0.0)
+    caster = RayCaster(scan.positions, scan.faces)
+    plain = prepare_photo(scan, dataclasses.replace(photos, depths=(None,) * 4), 0, caster, 96)
+    depth = np.asarray(Image.open(photos.depths[0])).astype(np.float64)
+    noise = np.random.default_rng(0).uniform(0.3, 3.0, depth.shape) * np.median(depth[depth > 0])
+    Image.fromarray(noise.astype(np.uint16)).save(photos.depths[0])  # depths with no relation to the view
+    with caplog.at_level("WARNING"):
+        view = prepare_photo(scan, photos, 0, caster, 96)
+    assert "not this photo's view" in caplog.text
+    assert view.rejected["depth_map"] == 0 and np.array_equal(view.valid, plain.valid)
+
+
 def test_resize_depth_is_nearest_and_keeps_nan():
     d = np.array([[1.0, 2.0], [np.nan, 4.0]], np.float32)
     r = resize_depth(d, 4, 4)
