@@ -251,9 +251,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         tally["samples"] += sum(len(x.idx) for x in seen_by)
         tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
         if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
-            weights, gave_way = _censored(n, seen_by, weights, to_recorded, settings.overshoot)
+            out, total, weights, gave_way = _censored_mean(n, seen_by, weights, to_recorded, settings.overshoot)
             tally["gave_way"] += gave_way
-        out, total = _weighted_mean(n, seen_by, weights)
+        else:
+            out, total = _weighted_mean(n, seen_by, weights)
         if settings.consistency > 0:
             # photo-consistency: each round reweights every sample by its distance from the last blend
             scale = np.float32(1.0 / settings.consistency ** 2)
@@ -313,32 +314,41 @@ class _Samples(NamedTuple):
     """the photo's appearance group"""
 
 
-def _censored(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
-              recorded: Callable[[np.ndarray, np.ndarray], np.ndarray], overshoot: float
-              ) -> tuple[list[np.ndarray], int]:
-    """``(weights, gave_way)``: ``weights`` with each clipped sample's weight scaled by how far its photo
-    overshot its white point there, as the blend of the other photos' unclipped samples says (taken back
-    through ``recorded``): 1 at no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the
-    point unclipped. ``gave_way``: how many samples kept less than half their weight."""
-    touched = np.zeros(n, bool)  # the points some photo saw clipped: the consensus is needed there only
-    for x in seen_by:
-        touched[x.idx[x.clipped]] = True
-    parts = [np.flatnonzero(touched[x.idx]) for x in seen_by]
-    near = [x._replace(idx=x.idx[k], rgb=x.rgb[k], clipped=x.clipped[k]) for x, k in zip(seen_by, parts)]
-    unclipped, support = _weighted_mean(n, near, [np.where(x.clipped, 0, w[k])
-                                                  for x, w, k in zip(near, weights, parts)])
-    out, gave_way = [], 0
-    for x, w in zip(seen_by, weights):
+def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
+                   recorded: Callable[[np.ndarray, np.ndarray], np.ndarray], overshoot: float
+                   ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], int]:
+    """:func:`_weighted_mean` with each clipped sample's weight scaled by how far its photo overshot its white
+    point there, as the blend of the other photos' unclipped samples says (taken back through ``recorded``):
+    1 at no overshoot, 1/1000 at ``overshoot`` and beyond; 1 where no photo sees the point unclipped.
+
+    Returns:
+        ``(blend (n, 3), total weight (n,), the scaled weights (one array per photo), gave_way)``: how many
+        samples kept less than half their weight. The unclipped samples' sums are made once and serve both
+        the consensus and the blend; the clipped samples (few) are added to them with their scaled weights.
+    """
+    idx = np.concatenate([x.idx for x in seen_by])
+    rgb = np.concatenate([x.rgb for x in seen_by])
+    weight = np.concatenate(weights)
+    clipped = np.flatnonzero(np.concatenate([x.clipped for x in seen_by]))
+    kept = weight.copy()
+    kept[clipped] = 0
+    support = np.bincount(idx, kept, n)
+    sums = np.stack([np.bincount(idx, rgb[:, c] * kept, n) for c in range(3)], axis=1)
+    unclipped = sums / np.maximum(support, 1e-12)[:, None]
+    start = np.cumsum([0] + [len(x.idx) for x in seen_by])
+    for x, s0 in zip(seen_by, start):
         at = np.flatnonzero(x.clipped)
         if at.size:
             point = x.idx[at]
-            predicted = recorded(unclipped[point], np.full(at.size, x.group)).max(axis=1)
-            scale = np.where(support[point] > 0, np.clip(1 - (predicted - 1) / np.float32(overshoot), 1e-3, 1), 1)
-            w = w.copy()
-            w[at] *= scale.astype(np.float32)
-            gave_way += int((scale < 0.5).sum())
-        out.append(w)
-    return out, gave_way
+            predicted = recorded(unclipped[point].astype(np.float32), np.full(at.size, x.group)).max(axis=1)
+            scale = np.clip(1 - (predicted - 1) / np.float32(overshoot), 1e-3, 1)
+            weight[s0 + at] *= np.where(support[point] > 0, scale, 1).astype(np.float32)
+    gave_way = int((weight[clipped] < 0.5 * np.concatenate(weights)[clipped]).sum())
+    at, w = idx[clipped], weight[clipped]
+    total = support + np.bincount(at, w, n)
+    blend = sums + np.stack([np.bincount(at, rgb[clipped, c] * w, n) for c in range(3)], axis=1)
+    return ((blend / np.maximum(total, 1e-12)[:, None]).astype(np.float32), total.astype(np.float32),
+            np.split(weight, start[1:-1]), gave_way)
 
 
 def _weighted_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

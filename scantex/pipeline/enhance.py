@@ -575,14 +575,15 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                 scale = photo_scale
             else:
                 scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
+            layouts: list = []  # the atlas's texel map and gutter padding, for the seam blending to reuse
             images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
-                          chunk=config.bake.chunk, progress=update)
+                          chunk=config.bake.chunk, progress=update, layouts=layouts if uc.blend_seams else None)
         materials = tuple(
             m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
                                                       diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
             for m, img in zip(target.materials, images))
         baked = target.replace(materials=materials, source=None)
-        return baked, blend_seams(baked, band_texels=uc.band_texels) if uc.blend_seams else baked
+        return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts) if uc.blend_seams else baked
 
     t = time.perf_counter() - bake_seconds
     baked, enhanced = bake_and_blend(colour, "baking the texture")

@@ -15,15 +15,20 @@ atlas would take.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scantex.atlas.padding import fill_gutters
 from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
-from scantex.atlas.texelmap import texel_strips, uv_to_pixel
+from scantex.atlas.texelmap import ROWS_PER_STRIP, texel_strips, uv_to_pixel
 from scantex.scan import Scan
 from scantex.views.raycast import interpolate
 from scantex.views.render import sample_texture, to_uint8
+
+if TYPE_CHECKING:
+    from scantex.atlas.bake import AtlasLayout
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +37,8 @@ CANDIDATES_PER_BATCH = 2_000_000
 
 
 def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
-                edges: SeamEdges | None = None, max_crease_deg: float = 60.0) -> Scan:
+                edges: SeamEdges | None = None, max_crease_deg: float = 60.0,
+                layouts: Sequence[AtlasLayout | None] | None = None) -> Scan:
     """The same scan with seam-blended material images (see the module docstring).
 
     Args:
@@ -44,6 +50,8 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         max_crease_deg: seams on a sharper crease are left alone, as seam levelling leaves them: where a
             wall meets the floor the colour changes for real, and blending it would bleed each surface's
             colour onto the other over the band (on a coarse atlas, centimetres; 180 blends every seam).
+        layouts: the bake's :class:`~scantex.atlas.bake.AtlasLayout` of each material (its texel map and
+            gutter padding, reused; the same result as without them).
     """
     if band_texels <= 0:
         raise ValueError(f"band_texels must be positive, got {band_texels}")
@@ -75,19 +83,25 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         new = image.copy()
         covered = np.zeros((H, W), bool)
         moved = 0
+        layout = layouts[m] if layouts is not None and m < len(layouts) else None
+        if layout is not None and layout.face_id.shape != (H, W):
+            layout = None  # not this image's bake
         # the atlas in strips of rows: each strip's texel map and offsets, and the edges whose band reaches it
-        for y0, strip in texel_strips(tri_uv, W, H, np.flatnonzero(mats == m)):
-            y1 = y0 + strip.shape[0]
-            covered[y0:y1] = strip.mask
-            texel_shell = np.where(strip.face_id >= 0, shells[np.maximum(strip.face_id, 0)], -1)
+        strips = (((y0, strip.face_id) for y0, strip in texel_strips(tri_uv, W, H, np.flatnonzero(mats == m)))
+                  if layout is None else
+                  ((y0, layout.face_id[y0:y0 + ROWS_PER_STRIP]) for y0 in range(0, H, ROWS_PER_STRIP)))
+        for y0, face_id in strips:
+            y1 = y0 + face_id.shape[0]
+            covered[y0:y1] = face_id >= 0
+            texel_shell = np.where(face_id >= 0, shells[np.maximum(face_id, 0)], -1)
             offset, weight, strongest = _strip_offsets(
                 scan, texel_shell, y0, W, shells, seg, f, g, cf, cg, lo, hi, band_texels, core, inset_texels)
-            touched = weight > 0
-            rgb = image[y0:y1, :, :3].astype(np.float64) * scale
-            rgb[touched] += offset[touched] / weight[touched, None] * strongest[touched, None]
-            new[y0:y1, :, :3] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
+            touched = weight > 0  # only these change
+            rgb = image[y0:y1, :, :3][touched].astype(np.float64) * scale
+            rgb += offset[touched] / weight[touched, None] * strongest[touched, None]
+            new[y0:y1, :, :3][touched] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
             moved += int(touched.sum())
-        fill_gutters(new[..., :3], covered)  # from the blended texels
+        fill_gutters(new[..., :3], covered, layout.sources if layout is not None else None)  # from the blended texels
         out_images[m] = new
         log.debug("blended %d seam sides in material %d (%d texels moved)", len(f), m, moved)
     materials = tuple(mat.with_image(img) if img is not None else mat for mat, img in zip(scan.materials, out_images))

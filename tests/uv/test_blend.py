@@ -116,3 +116,28 @@ def test_blending_in_strips_is_blending_the_whole_atlas(rows, batch, monkeypatch
             # float64 sums regrouped across batches may round a texel the other way, never more
             assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
         assert any(not np.array_equal(a.image, s.image) for a, s in zip(out.materials, scan.materials))
+
+
+def test_blending_with_the_bakes_layout_is_blending_without_it():
+    """The bake hands its texel map and gutter padding to the seam blending, which then neither rasterises the
+    UVs nor runs the distance transform again: the same images, bit for bit, and the bake's face map is the
+    texel map's."""
+    from scantex.atlas.bake import bake
+    from scantex.atlas.texelmap import texel_map
+
+    cube = textured_cube(materials=2)
+
+    def stripes(points, normals, face_ids, bary):  # a colour that differs across every seam
+        return np.stack([(points[:, 0] * 3) % 1, face_ids % 7 / 7, (points[:, 2] * 5) % 1], axis=1)
+
+    layouts: list = []
+    images = bake(cube, stripes, size=96, layouts=layouts)
+    assert len(layouts) == len(images) == 2
+    for m, layout in enumerate(layouts):
+        faces = np.flatnonzero(cube.face_materials == m)
+        assert np.array_equal(layout.face_id, texel_map(cube.triangle_uvs, 96, 96, faces).face_id)
+    baked = cube.replace(materials=tuple(mat.with_image(img) for mat, img in zip(cube.materials, images)))
+    plain = blend_seams(baked, max_crease_deg=180)
+    reused = blend_seams(baked, max_crease_deg=180, layouts=layouts)
+    for a, b, before in zip(plain.materials, reused.materials, baked.materials):
+        assert np.array_equal(a.image, b.image) and not np.array_equal(a.image, before.image)
