@@ -698,16 +698,22 @@ def _ratio(distance: float, baseline: float) -> float:
     return distance / baseline
 
 
-def _lookup(field: np.ndarray, pix: np.ndarray, outside: float | None = None) -> np.ndarray:
-    """Bilinear samples of ``field (H, W)`` at pixels ``pix (n, 2)``; pixels off the image (or NaN)
-    read ``outside`` (default: the field's largest value), so that no fit gains by leaving the image."""
-    H, W = field.shape
+def _bilinear_cells(shape: tuple[int, int], pix: np.ndarray):
+    """``(off, x0, y0, fx, fy)`` for bilinear reads of an ``(H, W)`` field at pixels ``pix (n, 2)``: which
+    pixels are off the image (or NaN), each one's cell corner (clamped inside) and its fractions there."""
+    H, W = shape
     p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
     off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
     x = np.clip(p[:, 0], 0, W - 1.001)
     y = np.clip(p[:, 1], 0, H - 1.001)
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
+    return off, x0, y0, x - x0, y - y0
+
+
+def _lookup(field: np.ndarray, pix: np.ndarray, outside: float | None = None) -> np.ndarray:
+    """Bilinear samples of ``field (H, W)`` at pixels ``pix (n, 2)``; pixels off the image (or NaN)
+    read ``outside`` (default: the field's largest value), so that no fit gains by leaving the image."""
+    off, x0, y0, fx, fy = _bilinear_cells(field.shape, pix)
     out = ((1 - fy) * ((1 - fx) * field[y0, x0] + fx * field[y0, x0 + 1])
            + fy * ((1 - fx) * field[y0 + 1, x0] + fx * field[y0 + 1, x0 + 1]))
     out[off] = float(field.max()) if outside is None else outside
@@ -717,13 +723,7 @@ def _lookup(field: np.ndarray, pix: np.ndarray, outside: float | None = None) ->
 def _lookup_gradient(field: np.ndarray, pix: np.ndarray) -> np.ndarray:
     """``(n, 2)``: the gradient (d/dx, d/dy) of :func:`_lookup`'s bilinear samples of ``field`` at ``pix
     (n, 2)``; 0 off the image (where the lookup reads a constant)."""
-    H, W = field.shape
-    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
-    off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
-    x = np.clip(p[:, 0], 0, W - 1.001)
-    y = np.clip(p[:, 1], 0, H - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
+    off, x0, y0, fx, fy = _bilinear_cells(field.shape, pix)
     a, b = field[y0, x0], field[y0, x0 + 1]
     c, d = field[y0 + 1, x0], field[y0 + 1, x0 + 1]
     out = np.stack([(1 - fy) * (b - a) + fy * (d - c), (1 - fx) * (c - a) + fx * (d - b)], axis=1)

@@ -332,9 +332,9 @@ def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
     clipped = np.flatnonzero(np.concatenate([x.clipped for x in seen_by]))
     kept = weight.copy()
     kept[clipped] = 0
-    support = np.bincount(idx, kept, n)
-    sums = np.stack([np.bincount(idx, rgb[:, c] * kept, n) for c in range(3)], axis=1)
+    support, sums = _sums(n, idx, rgb, kept)
     unclipped = sums / np.maximum(support, 1e-12)[:, None]
+    before = weight[clipped]
     start = np.cumsum([0] + [len(x.idx) for x in seen_by])
     for x, s0 in zip(seen_by, start):
         at = np.flatnonzero(x.clipped)
@@ -343,10 +343,10 @@ def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
             predicted = recorded(unclipped[point].astype(np.float32), np.full(at.size, x.group)).max(axis=1)
             scale = np.clip(1 - (predicted - 1) / np.float32(overshoot), 1e-3, 1)
             weight[s0 + at] *= np.where(support[point] > 0, scale, 1).astype(np.float32)
-    gave_way = int((weight[clipped] < 0.5 * np.concatenate(weights)[clipped]).sum())
-    at, w = idx[clipped], weight[clipped]
-    total = support + np.bincount(at, w, n)
-    blend = sums + np.stack([np.bincount(at, rgb[clipped, c] * w, n) for c in range(3)], axis=1)
+    w = weight[clipped]
+    gave_way = int((w < 0.5 * before).sum())
+    total, blend = _sums(n, idx[clipped], rgb[clipped], w)
+    total, blend = total + support, blend + sums
     return ((blend / np.maximum(total, 1e-12)[:, None]).astype(np.float32), total.astype(np.float32),
             np.split(weight, start[1:-1]), gave_way)
 
@@ -356,12 +356,17 @@ def _weighted_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray]) -
     per photo)."""
     if not seen_by:
         return np.zeros((n, 3), np.float32), np.zeros(n, np.float32)
-    idx = np.concatenate([x.idx for x in seen_by])
-    weight = np.concatenate(weights)
-    weighted = np.concatenate([x.rgb for x in seen_by]) * weight[:, None]
-    total = np.bincount(idx, weight, n)  # one pass over the samples (a scatter-add per photo: twice the time)
-    blend = np.stack([np.bincount(idx, weighted[:, c], n) for c in range(3)], axis=1)
+    total, blend = _sums(n, np.concatenate([x.idx for x in seen_by]), np.concatenate([x.rgb for x in seen_by]),
+                         np.concatenate(weights))
     return (blend / np.maximum(total, 1e-12)[:, None]).astype(np.float32), total.astype(np.float32)
+
+
+def _sums(n: int, idx: np.ndarray, rgb: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(total weight (n,), weighted colour sum (n, 3))``, float64, of samples ``rgb (m, 3)`` of points
+    ``idx (m,)``: one bincount pass over the samples (a scatter-add per photo takes twice the time)."""
+    weighted = rgb * weight[:, None]
+    return (np.bincount(idx, weight, n),
+            np.stack([np.bincount(idx, weighted[:, c], n) for c in range(3)], axis=1))
 
 
 def _replace_sharpness(s: _Source, value: float) -> _Source:
