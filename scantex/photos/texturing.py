@@ -215,7 +215,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             idx, xi, yi = _seen_in(view, pix, z, settings.depth_tolerance)
             if idx.size == 0:
                 return None
-            distance = np.sqrt(np.einsum("ij,ij->i", cam[idx], cam[idx]))  # |X - C|
+            seen = cam[idx]
+            distance = np.sqrt(np.einsum("ij,ij->i", seen, seen))  # |X - C|
             z, full = z[idx], full[idx]
             if sub is not None:
                 idx = sub[idx]
@@ -224,7 +225,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
                 + np.float32(s.log_sharpness)
             rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full)
-            clipped = rgb.max(axis=1) >= np.float32(settings.clip_level)
+            # the channels' maximum column by column: numpy's max over a row of three is 20x slower
+            clipped = np.maximum(np.maximum(rgb[:, 0], rgb[:, 1]), rgb[:, 2]) >= np.float32(settings.clip_level)
             if canonicalise is not None:
                 rgb = canonicalise(rgb, np.full(len(idx), s.group))
             return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
