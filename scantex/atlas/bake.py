@@ -5,7 +5,10 @@ The geometry and the UV layout are the scan's own; only the texture images are n
 
 from __future__ import annotations
 
+import contextlib
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +50,7 @@ def output_size(scan: Scan, material: int, requested: int = 0, cap: int = 8192, 
 
 def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, chunk: int = 65536,
          progress: Callable[[int, int], None] | None = None,
-         layouts: list[AtlasLayout | None] | None = None) -> tuple[np.ndarray, ...]:
+         layouts: list[AtlasLayout | None] | None = None, workers: int = 1) -> tuple[np.ndarray, ...]:
     """New ``(H, W, 3) uint8`` images, one per material (``None`` for materials without UVs/faces).
 
     Each is ``size`` square, or ``scale`` times its input atlas (:func:`output_size`). At ``scale`` 1 on
@@ -66,6 +69,9 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     ``progress`` gets ``(done, total)`` texels; ``total`` is estimated from the UV area until the end.
     ``layouts``: if given, receives each material's :class:`AtlasLayout` (``None`` where no image is made),
     for seam blending (12 bytes a texel more, held: 0.2 GB at 4096^2).
+    ``workers`` > 1 colours that many chunks at once, in threads (``colour`` must then allow calls from
+    several threads at once; numpy releases the interpreter lock in its array work). The texels are the
+    same, as each chunk's colours depend on that chunk alone; at most twice ``workers`` chunks are held.
     """
     tri_uv = scan.triangle_uvs
     corners = scan.triangles
@@ -73,52 +79,73 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     plans = _plans(scan, size, scale)
     total = sum(_estimated_texels(tri_uv[p[0]], p[1], p[2]) for p in plans if p is not None)
     images, done = [], 0
-    for plan in plans:
-        if plan is None:
-            images.append(None)
+
+    def coloured(f: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return to_uint8(np.asarray(colour(interpolate(f, b, corners), normals[f], f, b), dtype=np.float32))
+
+    with ThreadPoolExecutor(workers) if workers > 1 else _no_pool() as pool:
+        for plan in plans:
+            if plan is None:
+                images.append(None)
+                if layouts is not None:
+                    layouts.append(None)
+                continue
+            faces, H, W = plan
+            image = np.zeros((H * W, 3), np.uint8)
+            covered = np.zeros(H * W, bool)
+            face_map = np.full((H, W), -1, np.int32) if layouts is not None else None
+            # covered texels of the strips so far not yet coloured: (flat texel index, face, barycentrics)
+            flat, fid, bary = np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
+            pending: deque = deque()  # (texels, the future of their colours), oldest first
+
+            def store(idx: np.ndarray, rgb: np.ndarray) -> None:
+                nonlocal done, total
+                image[idx] = rgb
+                covered[idx] = True
+                done += len(idx)
+                total = max(total, done)
+                if progress:
+                    progress(done, total)
+
+            def emit(idx: np.ndarray, f: np.ndarray, b: np.ndarray, keep: int) -> None:
+                """Colour texels ``idx`` (None: none), then store finished chunks until ``keep`` are left."""
+                if idx is not None and pool is None:
+                    store(idx, coloured(f, b))
+                elif idx is not None:
+                    pending.append((idx, pool.submit(coloured, f, b)))
+                while len(pending) > keep:
+                    first, future = pending.popleft()
+                    store(first, future.result())
+
+            for y0, strip in texel_strips(tri_uv, W, H, faces):
+                if face_map is not None:
+                    face_map[y0:y0 + strip.shape[0]] = strip.face_id
+                hit = np.flatnonzero(strip.mask.reshape(-1))
+                flat = np.concatenate([flat, hit + y0 * W])
+                fid = np.concatenate([fid, strip.face_id.reshape(-1)[hit]])
+                bary = np.concatenate([bary, strip.bary.reshape(-1, 2)[hit]])
+                whole = len(flat) // chunk * chunk
+                for s in range(0, whole, chunk):
+                    emit(flat[s:s + chunk], fid[s:s + chunk], bary[s:s + chunk], keep=2 * workers - 1)
+                flat, fid, bary = flat[whole:], fid[whole:], bary[whole:]
+            if len(flat):
+                emit(flat, fid, bary, keep=2 * workers - 1)
+            emit(None, None, None, keep=0)
+            image, covered = image.reshape(H, W, 3), covered.reshape(H, W)
+            sources = gutter_sources(covered)
+            fill_gutters(image, covered, sources)
+            images.append(image)
             if layouts is not None:
-                layouts.append(None)
-            continue
-        faces, H, W = plan
-        image = np.zeros((H * W, 3), np.uint8)
-        covered = np.zeros(H * W, bool)
-        face_map = np.full((H, W), -1, np.int32) if layouts is not None else None
-        # covered texels of the strips so far not yet coloured: (flat texel index, face, barycentrics)
-        flat, fid, bary = np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
-
-        def emit(idx: np.ndarray, f: np.ndarray, b: np.ndarray) -> None:
-            nonlocal done, total
-            rgb = np.asarray(colour(interpolate(f, b, corners), normals[f], f, b), dtype=np.float32)
-            image[idx] = to_uint8(rgb)
-            covered[idx] = True
-            done += len(idx)
-            total = max(total, done)
-            if progress:
-                progress(done, total)
-
-        for y0, strip in texel_strips(tri_uv, W, H, faces):
-            if face_map is not None:
-                face_map[y0:y0 + strip.shape[0]] = strip.face_id
-            hit = np.flatnonzero(strip.mask.reshape(-1))
-            flat = np.concatenate([flat, hit + y0 * W])
-            fid = np.concatenate([fid, strip.face_id.reshape(-1)[hit]])
-            bary = np.concatenate([bary, strip.bary.reshape(-1, 2)[hit]])
-            whole = len(flat) // chunk * chunk
-            for s in range(0, whole, chunk):
-                emit(flat[s:s + chunk], fid[s:s + chunk], bary[s:s + chunk])
-            flat, fid, bary = flat[whole:], fid[whole:], bary[whole:]
-        if len(flat):
-            emit(flat, fid, bary)
-        image, covered = image.reshape(H, W, 3), covered.reshape(H, W)
-        sources = gutter_sources(covered)
-        fill_gutters(image, covered, sources)
-        images.append(image)
-        if layouts is not None:
-            layouts.append(AtlasLayout(face_map, sources))
-        del sources  # the layout keeps it, or it goes now
+                layouts.append(AtlasLayout(face_map, sources))
+            del sources  # the layout keeps it, or it goes now
     if progress and done < total:
         progress(done, done)  # the estimate was high (overlapping UVs): end at 100 %
     return tuple(images)
+
+
+@contextlib.contextmanager
+def _no_pool():
+    yield None
 
 
 def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2,

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -118,8 +119,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                       canonicalise: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
                       fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings(),
                       faces: np.ndarray | None = None,
-                      recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
-                      ) -> tuple[SurfaceColour, dict]:
+                      recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                      threads: int | None = None) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -136,11 +137,16 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         recorded: ``canonicalise``'s inverse (canonical colours as photo ``group`` recorded them): clipped
             samples give way where the other photos say their photo overshot its white point. ``None``:
             the identity when ``canonicalise`` is ``None``, else clipped samples blend as any other.
+        threads: threads sampling the photos of one call side by side (``None``: one a core, up to 8).
+            ``colour`` may be called from several threads at once: a caller that colours chunks in parallel
+            (``bake``'s ``workers``) passes 1 here (both at once oversubscribe the cores).
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
         ``without=k``: the same blend without view ``k`` (a leave-one-out consensus for pose refinement).
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from PIL import Image
     from scipy import ndimage
 
@@ -149,8 +155,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     # so that a georeferenced scene's large coordinates keep their precision
     origin = (np.mean([photos.cameras[v.index].center for v in views], axis=0) if len(views)
               else np.zeros(3))
-    sources = []
-    for view, group in zip(views, groups):
+
+    def source(view: PhotoView, group: int) -> _Source:
+        """One training photo, ready to sample: its image at the sampling resolution, packed, its feather
+        weights, sharpness and pose, and the faces it may see."""
         cam = photos.cameras[view.index]
         image = photos.load_image(view.index)
         side = max(cam.width, cam.height)
@@ -177,9 +185,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen = np.zeros(len(faces), np.float32)
             seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
             seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
-        sources.append(_Source(cam, _packed(image), to_view.astype(np.float32), view, feather, sharpness,
-                               int(group), seen, cam.R.astype(np.float32),
-                               (cam.R @ origin + cam.t).astype(np.float32)))
+        return _Source(cam, _packed(image), to_view.astype(np.float32), view, feather, sharpness, int(group),
+                       seen, cam.R.astype(np.float32), (cam.R @ origin + cam.t).astype(np.float32))
+
+    # the photos read and prepared side by side (decoding and numpy release the interpreter lock)
+    with ThreadPoolExecutor(max(1, min(_WORKERS, len(views)))) as pool:
+        sources = list(pool.map(source, views, groups))
     if sources:
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
@@ -190,6 +201,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
 
     to_recorded = recorded if recorded is not None or canonicalise is not None else (lambda rgb, group: rgb)
+    tallying = threading.Lock()  # the report's counts, from calls in several threads
+    threads = _WORKERS if threads is None else threads
 
     def colour(points, normals, face_ids, bary, without: int | None = None):
         n = len(points)
@@ -232,10 +245,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
         asked = [s for k, s in enumerate(sources) if k != without]
-        if len(asked) > 1 and _WORKERS > 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            with ThreadPoolExecutor(min(_WORKERS, len(asked))) as pool:
+        if len(asked) > 1 and threads > 1:
+            with ThreadPoolExecutor(min(threads, len(asked))) as pool:
                 samples = list(pool.map(sample, asked))
         else:
             samples = [sample(s) for s in asked]
@@ -249,14 +260,16 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         for x in seen_by:
             weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
             alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
-        tally = report["clipped"]
-        tally["samples"] += sum(len(x.idx) for x in seen_by)
-        tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
+        gave_way = 0
         if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
             out, total, weights, gave_way = _censored_mean(n, seen_by, weights, to_recorded, settings.overshoot)
-            tally["gave_way"] += gave_way
         else:
             out, total = _weighted_mean(n, seen_by, weights)
+        with tallying:
+            tally = report["clipped"]
+            tally["samples"] += sum(len(x.idx) for x in seen_by)
+            tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
+            tally["gave_way"] += gave_way
         if settings.consistency > 0:
             # photo-consistency: each round reweights every sample by its distance from the last blend
             scale = np.float32(1.0 / settings.consistency ** 2)

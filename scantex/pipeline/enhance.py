@@ -303,13 +303,14 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
 
 
 def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster,
-                  charts: np.ndarray, device, texel_px_per_cm: float = 0.0):
+                  charts: np.ndarray, device, texel_px_per_cm: float = 0.0, threads: int | None = None):
     """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
     to the canonical appearance by each photo's inverse colour transform, with ``fallback`` (the field, or
     the input's texels) where no photo sees them. The transforms are the field's (training photo ``k`` is
     appearance group ``k``) when it was trained, else fitted in closed form against the input texture
     (``charts``: the input atlas's chart of each face). ``texel_px_per_cm``: the output atlas's texel density
-    (photos much finer than it are sampled at a lower resolution; 0: full resolution)."""
+    (photos much finer than it are sampled at a lower resolution; 0: full resolution). ``threads``: how many
+    sample one call's photos side by side (``None``: the cores; 1 when the bake colours chunks in parallel)."""
     import torch
 
     from scantex.photos.texturing import ProjectiveSettings, projective_colour, recorded_transforms
@@ -339,7 +340,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        fallback, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded)
+                                        fallback, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded,
+                                        threads=threads)
     return colour, {"mode": "projective", **sampled, **report}
 
 
@@ -545,10 +547,16 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         photo_scale, density = photo_atlas_scale(scan, photo)
         bake_report.update(density)
     photo_fallback = colour
+    # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x
+    # faster than the photos of one chunk side by side; the refiner, when it wraps the colour, takes one chunk
+    # at a time
+    workers = 1
     if photo is not None and config.photos.texturing != "field":
         atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * photo_scale
+        if not (config.refine.enabled and config.refine.with_photos):
+            workers = min(8, config.threads or os.cpu_count() or 1)
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
-                                                  atlas_density)
+                                                  atlas_density, threads=1 if workers > 1 else None)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -566,7 +574,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             colour, refine_report = refined.colour, refined.report
         timings["refine"] = time.perf_counter() - t
 
-    def bake_and_blend(colour: SurfaceColour, stage: str) -> tuple[Scan, Scan]:
+    def bake_and_blend(colour: SurfaceColour, stage: str, workers: int = 1) -> tuple[Scan, Scan]:
         with reporter.stage(stage) as update:
             target = plan.scan
             # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
@@ -577,7 +585,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                 scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
             layouts: list = []  # the atlas's texel map and gutter padding, for the seam blending to reuse
             images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
-                          chunk=config.bake.chunk, progress=update, layouts=layouts if uc.blend_seams else None)
+                          chunk=config.bake.chunk, progress=update, layouts=layouts if uc.blend_seams else None,
+                          workers=workers)
         materials = tuple(
             m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
                                                       diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
@@ -586,7 +595,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts) if uc.blend_seams else baked
 
     t = time.perf_counter() - bake_seconds
-    baked, enhanced = bake_and_blend(colour, "baking the texture")
+    baked, enhanced = bake_and_blend(colour, "baking the texture", workers)
     patches = None  # the result's patch measure, when the safety net below has taken it
     if photo is None and bake_report["source"] == "input" and mode == "keep":
         # never a patch the input does not have: a result that paints them without removing most of the
@@ -636,8 +645,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             t = time.perf_counter()
             every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
-                                                 device, atlas_density)
-            baked, enhanced = bake_and_blend(colour, "baking the texture from every photo")
+                                                 device, atlas_density, threads=1 if workers > 1 else None)
+            baked, enhanced = bake_and_blend(colour, "baking the texture from every photo", workers)
             metrics["geometry"] = geometry_metrics(scan, enhanced)
             metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)
             metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
