@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -35,11 +37,10 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
     """
     from scantex.metrics.patches import patch_score
 
-    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": [], "hole_psnr": []}
-                            for name in scans}
-    hole_pixels = {name: [] for name in scans}
     truth = reference if isinstance(reference, Scan) else None
-    for cam in cameras:
+
+    def score(cam: Camera) -> dict[str, tuple[dict[str, float], np.ndarray | None]]:
+        """Each scan's scores at ``cam``, and its squared errors over hole pixels (``None``: none)."""
         if truth is None:
             ref, ref_alpha = reference(cam)
             shown = render_scans(scans, cam, caster, supersample=supersample)
@@ -49,16 +50,25 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
-        for name, (img, _) in shown.items():
-            out[name]["psnr"].append(psnr(img, ref, mask))
-            out[name]["ssim"].append(ssim(img, ref, mask))
-            out[name]["mse"].append(float(((img - ref) ** 2)[mask].mean()))
-            out[name]["patches"].append(patch_score(img, ref, mask))
-            if holes.any():
-                hole_pixels[name].append(((img - ref) ** 2)[holes])
+        return {name: ({"psnr": psnr(img, ref, mask), "ssim": ssim(img, ref, mask),
+                        "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},
+                       ((img - ref) ** 2)[holes] if holes.any() else None)
+                for name, (img, _) in shown.items()}
+
+    # the views side by side: Embree, numpy and torch release the interpreter lock
+    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+        per_view = list(pool.map(score, cameras))
+    out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
+    hole_pixels = {name: [] for name in scans}
+    for scored in per_view:
+        for name, (values, hole_errors) in scored.items():
+            for k, v in values.items():
+                out[name][k].append(v)
+            if hole_errors is not None:
+                hole_pixels[name].append(hole_errors)
     result = {}
     for name in scans:
-        r = {k: float(np.mean(v)) for k, v in out[name].items() if k != "hole_psnr" and v}
+        r = {k: float(np.mean(v)) for k, v in out[name].items() if v}
         r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim", "patches")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())

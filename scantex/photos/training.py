@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -209,8 +210,6 @@ def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster:
     """:func:`prepare_photo` of each of ``indices``, in order, two photos at a time (Embree and numpy
     release the interpreter lock for most of the work; each photo holds its supersampled ray cast, about
     100 bytes a working pixel, while it is prepared)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     indices = [int(i) for i in indices]
     views = []
     with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
@@ -296,22 +295,21 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
     from scantex.photos.poses import PoseSettings, align_camera
     from scantex.views.render import render, render_scans, shade_hits
 
-    scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
-    for view in views:
+    def score(view: PhotoView) -> tuple[dict[str, dict[str, float]], np.ndarray] | None:
+        """Each scan's scores through ``view``, and the side-by-side image (``None``: too few pixels)."""
         mask = view.valid
         if mask.sum() < 64:
-            continue
+            return None
         row = [view.image]
         renders = render_scans(scans, view.camera, caster, supersample=supersample)  # one ray cast for all
+        out = {}
         for name, scan in scans.items():
             img, _ = renders[name]
             row.append(img)
             matched = colour_match(img, view.image, mask)
-            s = scores[name]
-            s["psnr"].append(psnr(img, view.image, mask))
-            s["ssim"].append(ssim(img, view.image, mask))
-            s["psnr_matched"].append(psnr(matched, view.image, mask))
-            s["ssim_matched"].append(ssim(matched, view.image, mask))
+            s = out[name] = {"psnr": psnr(img, view.image, mask), "ssim": ssim(img, view.image, mask),
+                             "psnr_matched": psnr(matched, view.image, mask),
+                             "ssim_matched": ssim(matched, view.image, mask)}
             if align:
                 fitted = align_camera(scan, view.camera, view.image, lambda f, b, scan=scan: shade_hits(scan, f, b),
                                       caster, PoseSettings(max_side=max(view.camera.width, view.camera.height)),
@@ -319,10 +317,22 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                 moved, alpha = render(scan, fitted.camera, caster, supersample=supersample)
                 covered = mask & (alpha > 0.999)
                 moved = colour_match(moved, view.image, covered)
-                s.setdefault("psnr_aligned", []).append(psnr(moved, view.image, covered))
-                s.setdefault("ssim_aligned", []).append(ssim(moved, view.image, covered))
-                s.setdefault("aligned_by_deg", []).append(fitted.rotation_deg)
+                s.update(psnr_aligned=psnr(moved, view.image, covered), ssim_aligned=ssim(moved, view.image, covered),
+                         aligned_by_deg=fitted.rotation_deg)
+        return out, np.concatenate(row, axis=1)
+
+    # the photos side by side: Embree, numpy and torch release the interpreter lock
+    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+        scored = list(pool.map(score, views))
+    scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
+    for view, result in zip(views, scored):
+        if result is None:
+            continue
+        values, row = result
+        for name, s in values.items():
+            for k, v in s.items():
+                scores[name].setdefault(k, []).append(v)
         if images is not None:
-            images[view.index] = np.concatenate(row, axis=1)
+            images[view.index] = row
     return {name: {k: float(np.mean(v)) for k, v in s.items() if v} | {"photos": len(s["psnr"])}
             for name, s in scores.items()}

@@ -7,6 +7,7 @@ from pathlib import Path
 
 
 from scantex.io import save_scan
+from scantex.io.images import PNG_COMPRESS_LEVEL
 from scantex.pipeline.config import save_config
 from scantex.views.viewset import write_views
 
@@ -65,7 +66,8 @@ def write_outputs(result, out_dir: str | Path) -> None:
 
         (out_dir / "comparisons").mkdir()
         for name, image in result.comparisons.items():
-            Image.fromarray(to_uint8(image)).save(out_dir / "comparisons" / f"{name}.png")
+            Image.fromarray(to_uint8(image)).save(out_dir / "comparisons" / f"{name}.png",
+                                                  compress_level=PNG_COMPRESS_LEVEL)
     write_report(result, out_dir / "report.html", metrics=metrics)
 
 

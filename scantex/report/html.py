@@ -18,7 +18,9 @@ import io
 import json
 import logging
 import math
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -241,8 +243,8 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
     caster = RayCaster(after.positions, after.faces)  # the geometry is the same for all three
     columns = [("input", before), ("enhanced", after), ("ground truth", truth)]
     columns = [(n, s) for n, s in columns if s is not None]
-    widgets = []
-    for k, cam in enumerate(cameras):
+
+    def widget(k: int, cam: Camera) -> str:
         factor = max(1, math.ceil(RENDER_DISPLAY / max(cam.width, cam.height)))
         fine = resized_camera(cam, cam.width * factor, cam.height * factor)
         # one ray cast for the three (same geometry); shown at twice the scored size or more, one ray per
@@ -266,7 +268,11 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
                               f"{fine.width}×{fine.height} shown")
         right = "enhanced"
         left = "input" if "input" in images else "ground truth" if "ground truth" in images else "enhanced"
-        widgets.append(_compare(f"view-{k + 1}", images, left, right, table, fit=True))
+        return _compare(f"view-{k + 1}", images, left, right, table, fit=True)
+
+    # the views side by side: Embree, numpy and PNG encoding release the interpreter lock
+    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+        widgets = list(pool.map(widget, range(len(cameras)), cameras))
     return "".join(widgets)
 
 
