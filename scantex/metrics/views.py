@@ -48,7 +48,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
             shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample)
             ref, ref_alpha = shown.pop(_REFERENCE)
         mask = ref_alpha >= 0.999
-        g = cast_gbuffer(caster, cam, np.zeros((len(hole_faces), 3)))
+        g = cast_gbuffer(caster, cam)
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
         return {name: ({"psnr": psnr(img, ref, mask), "ssim": ssim(img, ref, mask),
                         "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},

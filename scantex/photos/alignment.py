@@ -574,7 +574,7 @@ def _check_photo(scan: Scan, photos: PhotoSet, i: int, max_side: int, caster,
     photo = photo.astype(np.float32) / 255.0
     photo_edges = edge_map(_gray(photo))
 
-    g = cast_gbuffer(caster, small, scan.face_normals)
+    g = cast_gbuffer(caster, small)
     mask = g.mask
     border = ndimage.binary_dilation(_edge_pixels(mesh_edges.border, small, None), iterations=BORDER_PX)
     contours = contour_map(mask, g.depth)

@@ -308,7 +308,7 @@ def reprojection_error(scan: Scan, estimated: Camera, truth: Camera, caster, n: 
     from scantex.views.raycast import cast_gbuffer
 
     small = truth.scaled(min(1.0, 160 / max(truth.width, truth.height)))
-    g = cast_gbuffer(caster, small, scan.face_normals)
+    g = cast_gbuffer(caster, small)
     points = g.points(scan.positions, scan.faces)[g.mask]
     if len(points) > n:
         points = points[np.random.default_rng(0).choice(len(points), n, replace=False)]

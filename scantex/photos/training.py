@@ -135,7 +135,7 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     image = photo.astype(np.float32) / 255.0
 
     s = max(1, settings.supersample)
-    g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, scan.face_normals)
+    g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam)
     n_hit, all_hit, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s)
     fid = g.face_id.reshape(H, s, W, s)
     centre = fid[:, s // 2, :, s // 2]

@@ -96,7 +96,6 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
     rendered[test] = True
     rendered[train] = render_train
     images, alpha, fids, depths, valids = [], [], [], [], []
-    normals = scan.face_normals
     for i, cam in enumerate(cameras):
         if not rendered[i]:
             images.append(np.zeros((cam.height, cam.width, 3), np.float32))
@@ -106,7 +105,7 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
             valids.append(np.zeros((cam.height, cam.width), bool))
             update(i + 1, len(cameras))
             continue
-        g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam, normals)
+        g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam)
         rgb = render_gbuffer(scan, g)
         H, W = cam.height, cam.width
         _, all_usable, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s, usable)

@@ -122,7 +122,7 @@ def refine_colour(scan: Scan, fitted, tv, caster: RayCaster, base_colour: Surfac
     normals_of_face = scan.face_normals
     for i in chosen:
         cam = tv.views.cameras[train[i]].scaled(config.view_scale)
-        g = cast_gbuffer(caster, cam, normals_of_face)
+        g = cast_gbuffer(caster, cam)
         hit = g.mask
         fid = g.face_id[hit]
         bary = g.bary[hit]

@@ -138,7 +138,7 @@ def render_ground_truth(demo: DemoScan, camera: Camera, supersample: int = 1, *,
     scan = demo.scan
     caster = caster or RayCaster(scan.positions, scan.faces)
     cam = camera.scaled(supersample) if supersample > 1 else camera
-    g = cast_gbuffer(caster, cam, scan.face_normals)
+    g = cast_gbuffer(caster, cam)
     H, W = g.shape
     rgb = np.empty((H * W, 3), dtype=np.float32)
     rgb[:] = background

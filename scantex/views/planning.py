@@ -288,7 +288,7 @@ class _Sightings:
 
     def usable_faces(self, camera: Camera) -> np.ndarray:
         """``(M,) int64`` faces that ``camera`` sees usably."""
-        g = cast_gbuffer(self.caster, camera, self.normals)
+        g = cast_gbuffer(self.caster, camera)
         seen = np.zeros(len(self.normals), dtype=bool)
         seen[g.face_id[g.face_id >= 0]] = True
         fid = np.flatnonzero(seen)

@@ -178,7 +178,7 @@ def render_scans(scans: dict[str, Scan], camera: Camera, caster: RayCaster | Non
     first = next(iter(scans.values()))
     caster = caster or RayCaster(first.positions, first.faces)
     cam = camera.scaled(supersample) if supersample > 1 else camera
-    g = cast_gbuffer(caster, cam, first.face_normals)
+    g = cast_gbuffer(caster, cam, first.face_normals if lit else None)
     alpha = downsample(g.mask.astype(np.float32)[..., None], supersample)[..., 0]
     out = {}
     layouts: dict[tuple[int, int], np.ndarray] = {}  # the hits' UVs, once for scans sharing a UV layout
