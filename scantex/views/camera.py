@@ -100,6 +100,13 @@ class Camera:
         directions = xs * A + (ys * B + C)  # [H, W, 3]
         return self.center.copy(), directions.reshape(-1, 3)
 
+    def rays_through(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``(N, 3) float32`` directions through pixels ``(x, y)`` (integer columns and rows ``(N,)``): the
+        same values, bit for bit, as :meth:`pixel_rays` gives those pixels."""
+        M = self.R.T @ np.linalg.inv(self.K)
+        A, B, C = (M[:, k].astype(np.float32) for k in range(3))
+        return np.asarray(x, np.float32)[:, None] * A + (np.asarray(y, np.float32)[:, None] * B + C)
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(N, 2)`` and depths ``(N,)`` of world points ``(N, 3)``."""
         x_cam = points @ self.R.T + self.t

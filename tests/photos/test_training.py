@@ -9,13 +9,14 @@ import pytest
 from PIL import Image
 
 from scantex.photos import PhotoSet
-from scantex.photos.training import (VisibilitySettings, colour_match, halved, photo_rays, prepare_photo,
-                                     resize_depth, score_photos, split_photos, taught_by_photos, texture_seen,
-                                     working_camera)
+from scantex.photos.training import (VisibilitySettings, _footprints, colour_match, halved, photo_rays,
+                                     prepare_photo, resize_depth, score_photos, split_photos, taught_by_photos,
+                                     texture_seen, working_camera)
+from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
 from scantex.views.render import render, to_uint8
-from tests.conftest import textured_cube
+from tests.conftest import grid_wall, textured_cube
 from tests.photos.test_alignment import photograph
 
 
@@ -75,6 +76,45 @@ def test_texture_seen_is_the_render_from_the_views_own_ray_cast(tmp_path):
     # a view without barycentrics (made elsewhere) is rendered again
     assert np.array_equal(texture_seen(scan, dataclasses.replace(view, bary=None), caster), again)
     assert (seen[view.face_id < 0] == 0).all()
+
+
+def stepped_scene() -> Scan:
+    """A wall with a panel 4 % nearer in front (a step in depth too small for a contour, large enough
+    for a pixel that straddles it to be unclean), a cube farther in front (silhouettes, contours), and a
+    sliver thinner than a pixel."""
+    cube = textured_cube()
+    parts = [grid_wall(n=6, size=3.0), grid_wall(n=4, size=1.0)]
+    parts[0] = dataclasses.replace(parts[0], positions=parts[0].positions + (-1.5, 2.0, -1.5))
+    parts[1] = dataclasses.replace(parts[1], positions=parts[1].positions + (0.2, 1.85, 0.2))
+    sliver = Scan(np.array([[-1.2, 1.0, -1.4], [-1.19, 1.0, -1.4], [-1.2, 1.0, 1.4]]), np.array([[0, 2, 1]]))
+    positions, faces, offset = [], [], 0
+    for part in [*parts, dataclasses.replace(cube, positions=cube.positions * 0.6 - (0.9, 0.6, 0.3)), sliver]:
+        positions.append(part.positions)
+        faces.append(part.faces + offset)
+        offset += len(part.positions)
+    return Scan(np.concatenate(positions), np.concatenate(faces))
+
+
+@pytest.mark.parametrize("s", [2, 3])
+def test_sparse_supersampling_matches_the_full_cast(s):
+    scan = stepped_scene()
+    caster = RayCaster(scan.positions, scan.faces)
+    cam = Camera.look_at((0.3, -4.0, 0.6), (0.0, 1.5, 0.0), fov_deg=60, width=160, height=120)
+    face_id, bary, n_hit, all_hit, depth, spread = _footprints(caster, cam, s)
+    g = cast_gbuffer(caster, cam.scaled(s))
+    full = pixel_footprints(g.face_id, g.depth, s)
+    # the centre sub-sample is the same ray, cast alike
+    assert np.array_equal(face_id, g.face_id.reshape(120, s, 160, s)[:, s // 2, :, s // 2])
+    assert np.array_equal(bary, g.bary.reshape(120, s, 160, s, 2)[:, s // 2, :, s // 2])
+    # the visibility test's inputs are the full cast's: the steps and silhouettes are found; a sliver
+    # thinner than a pixel, off the wall, can slip between the centre samples (a few pixels partly hit)
+    assert np.array_equal(all_hit, full[1])
+    assert (n_hit != full[0]).sum() <= 8
+    clean = all_hit & (spread < 0.02 * depth)
+    assert np.array_equal(clean, full[1] & (full[3] < 0.02 * full[2]))
+    assert (~clean & (face_id >= 0)).sum() > 100  # they are there to be found
+    hit = (full[0] > 0) & (n_hit == full[0])
+    assert np.allclose(depth[hit], full[2][hit], rtol=0.01)
 
 
 def test_halved_view_is_the_same_photo_at_half_size(tmp_path):
