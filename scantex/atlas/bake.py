@@ -83,7 +83,7 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     def coloured(f: np.ndarray, b: np.ndarray) -> np.ndarray:
         return to_uint8(np.asarray(colour(interpolate(f, b, corners), normals[f], f, b), dtype=np.float32))
 
-    with ThreadPoolExecutor(workers) if workers > 1 else _no_pool() as pool:
+    with ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
         for plan in plans:
             if plan is None:
                 images.append(None)
@@ -141,11 +141,6 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     if progress and done < total:
         progress(done, done)  # the estimate was high (overlapping UVs): end at 100 %
     return tuple(images)
-
-
-@contextlib.contextmanager
-def _no_pool():
-    yield None
 
 
 def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -11,7 +10,7 @@ import numpy as np
 from scantex.metrics.image import psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import RayCaster, cast_gbuffer
+from scantex.views.raycast import PAIR_THREADS, RayCaster, cast_gbuffer
 from scantex.views.render import render_scans
 
 #: the key a reference scan is rendered under, beside the scored scans (no name of theirs can equal it)
@@ -56,7 +55,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
                 for name, (img, _) in shown.items()}
 
     # the views side by side: Embree, numpy and torch release the interpreter lock
-    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+    with ThreadPoolExecutor(PAIR_THREADS) as pool:
         per_view = list(pool.map(score, cameras))
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
     hole_pixels = {name: [] for name in scans}

@@ -42,6 +42,7 @@ import logging
 import os
 import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -145,8 +146,6 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
         ``without=k``: the same blend without view ``k`` (a leave-one-out consensus for pose refinement).
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     from PIL import Image
     from scipy import ndimage
 

@@ -25,7 +25,6 @@ measures texture detail and alignment rather than a photo's exposure.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from scantex.photos.alignment import contour_map, resized_camera
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import RayCaster, pixel_footprints
+from scantex.views.raycast import PAIR_THREADS, RayCaster, pixel_footprints
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +250,7 @@ def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster:
     working pixel, while it is prepared)."""
     indices = [int(i) for i in indices]
     views = []
-    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+    with ThreadPoolExecutor(PAIR_THREADS) as pool:
         for k, view in enumerate(pool.map(lambda i: prepare_photo(scan, photos, i, caster, max_side, settings),
                                           indices)):
             views.append(view)
@@ -361,7 +360,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         return out, np.concatenate(row, axis=1)
 
     # the photos side by side: Embree, numpy and torch release the interpreter lock
-    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+    with ThreadPoolExecutor(PAIR_THREADS) as pool:
         scored = list(pool.map(score, views))
     scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}
     for view, result in zip(views, scored):

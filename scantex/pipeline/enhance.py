@@ -554,8 +554,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * photo_scale
         if not (config.refine.enabled and config.refine.with_photos):
             workers = min(8, config.threads or os.cpu_count() or 1)
+        sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
-                                                  atlas_density, threads=1 if workers > 1 else None)
+                                                  atlas_density, threads=sampling_threads)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -644,7 +645,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             t = time.perf_counter()
             every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
-                                                 device, atlas_density, threads=1 if workers > 1 else None)
+                                                 device, atlas_density, threads=sampling_threads)
             baked, enhanced = bake_and_blend(colour, "baking the texture from every photo", workers)
             metrics["geometry"] = geometry_metrics(scan, enhanced)
             metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)

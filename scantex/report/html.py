@@ -18,7 +18,6 @@ import io
 import json
 import logging
 import math
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -31,7 +30,7 @@ from scantex.io.atomic import atomic_files
 from scantex.metrics.image import psnr, ssim
 from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import RayCaster
+from scantex.views.raycast import PAIR_THREADS, RayCaster
 from scantex.views.render import render_scans, to_uint8
 
 log = logging.getLogger(__name__)
@@ -271,7 +270,7 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
         return _compare(f"view-{k + 1}", images, left, right, table, fit=True)
 
     # the views side by side: Embree, numpy and PNG encoding release the interpreter lock
-    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1))) as pool:
+    with ThreadPoolExecutor(PAIR_THREADS) as pool:
         widgets = list(pool.map(widget, range(len(cameras)), cameras))
     return "".join(widgets)
 

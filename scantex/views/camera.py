@@ -92,19 +92,22 @@ class Camera:
             directions: ``(H * W, 3) float32`` world directions with unit camera-z component, so a
             hit distance along them is the pixel's depth.
         """
-        # R^T K^-1 [x, y, 1] = A x + B y + C: built by broadcasting, no (H*W, 3) float64 temporaries
-        M = self.R.T @ np.linalg.inv(self.K)
-        A, B, C = (M[:, k].astype(np.float32) for k in range(3))
+        # built by broadcasting, no (H*W, 3) float64 temporaries
+        A, B, C = self._ray_axes()
         xs = np.arange(self.width, dtype=np.float32)[None, :, None]
         ys = np.arange(self.height, dtype=np.float32)[:, None, None]
         directions = xs * A + (ys * B + C)  # [H, W, 3]
         return self.center.copy(), directions.reshape(-1, 3)
 
+    def _ray_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, C)``, ``(3,) float32`` each: R^T K^-1 [x, y, 1] = A x + B y + C, pixel ``(x, y)``'s ray."""
+        M = self.R.T @ np.linalg.inv(self.K)
+        return tuple(M[:, k].astype(np.float32) for k in range(3))
+
     def rays_through(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """``(N, 3) float32`` directions through pixels ``(x, y)`` (integer columns and rows ``(N,)``): the
         same values, bit for bit, as :meth:`pixel_rays` gives those pixels."""
-        M = self.R.T @ np.linalg.inv(self.K)
-        A, B, C = (M[:, k].astype(np.float32) for k in range(3))
+        A, B, C = self._ray_axes()
         return np.asarray(x, np.float32)[:, None] * A + (np.asarray(y, np.float32)[:, None] * B + C)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

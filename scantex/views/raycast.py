@@ -17,6 +17,9 @@ from scantex.views.camera import Camera
 
 #: rays per Embree call: 64k rays take ~4 MB of buffers and split well over threads
 CHUNK = 1 << 16
+#: threads for work that is mostly ray casts and numpy (both release the interpreter lock): a cast's chunks,
+#: or whole views side by side; two (one on a single core)
+PAIR_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,7 +54,7 @@ class RayCaster:
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=(positions - self.origin).astype(np.float32),
                      indices=np.asarray(faces, dtype=np.int32))
-        self.threads = max(1, min(2, os.cpu_count() or 1))
+        self.threads = PAIR_THREADS
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """First hits of rays ``origins + t * directions``, ``t > 0``.
