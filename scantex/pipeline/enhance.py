@@ -123,8 +123,8 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
 
 
 def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarray):
-    """Training rays of the views ``indices`` (see :class:`scantex.field.train.RayDataset`)."""
-    from scantex.field.train import RayDataset
+    """Training rays of the views ``indices`` (see :class:`scantex.field.rays.RayDataset`)."""
+    from scantex.field.rays import RayDataset
 
     parts = []
     for i in indices:
@@ -280,7 +280,7 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
         ``(rays, chart_offset, appearance_weights)``: the synthetic rays' groups are their chart + offset.
     """
     from scantex.errors import ScanError
-    from scantex.field.train import RayDataset
+    from scantex.field.rays import RayDataset
     from scantex.photos.training import photo_rays
 
     if canonical not in ("input", "photos"):
@@ -310,8 +310,6 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     (``charts``: the input atlas's chart of each face). ``texel_px_per_cm``: the output atlas's texel density
     (photos much finer than it are sampled at a lower resolution; 0: full resolution). ``threads``: how many
     sample one call's photos side by side (``None``: the cores; 1 when the bake colours chunks in parallel)."""
-    import torch
-
     from scantex.photos.texturing import ProjectiveSettings, projective_colour, recorded_transforms
 
     report: dict = {}
@@ -322,6 +320,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         report["colour_transforms"] = "closed form, against the input texture"
         report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
     elif fitted.appearance is not None:
+        import torch
+
         def canonicalise(rgb, group):
             return fitted.appearance.canonical(torch.as_tensor(rgb, device=device),
                                                torch.as_tensor(group, device=device)).cpu().numpy()
@@ -378,6 +378,18 @@ def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
     return h.hexdigest()[:16]
 
 
+def torch_device(config: EnhanceConfig):
+    """The ``torch.device`` of ``config.device``, torch's threads set to ``config.threads``. Only what trains
+    the field or runs the refiner calls it: torch takes 1.5-2 s to import, a run that needs neither
+    (photo mode's projective texturing) never pays it."""
+    import torch
+
+    from scantex.field.train import resolve_device
+
+    torch.set_num_threads(config.threads or os.cpu_count() or 1)
+    return resolve_device(config.device)
+
+
 def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
@@ -395,12 +407,6 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         resume: continue from the checkpoint in ``work_dir`` if there is one.
         reporter: progress reporting (default: silent).
     """
-    import torch
-
-    from scantex.field.model import FieldConfig
-    from scantex.field.train import fit_field, resolve_device
-    from scantex.field.volume import BoxNormaliser
-
     from scantex.uv import blend_seams, plan_uvs
 
     from scantex.errors import ScanError
@@ -413,8 +419,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         from scantex.errors import ScanError
 
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
-    torch.set_num_threads(config.threads or os.cpu_count() or 1)
-    device = resolve_device(config.device)
+    device = None  # the torch device, resolved (and torch imported) only by what trains or runs a network
     timings: dict[str, float] = {}
     rng_seed = config.seed
     vc, tc = config.views, config.train
@@ -470,18 +475,6 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     if sum(ray_counts) == 0:
         raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
                                      "(are its faces degenerate or collinear?)")
-    lo, hi = scan.bounds
-    normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
-    band = tc.band_width * float(np.linalg.norm(hi - lo))
-    fs = config.field
-    field_config = FieldConfig(encoding=fs.encoding, hidden=fs.hidden, n_layers=fs.n_layers,
-                               skip_at=fs.n_layers // 2,
-                               log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
-                               max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
-                               use_viewdirs=fs.use_viewdirs)
-    from scantex.pipeline.outputs import CHECKPOINT
-
-    checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
     # the default bake keeps the input's texels and uses the field only to denoise them: on an atlas
     # whose noise is below what denoising can change (most app exports), the field has no use
     noise, field_skipped = None, None
@@ -501,6 +494,22 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         log.info("field %s", field_skipped)
     fitted = None
     if field_skipped is None:
+        from scantex.field.model import FieldConfig
+        from scantex.field.train import fit_field
+        from scantex.field.volume import BoxNormaliser
+        from scantex.pipeline.outputs import CHECKPOINT
+
+        device = torch_device(config)
+        lo, hi = scan.bounds
+        normaliser = BoxNormaliser.from_points(np.stack([lo, hi]))
+        band = tc.band_width * float(np.linalg.norm(hi - lo))
+        fs = config.field
+        field_config = FieldConfig(encoding=fs.encoding, hidden=fs.hidden, n_layers=fs.n_layers,
+                                   skip_at=fs.n_layers // 2,
+                                   log2_table_size=fs.log2_table_size, n_levels=fs.n_levels,
+                                   max_resolution=fs.max_resolution, n_freqs=fs.n_freqs,
+                                   use_viewdirs=fs.use_viewdirs)
+        checkpoint = Path(work_dir) / CHECKPOINT if work_dir is not None else None
         with reporter.stage("training the field") as update:
             gains = chart_gains(scan, charts) if tc.seam_levelling and tc.appearance else None
             if gains is not None and chart_offset:
@@ -567,6 +576,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         from scantex.refine.stage import refine_colour
 
         t = time.perf_counter()
+        device = device or torch_device(config)
         with reporter.stage("refining (ViT)") as update:
             refined = refine_colour(scan, fitted, tv, caster, colour, config.refine, device, update, fill=fill,
                                     charts=charts + chart_offset, seed=rng_seed,
