@@ -55,12 +55,25 @@ def ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         y1 = min(y0 + STRIP_ROWS, H)
         lo, hi = max(0, y0 - r), min(H, y1 + r)  # the strip and the rows its window reaches
         xa, xb = ta[:, lo:hi], tb[:, lo:hi]
-        stack = np.concatenate([xa, xb, xa * xa, xb * xb, xa * xb])  # [5C, h, W]
-        blurred = correlate1d(correlate1d(stack, g, axis=2, mode=mode), g, axis=1, mode=mode)
-        mu_a, mu_b, s_aa, s_bb, s_ab = np.split(blurred[:, y0 - lo:y1 - lo], 5)
-        var_a, var_b, cov = s_aa - mu_a**2, s_bb - mu_b**2, s_ab - mu_a * mu_b
-        num = (2 * mu_a * mu_b + C1) * (2 * cov + C2)
-        den = (mu_a**2 + mu_b**2 + C1) * (var_a + var_b + C2)
+        stack = np.empty((5, C, hi - lo, W), np.float32)  # a, b, a², b², ab; filtered in place
+        stack[0], stack[1] = xa, xb
+        np.multiply(xa, xa, out=stack[2])
+        np.multiply(xb, xb, out=stack[3])
+        np.multiply(xa, xb, out=stack[4])
+        correlate1d(correlate1d(stack, g, axis=3, mode=mode), g, axis=2, mode=mode, output=stack)
+        mu_a, mu_b, var_a, var_b, cov = stack[:, :, y0 - lo:y1 - lo]  # moments, made central below
+        # in place, in float32 (half the time of the textbook expression's temporaries)
+        num = mu_a * mu_b
+        var_a -= np.square(mu_a, out=mu_a)
+        var_b -= np.square(mu_b, out=mu_b)
+        cov -= num
+        num *= 2
+        num += C1
+        num *= 2 * cov + C2  # (2 mu_a mu_b + C1)(2 cov + C2)
+        den = mu_a
+        den += mu_b
+        den += C1
+        den *= var_a + var_b + C2  # (mu_a² + mu_b² + C1)(var_a + var_b + C2)
         out[y0:y1] = (num / den).mean(0)
     return out
 

@@ -54,7 +54,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
                        ((img - ref) ** 2)[holes] if holes.any() else None)
                 for name, (img, _) in shown.items()}
 
-    # the views side by side: Embree, numpy and torch release the interpreter lock
+    # the views side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
         per_view = list(pool.map(score, cameras))
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}

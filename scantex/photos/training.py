@@ -359,7 +359,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                          aligned_by_deg=fitted.rotation_deg)
         return out, np.concatenate(row, axis=1)
 
-    # the photos side by side: Embree, numpy and torch release the interpreter lock
+    # the photos side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
         scored = list(pool.map(score, views))
     scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}

@@ -419,7 +419,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         from scantex.errors import ScanError
 
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
-    device = None  # the torch device, resolved (and torch imported) only by what trains or runs a network
+    # the torch device, resolved (and torch imported) only by what trains or runs a network; CUDA asked for
+    # and missing is an error whether or not this run would have used it
+    device = torch_device(config) if config.device == "cuda" else None
     timings: dict[str, float] = {}
     rng_seed = config.seed
     vc, tc = config.views, config.train

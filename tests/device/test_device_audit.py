@@ -130,3 +130,11 @@ def test_asking_for_cuda_without_it_is_a_one_line_error(toy_demo, tmp_path):
                            str(tmp_path / "out"), "--device", "cuda"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "no CUDA GPU" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is here")
+def test_the_library_refuses_cuda_without_it_even_where_nothing_trains(toy_demo, tmp_path):
+    photos = capture_photos(toy_demo, tmp_path, CAPTURE, seed=1)
+    # photo mode's projective texturing would not use the device: asking for a missing one is still an error
+    with pytest.raises(ValueError, match="no CUDA GPU"):
+        enhance(toy_demo.scan, TOY.override(device="cuda", photos__check_alignment=False), photos=photos)

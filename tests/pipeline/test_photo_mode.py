@@ -131,6 +131,21 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     assert not (tmp_path / "out2").exists()
 
 
+def test_photo_mode_without_a_field_never_imports_torch(tmp_path, toy_demo, toy_photos):
+    # torch's import is 1.5-2 s of a 14 s run; nothing in projective texturing, its scores or its report
+    # needs it
+    save_scan(toy_demo.scan, tmp_path / "scan.obj")
+    (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
+    out = tmp_path / "out"
+    argv = ["enhance", str(tmp_path / "scan.obj"), "--config", str(tmp_path / "config.json"), "--no-alignment-check",
+            "--photos", str(toy_photos.source), "-o", str(out), "-q"]
+    code = f"import sys; from scantex.cli import main; rc = main({argv!r}); print(rc, 'torch' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 0 and run.stdout.split() == ["0", "False"], run.stdout + run.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert not metrics["field"]["trained"] and metrics["held_out_photos"]["enhanced"]["ssim"] > 0
+
+
 def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
     """The refiner learns from renders of the input texture, which the photos outclass (bench_photos)."""
     cfg = TOY.override(photos__check_alignment=False, train__steps=30, refine__enabled=True, refine__steps=4, refine__batch=2, refine__max_views=2)
