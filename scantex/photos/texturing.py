@@ -240,7 +240,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             # the channels' maximum column by column: numpy's max over a row of three is 20x slower
             clipped = np.maximum(np.maximum(rgb[:, 0], rgb[:, 1]), rgb[:, 2]) >= np.float32(settings.clip_level)
             if canonicalise is not None:
+                recorded_rgb = rgb
                 rgb = canonicalise(rgb, np.full(len(idx), s.group))
+                if clipped.any():
+                    _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
             return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
         asked = [s for k, s in enumerate(sources) if k != without]
@@ -309,6 +312,22 @@ def _seen_in(view: PhotoView, pix: np.ndarray, z: np.ndarray, depth_tolerance: f
     z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
     seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < depth_tolerance * z)
     return idx[seen], xi[seen], yi[seen]
+
+
+def _level_clipped_channels(rgb: np.ndarray, recorded: np.ndarray, clipped: np.ndarray, clip_level: float) -> None:
+    """Gives the channels a sample recorded at its photo's white point the brightest of their canonical values,
+    in place. ``rgb (m, 3)`` canonical, ``recorded (m, 3)`` as the photo recorded them, ``clipped (m,)`` the
+    samples with a channel at the white point.
+
+    Each such channel says only "at least this bright", and the photo's per-channel gains turn the same white
+    point into different canonical levels: a white highlight that every photo clipped came out tinted (lilac
+    under a photo whose blue gain was the lowest). Raising the clipped channels to the highest of their lower
+    bounds keeps every bound and invents no hue: three clipped channels give a neutral white."""
+    at = np.flatnonzero(clipped)
+    hit = recorded[at] >= np.float32(clip_level)  # [m', 3] which channels are at the white point
+    canonical = rgb[at]
+    top = np.where(hit, canonical, -np.inf).max(axis=1, keepdims=True)
+    rgb[at] = np.where(hit, np.maximum(canonical, top), canonical)
 
 
 class _Samples(NamedTuple):

@@ -291,6 +291,28 @@ def test_clipped_samples_give_way_to_a_photo_that_sees_the_point_unclipped(tmp_p
     assert np.abs(got - was).max() < 1e-5
 
 
+def test_a_highlight_every_photo_clipped_comes_out_neutral(tmp_path):
+    """Two photos over-exposed with opposite white balances: where both clipped all three channels, each
+    channel says only "at least this bright", and their gains turn the one white point into a blue and a red
+    lower bound. The result must not carry either tint (the synthetic room showed a lilac patch there)."""
+    scan = smooth_wall()
+    gains = (np.array([2.4, 2.7, 3.0]), np.array([3.0, 2.7, 2.4]))
+    transforms = np.stack([np.vstack([np.diag(g), np.zeros((1, 3))]) for g in gains])
+    photos, views = wall_photos(tmp_path, scan, gains=gains)
+    points, normals, f, b = surface_points(scan, 20000)
+    truth = shade_hits(scan, f, b)
+    colour, _ = projective_colour(photos, views, [0, 1], inverse_transforms(transforms), grey,
+                                  recorded=recorded_transforms(transforms))
+    got = colour(points, normals, f, b)
+    seen = np.abs(got - 0.5).max(axis=1) > 1e-6
+    white = seen & ((truth * 2.4).min(axis=1) > 1.2)  # every channel clipped in both photos, neighbours too
+    assert white.sum() > 2000
+    assert np.ptp(got[white], axis=1).max() < 0.01  # no hue
+    # the highest bound the photos give (1 / 2.4), kept everywhere; the grey fallback (0.5) fades in only
+    # towards the edges of the photos' coverage
+    assert got[white].min() > 1 / 2.4 - 0.01 and np.median(np.abs(got[white] - 1 / 2.4)) < 0.005
+
+
 def test_recorded_transforms_undo_the_canonical_ones():
     rng = np.random.default_rng(3)
     transforms = np.concatenate([np.eye(3)[None] + 0.1 * rng.normal(size=(4, 3, 3)),
