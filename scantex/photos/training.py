@@ -275,7 +275,7 @@ def split_photos(n: int, holdout: float, seed: int = 0) -> tuple[np.ndarray, np.
 
 def photo_rays(views: Sequence[PhotoView], groups: Sequence[int]):
     """Training rays of photo views, each ray's appearance group its photo's ``groups[k]``."""
-    from scantex.field.train import RayDataset
+    from scantex.field.rays import RayDataset
 
     parts = []
     for view, group in zip(views, groups):

@@ -407,17 +407,14 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         resume: continue from the checkpoint in ``work_dir`` if there is one.
         reporter: progress reporting (default: silent).
     """
-    from scantex.uv import blend_seams, plan_uvs
-
     from scantex.errors import ScanError
     from scantex.pipeline.config import validate
+    from scantex.uv import blend_seams, plan_uvs
 
     validate(config)
     reporter = reporter or Reporter()
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
-        from scantex.errors import ScanError
-
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
     # the torch device, resolved (and torch imported) only by what trains or runs a network; CUDA asked for
     # and missing is an error whether or not this run would have used it

@@ -253,7 +253,7 @@ def test_score_photos_prefers_the_true_texture(tmp_path):
 
 @pytest.mark.parametrize("canonical", ["input", "photos"])
 def test_photo_mode_rays_groups_and_colour_balance(tmp_path, canonical):
-    from scantex.field.train import RayDataset
+    from scantex.field.rays import RayDataset
     from scantex.pipeline.enhance import PhotoData, photo_mode_rays
 
     scan, photos = cube_set(tmp_path)
