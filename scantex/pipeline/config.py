@@ -88,7 +88,8 @@ class TrainConfig:
     """steps between checkpoints (for --resume)"""
     always: bool = False
     """train the field even when nothing uses it: mesh-only mode with bake.source input uses it only to
-    denoise, which is skipped on an atlas whose noise is below what denoising can change"""
+    denoise (bake.denoise, off by default), which is skipped on an atlas whose noise is below what
+    denoising can change"""
 
 
 @dataclass(frozen=True)
@@ -118,9 +119,10 @@ class BakeConfig:
     field; holes filled) or field (the paper's: the field's colour replaces every taught texel)"""
     levelling: bool = True
     """source input: smooth per-chart offsets that make both sides of every seam agree (local seam levelling)"""
-    denoise: float = 1.0
+    denoise: float = 0.0
     """source input: differences from the field up to this many times the input's estimated noise level
-    are removed as noise (0: keep the input's texels exactly)"""
+    are removed as noise, the field trained for it (0, the default: the input's texels are kept exactly
+    and no field is trained; 1 measured +0.00 to +0.01 dB on real app atlases for 8-10x the time)"""
     detail: float = 0.0
     """source field: share of the input's own detail put back: field + detail x (input through its chart's
     inverse colour transform - field); 0 bakes the field alone"""

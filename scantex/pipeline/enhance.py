@@ -474,17 +474,22 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     if sum(ray_counts) == 0:
         raise ScanError(scan.source, "no view sees any of the surface: the mesh has no area to texture "
                                      "(are its faces degenerate or collinear?)")
-    # the default bake keeps the input's texels and uses the field only to denoise them: on an atlas
-    # whose noise is below what denoising can change (most app exports), the field has no use
+    # the default bake keeps the input's texels; the field would only denoise them (bake.denoise, off by
+    # default: no measured gain on real app atlases), and not at all where the noise is below what
+    # denoising can change
     noise, field_skipped = None, None
     if keeps_input_texels(scan, config, photos):
         from scantex.atlas.colour import atlas_noise, denoising_matters
 
         noise = atlas_noise(scan, exclude=excluded)
         if not (tc.always or denoising_matters(noise, config.bake.denoise)):
-            field_skipped = (f"not trained: the atlas's estimated noise ({noise:.4f}) times bake.denoise "
-                             f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
-                             f"field could not change a texel (train.always trains it anyway)")
+            field_skipped = (
+                "not trained: the input's texels are kept (levelled, holes filled) and denoising against the "
+                "field is off (bake.denoise 0, the default; train.always trains it anyway)"
+                if config.bake.denoise == 0 else
+                f"not trained: the atlas's estimated noise ({noise:.4f}) times bake.denoise "
+                f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
+                f"field could not change a texel (train.always trains it anyway)")
             log.info("field %s", field_skipped)
     if photos_need_no_field(scan, config, photos):
         field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to the "
