@@ -11,7 +11,9 @@ keeping only render edges that can be an edge in the photo:
   continues, the façade's roof meets the sky at another place than the scan stopped), so contour
   pixels within ``BORDER_PX`` of a projected open boundary edge of the (position-welded) mesh are
   dropped;
-- creases: visible mesh edges whose faces meet at more than ``CREASE_DEG`` (shading changes there);
+- creases: visible mesh edges whose faces meet at more than ``CREASE_DEG`` (shading changes there), and
+  whose faces' surroundings still meet at more than ``CREASE_SMOOTH_DEG`` (a scan's noise bends single
+  faces, not their surroundings);
 - texture edges of a textured mesh, after fitting the render's exposure to the photo (a per-channel
   gain and offset), inside the mesh's image, away from its open border, from untextured holes and from
   UV chart borders (where a capture app's atlas jumps in exposure: an edge no photo has);
@@ -83,6 +85,9 @@ DISTANCE_CAP = 0.05
 DEPTH_JUMP = 0.1
 #: dihedral angle (degrees) above which a mesh edge is a crease that shows in a photo
 CREASE_DEG = 40.0
+#: ... and the faces around its two faces, averaged, above this (a scan's noise bends single faces: creases
+#: of a fused depth scan's noise made 60-70 % of an aligned room's render edges, matching nothing)
+CREASE_SMOOTH_DEG = 20.0
 #: contour pixels this close (working pixels) to a projected open boundary edge are the scan's end,
 #: not an edge of the real surface
 BORDER_PX = 3
@@ -516,8 +521,14 @@ class _MeshEdges:
         order = two[np.argsort(inverse[two], kind="stable")]
         pairs = order.reshape(-1, 2)
         n = scan.face_normals
-        cos = np.einsum("ij,ij->i", n[owner[pairs[:, 0]]], n[owner[pairs[:, 1]]])
-        crease = key[pairs[cos < np.cos(np.radians(CREASE_DEG)), 0]]
+        a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
+        cos = np.einsum("ij,ij->i", n[a], n[b])
+        # and whose faces' neighbourhoods still meet at CREASE_SMOOTH_DEG: a scanned surface's noise bends
+        # single faces (a fused depth scan of a room: most of its crease edges), not their surroundings
+        m = _neighbourhood_normals(scan, faces)
+        cos_smooth = np.einsum("ij,ij->i", m[a], m[b])
+        sharp = (cos < np.cos(np.radians(CREASE_DEG))) & (cos_smooth < np.cos(np.radians(CREASE_SMOOTH_DEG)))
+        crease = key[pairs[sharp, 0]]
         P = scan.positions
         first = np.zeros(weld.max() + 1 if weld.size else 0, int)
         first[weld.reshape(-1)[::-1]] = np.arange(len(P))[::-1]
@@ -525,6 +536,16 @@ class _MeshEdges:
 
         return cls(P[first[border]], P[first[crease]],
                    ~reference_faces(scan) if scan.is_textured else np.zeros(scan.n_faces, bool))
+
+
+def _neighbourhood_normals(scan: Scan, faces: np.ndarray) -> np.ndarray:
+    """``(F, 3)``: each face's normal averaged over the faces that share a vertex with it (area-weighted,
+    through its welded vertices' normals)."""
+    weighted = scan.face_normals * scan.face_areas[:, None]
+    n = int(faces.max()) + 1 if faces.size else 0
+    vertex = np.stack([np.bincount(faces.ravel(), np.repeat(weighted[:, c], 3), n) for c in range(3)], axis=1)
+    out = vertex[faces].sum(axis=1)
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 
 def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None) -> np.ndarray:
