@@ -244,7 +244,11 @@ def _enhance_capture(args, config, capture) -> int:
     folders = []
     if photos is not None:
         inputs += [*photos.images, *(d for d in photos.depths if d is not None), photos.source]
-        folders.append(photos.source if photos.source.is_dir() else photos.source.parent)
+        if photos.source.is_dir():  # a folder of photos: an output inside it would mix into the photos
+            folders.append(photos.source)
+        # a poses file lists its photos (inputs above): an output beside them, in a folder of its own inside
+        # the capture's folder (`cd capture && scantex enhance scan.obj --photos cameras.json -o out`), is
+        # none of them and holds none of them
     check_output(args.output, inputs, folders)
     check_output(work, inputs, folders, role="the work folder")
     try:

@@ -68,7 +68,7 @@ def test_enhance_work_folder_is_never_the_input_folder(tmp_path, capsys, monkeyp
     assert not (tmp_path / "cap").exists()
 
 
-@pytest.mark.parametrize("target", ["photos", "inside_photos", "mesh_folder", "config"])
+@pytest.mark.parametrize("target", ["photos", "mesh_folder", "config"])
 def test_enhance_never_replaces_an_input(tmp_path, capsys, monkeypatch, target):
     monkeypatch.chdir(tmp_path)
     mesh = write_cube(tmp_path / "scan")
@@ -76,12 +76,28 @@ def test_enhance_never_replaces_an_input(tmp_path, capsys, monkeypatch, target):
     # the photos are noise: without the alignment check the run gets as far as writing its output
     config = write_tiny_config(tmp_path / "cfg" / "tiny.json", dataclasses.replace(
         TINY, photos=dataclasses.replace(TINY.photos, check_alignment=False)))
-    out = {"photos": tmp_path / "photos", "inside_photos": tmp_path / "photos" / "out",
-           "mesh_folder": tmp_path / "scan", "config": config}[target]
+    out = {"photos": tmp_path / "photos", "mesh_folder": tmp_path / "scan", "config": config}[target]
     before = fingerprint(tmp_path)
     rc, err = run_cli(capsys, "enhance", mesh, "--photos", cams, "-o", out, "--config", config, "--overwrite", "-q")
     assert_clean_error(rc, err)
     assert fingerprint(tmp_path) == before
+
+
+def test_an_output_inside_the_capture_folder_is_written_beside_its_inputs(tmp_path, capsys, monkeypatch):
+    """``cd capture && scantex enhance scan.obj --photos cameras.json -o out``: the output lies in the folder
+    of the poses file, holding none of the inputs, which stay byte for byte as they were."""
+    capture = tmp_path / "capture"
+    mesh = write_cube(capture)
+    cams = write_photos(capture)
+    config = write_tiny_config(tmp_path / "tiny.json", dataclasses.replace(
+        TINY, photos=dataclasses.replace(TINY.photos, check_alignment=False)))
+    monkeypatch.chdir(capture)
+    before = fingerprint(capture)
+    rc, err = run_cli(capsys, "enhance", mesh.name, "--photos", cams.name, "-o", "out", "--config", config, "-q")
+    assert rc == 0, err
+    after = fingerprint(capture)
+    assert {k: v for k, v in after.items() if not k.startswith("out/")} == before
+    assert any(k.startswith("out/") and k.endswith(".obj") for k in after)
 
 
 # -- 2. leftovers ---------------------------------------------------------------------------------
