@@ -156,6 +156,9 @@ PATCH_LIMIT = 0.01
 #: before seam blending: the demo wall's levelling removes 52 % with 1.3 % patches, on a Polycam scan it removed
 #: 7 % while drawing 7.6 %)
 SEAM_GAIN = 0.3
+#: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
+#: twice as fine (:func:`photo_atlas_scale`)
+PHOTO_DENSITY_FOR_2X = 2.0
 
 
 def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
@@ -346,15 +349,17 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
 
 def photo_atlas_scale(scan: Scan, photo: PhotoData) -> tuple[int, dict]:
     """How much finer than the input atlas photo mode bakes: 2 when the photos resolve the surface at least
-    1.4 times finer than the input atlas's texels do (median over the training photos' usable pixels of
-    full-resolution pixels per centimetre), else 1 (a finer atlas would only resample the same detail)."""
+    ``PHOTO_DENSITY_FOR_2X`` (2) times finer than the input atlas's texels do (median over the training
+    photos' usable pixels of full-resolution pixels per centimetre), else 1 (a finer atlas would only
+    resample the same detail). At 1.4 (before), a real apartment (photos 1.52x the atlas's density) scored
+    +0.02 dB for 1.6x the time and +1.1 GB, and the synthetic room (1.93x) 0.07 dB less (bench/RESULTS.md)."""
     from scantex.metrics.texture import texel_density
 
     atlas = texel_density(scan)["px_per_cm_mean"] if scan.is_textured else 0.0
     per_photo = [float(np.median(photo.photos.cameras[v.index].K[0, 0] / v.depth[v.valid])) / 100.0
                  for v in photo.train if v.valid.any()]
     photos = float(np.median(per_photo)) if per_photo else 0.0
-    scale = 2 if atlas <= 0 or photos > 1.4 * atlas else 1
+    scale = 2 if atlas <= 0 or photos >= PHOTO_DENSITY_FOR_2X * atlas else 1
     return scale, {"photos_px_per_cm": round(photos, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
 
 
