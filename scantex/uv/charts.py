@@ -12,7 +12,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from scantex.uv.param import Distortion, distortion
+from scantex.uv.param import Distortion, distortions
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,8 +41,7 @@ class Charts:
 
     def distortions(self, triangles_3d: np.ndarray) -> list[Distortion]:
         """Distortion of every chart given the scan's ``(F, 3, 3)`` corner positions."""
-        tri_uv = self.uvs[self.face_uvs]
-        return [distortion(triangles_3d[f], tri_uv[f]) for f in self.faces_of()]
+        return distortions(triangles_3d, self.uvs[self.face_uvs], self.chart_of_face, self.n_charts)
 
 
 def assemble(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n_faces: int) -> Charts:

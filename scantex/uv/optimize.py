@@ -25,7 +25,6 @@ from scantex.atlas.seams import uv_shells
 from scantex.scan import Scan
 from scantex.uv.charts import Charts, assemble, compact
 from scantex.uv.merge import MergeLog, Merger, Piece
-from scantex.uv.param import distortion
 from scantex.uv.shells import texel_uvs
 from scantex.uv.unwrap import (
     UnwrapLog,
@@ -114,6 +113,4 @@ def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: 
 
 def charts_distortion(scan: Scan, charts: Charts) -> list:
     """Distortion of every chart (in metres, before packing)."""
-    tri_uv = charts.uvs[charts.face_uvs]
-    tri3 = scan.triangles
-    return [distortion(tri3[f], tri_uv[f]) for f in charts.faces_of()]
+    return charts.distortions(scan.triangles)

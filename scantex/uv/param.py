@@ -105,6 +105,46 @@ def distortion(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> Distortion
     return Distortion(stretch, aniso, flipped, total, uv_area)
 
 
+def distortions(triangles_3d: np.ndarray, triangles_uv: np.ndarray, chart_of_face: np.ndarray,
+                n_charts: int | None = None) -> list[Distortion]:
+    """:func:`distortion` of every chart ``0 .. n_charts-1`` at once, from all faces' ``(F, 3, 3)`` corner
+    positions and ``(F, 3, 2)`` corner UVs and ``chart_of_face (F,)``: the per-face terms are computed once
+    and summed per chart (a fused room scan's 25,000 charts one by one took 10 s; an empty chart gets
+    :func:`distortion`'s verdict for no surface)."""
+    C = int(chart_of_face.max()) + 1 if n_charts is None else int(n_charts)
+    J, area = jacobians(triangles_3d, triangles_uv)
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    frob2 = (J ** 2).sum(axis=(1, 2))
+    used = area > 0
+    disc = np.sqrt(np.maximum(frob2 ** 2 - 4 * det ** 2, 0.0))
+    s1 = np.sqrt(0.5 * (frob2 + disc))
+    s2 = np.sqrt(np.maximum(0.5 * (frob2 - disc), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        aniso = np.where(used, np.where(s2 > 0, s1 / np.maximum(s2, 1e-300), np.inf), -np.inf)
+        inverse = np.where(used, frob2 / np.where(used, det ** 2, 1.0), 0.0)
+
+    def per_chart(values: np.ndarray) -> np.ndarray:
+        return np.bincount(chart_of_face, values, C)
+
+    total, uv_area = per_chart(area), per_chart(np.abs(det) * area)
+    worst = np.full(C, -np.inf)
+    np.maximum.at(worst, chart_of_face, aniso)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l2 = np.sqrt(per_chart(area * inverse / 2) / total)
+        stretch = l2 * np.sqrt(uv_area / total)
+    orientation = np.sign(per_chart(det * area))
+    orientation[orientation == 0] = 1.0
+    flipped = per_chart(np.where(det * orientation[chart_of_face] < 0, area, 0.0))
+    out = []
+    for c in range(C):
+        if total[c] <= 0 or uv_area[c] <= 0:
+            out.append(Distortion(float("inf"), float("inf"), 0.0, float(total[c]), float(uv_area[c])))
+        else:
+            out.append(Distortion(float(stretch[c]), float(worst[c]), float(flipped[c] / total[c]),
+                                  float(total[c]), float(uv_area[c])))
+    return out
+
+
 def planar_projection(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """``(N, 2)`` coordinates in metres on the plane through the chart with its area-weighted mean normal.
 

@@ -7,13 +7,12 @@ Builds on :mod:`scantex.atlas.seams` (``uv_shells``, ``seam_edges``) and never c
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import pairwise
 
 import numpy as np
 
 from scantex.atlas.seams import SeamEdges, seam_edges, uv_shells
 from scantex.scan import Scan
-from scantex.uv.param import distortion
+from scantex.uv.param import distortions
 
 
 def material_sizes(scan: Scan, texture_size: int = 1024) -> np.ndarray:
@@ -60,11 +59,7 @@ def edge_lengths(scan: Scan, edges: SeamEdges) -> np.ndarray:
 
 def chart_distortion(scan: Scan, chart_of_face: np.ndarray, texture_size: int = 1024) -> list:
     """:class:`~scantex.uv.param.Distortion` of every chart ``0..C-1`` of the scan's current UVs (in texels)."""
-    tri3 = scan.triangles
-    tex = texel_uvs(scan, texture_size)
-    order = np.argsort(chart_of_face, kind="stable")
-    bounds = np.searchsorted(chart_of_face[order], np.arange(int(chart_of_face.max()) + 2))
-    return [distortion(tri3[order[a:b]], tex[order[a:b]]) for a, b in pairwise(bounds)]
+    return distortions(scan.triangles, texel_uvs(scan, texture_size), chart_of_face)
 
 
 def texel_density(scan: Scan, chart_of_face: np.ndarray | None = None, texture_size: int = 1024) -> np.ndarray:

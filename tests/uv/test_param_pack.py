@@ -8,7 +8,7 @@ import trimesh
 
 from scantex.uv.charts import Charts, compact
 from scantex.uv.pack import min_area_rotation, pack
-from scantex.uv.param import distortion, lscm, overlap_share, planar_projection
+from scantex.uv.param import distortion, distortions, lscm, overlap_share, planar_projection
 
 
 def flat_grid(n: int = 6, size: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
@@ -28,6 +28,25 @@ def test_distortion_of_an_isometry_and_of_a_stretch():
     # singular values (2, 1): Sander's L2 of the inverse, normalised: sqrt((1/4 + 1) / 2 * 2) = sqrt(1.25)
     assert d.stretch == pytest.approx(np.sqrt(1.25), rel=1e-9)
     assert d.max_anisotropy == pytest.approx(2.0)
+
+
+def test_every_charts_distortion_at_once_is_each_charts_own():
+    """Charts of a stretched, a mirrored, a degenerate and no face at all: per chart, the same as one by one."""
+    points, tris = flat_grid()
+    rng = np.random.default_rng(0)
+    tri3 = points[tris]
+    tri_uv = points[:, :2][tris] * rng.uniform(0.5, 2.0, (len(tris), 1, 2))
+    tri_uv[3] = tri_uv[3][[0, 2, 1]]  # mirrored
+    tri3[7] = tri3[7][[0, 0, 0]]  # no surface
+    chart = rng.integers(0, 6, len(tris))
+    chart[chart == 4] = 5  # chart 4: no faces
+    chart[7] = 6  # chart 6: only the degenerate face
+    together = distortions(tri3, tri_uv, chart)
+    assert len(together) == 7
+    for c, d in enumerate(together):
+        alone = distortion(tri3[chart == c], tri_uv[chart == c])
+        for field in ("stretch", "max_anisotropy", "flipped_share", "surface_area", "uv_area"):
+            assert getattr(d, field) == pytest.approx(getattr(alone, field), rel=1e-12), (c, field)
 
 
 def test_distortion_counts_mirrored_faces():
