@@ -555,7 +555,18 @@ def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None)
     out = np.zeros((H, W), bool)
     if len(segments) == 0:
         return out
-    ends = camera.project(segments.reshape(-1, 3))[0].reshape(-1, 2, 2)
+    ends, z_ends = camera.project(segments.reshape(-1, 3))
+    ends, z_ends = ends.reshape(-1, 2, 2), z_ends.reshape(-1, 2)
+    # only segments that can reach the image: not wholly behind the camera, and (both ends in front) not
+    # wholly beyond one of its sides, which a room's border mostly is (its samples cost 7 s in 4 photos)
+    with np.errstate(invalid="ignore"):
+        front = (z_ends > 0).all(axis=1)
+        beyond = (((ends[..., 0] < -1).all(axis=1)) | ((ends[..., 0] > W).all(axis=1))
+                  | ((ends[..., 1] < -1).all(axis=1)) | ((ends[..., 1] > H).all(axis=1)))
+    keep = (z_ends > 0).any(axis=1) & ~(front & beyond)
+    segments, ends = segments[keep], ends[keep]
+    if len(segments) == 0:
+        return out
     length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0)
     steps = np.clip(np.ceil(2 * length), 1, 2 * max(H, W)).astype(int)
     seg = np.repeat(np.arange(len(segments)), steps + 1)
