@@ -552,7 +552,12 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
     if photo is None or fitted is None:
-        colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device, config.bake, noise)
+        # photo mode without a field: this colour is what the photos' samples fall back to, so it fills every
+        # hole of the input, seen by a photo or not (where a photo's samples are too few to cover a hole, its
+        # black texels showed through: a real apartment's photo mode scored 1.3 dB below its mesh-only mode)
+        holes_to_fill = excluded if photo is not None and fitted is None else fill
+        colour, bake_report = mesh_only_colour(scan, fitted, holes_to_fill, taught, charts, device, config.bake,
+                                               noise)
     else:
         from scantex.atlas.colour import field_colour
 
