@@ -268,6 +268,35 @@ def test_facade_partial_scan_passes_and_a_moved_one_is_refused():
     assert not check_alignment(moved(scan, offset=(0.43, 0.0, 0.0)), photos).ok
 
 
+def test_edges_out_of_view_are_skipped_without_changing_a_pixel():
+    """Mesh edges wholly behind the camera or beyond one side of the image are not sampled (a room's border
+    mostly is): the pixels drawn are exactly those of sampling every edge the same way."""
+    from scantex.photos.alignment import _edge_pixels
+
+    def every_edge_sampled(segments, camera, depth):
+        H, W = camera.height, camera.width
+        out = np.zeros((H, W), bool)
+        ends = camera.project(segments.reshape(-1, 3))[0].reshape(-1, 2, 2)
+        length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0)
+        for (a, b), n in zip(segments, np.clip(np.ceil(2 * length), 1, 2 * max(H, W)).astype(int)):
+            pix, z = camera.project(a + np.linspace(0, 1, n + 1)[:, None] * (b - a))
+            ok = np.isfinite(pix).all(axis=1) & (z > 0)
+            x, y, z = np.round(pix[ok, 0]).astype(int), np.round(pix[ok, 1]).astype(int), z[ok]
+            inside = (x >= 0) & (x < W) & (y >= 0) & (y < H)
+            x, y, z = x[inside], y[inside], z[inside]
+            if depth is not None:
+                seen = z <= depth[y, x] * 1.01 + 1e-6
+                x, y = x[seen], y[seen]
+            out[y, x] = True
+        return out
+
+    cam = Camera.look_at((0.0, -3.0, 0.0), (0.0, 0.0, 0.0), fov_deg=60, width=80, height=60)
+    segments = np.random.default_rng(5).uniform(-8, 8, (3000, 2, 3))  # in front, behind, beside, across
+    for depth in (None, np.full((60, 80), 3.2)):
+        drawn = _edge_pixels(segments, cam, depth)
+        assert drawn.any() and np.array_equal(drawn, every_edge_sampled(segments, cam, depth))
+
+
 def test_every_shift_at_once_is_the_shift_search_one_by_one():
     """The best image shift from one correlation is the one a search over every shift finds (points
     away from the border, where the two read the image the same way)."""
