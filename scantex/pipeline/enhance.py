@@ -552,12 +552,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
     if photo is None or fitted is None:
-        # photo mode without a field: this colour is what the photos' samples fall back to, so it fills every
-        # hole of the input, seen by a photo or not (where a photo's samples are too few to cover a hole, its
-        # black texels showed through: a real apartment's photo mode scored 1.3 dB below its mesh-only mode)
-        holes_to_fill = excluded if photo is not None and fitted is None else fill
-        colour, bake_report = mesh_only_colour(scan, fitted, holes_to_fill, taught, charts, device, config.bake,
-                                               noise)
+        # every hole of the input is filled, in photo mode too, seen by a photo or not: this colour is what the
+        # photos' samples fall back to (where they are too few to cover a hole, its black texels showed
+        # through: a real apartment's photo mode scored 1.3 dB below its mesh-only mode)
+        colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device, config.bake, noise)
     else:
         from scantex.atlas.colour import field_colour
 
@@ -634,7 +632,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                              f"pixels while removing only {100 * (1 - seams_out / max(seams_in, 1e-9)):.0f} % of "
                              f"the input's seam visibility ({seams_in:.2f} -> {seams_out:.2f})"}
             log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
-            colour, bake_report = mesh_only_colour(scan, fitted, fill, taught, charts, device,
+            colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device,
                                                    dataclasses.replace(config.bake, levelling=False), noise)
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
