@@ -18,7 +18,8 @@ Two sources, chosen by ``bake.source``:
      noise go, detail stronger than the noise stays.
 
   Holes (untextured faces) get a harmonic interpolation over the mesh of the colours around them; the
-  ring of faces around a hole (whose lookups bleed into it) keeps its own texels but where they are black.
+  ring of faces around a hole (whose lookups bleed into it), and every face black in part, keeps its own
+  texels but where they are black.
 
 - ``"field"``: the paper's bake: the field's canonical colour on every taught face (optionally mixed
   with ``detail`` of the input), the canonical input where no training ray reached, hole fill as above.
@@ -126,8 +127,9 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     colours at the vertices around them (read through a non-fill face each).
 
     ``ring``: ``(F,) bool`` fill faces that have texels of their own (the ring around a hole, kept out of
-    training and of the fill's seeds because lookups near the hole read its black texels): there each point
-    keeps ``base`` unless the input's texel there is black, blending into the fill over ``DARK_RAMP`` levels.
+    training and of the fill's seeds because lookups near the hole read its black texels, and faces black in
+    part): there each point keeps ``base`` but where the input's texels are black, which take the fill
+    (blending in over ``DARK_RAMP`` levels; see :func:`_dark_texels`).
     On a coarse mesh a ring face is a large part of the surface, whose own texture the fill would replace
     by a smooth gradient (a patch the input does not have)."""
     outside = np.flatnonzero(~fill)
@@ -160,15 +162,55 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
             rgb[hole] = np.einsum("nk,nkc->nc", w, corners)
             own = np.flatnonzero(hole)[ring[face_ids[hole]]] if ring is not None else np.zeros(0, np.intp)
             if own.size:
-                from scantex.atlas.holes import BLACK_LEVEL
-
                 f, b = face_ids[own], bary[own]
-                texel = shade_hits(scan, f, b).max(axis=1) * 255.0
-                keep = np.clip((texel - BLACK_LEVEL) / DARK_RAMP, 0, 1)[:, None].astype(np.float32)
-                rgb[own] = keep * base(points[own], normals[own], f, b) + (1 - keep) * rgb[own]
+                share, dark = darkness(f, b)
+                rgb[own] = np.clip(base(points[own], normals[own], f, b) - dark + share * rgb[own], 0, 1)
         return rgb
 
+    darkness = _dark_texels(scan)
+
     return colour
+
+
+def _dark_texels(scan: Scan):
+    """A lookup ``(face_ids, bary) -> (share (N, 1), dark (N, 3))`` of the input's black texels at surface
+    points: each texel counts as black by ``w`` = 1 at ``BLACK_LEVEL`` and below, falling to 0 over
+    ``DARK_RAMP`` levels (JPEG leaves a little noise on an app's black); ``share`` is the bilinear lookup of
+    ``w`` and ``dark`` that of ``w`` times the texel's colour. ``base - dark + share * fill`` is then the
+    lookup of an atlas whose black texels were replaced by the fill: no dark rim where bilinear lookups mix
+    a black texel with a coloured one. The tables (4 bytes a texel) are made at the first call."""
+    from scantex.atlas.holes import BLACK_LEVEL
+    from scantex.views.render import hit_uvs, sample_texture
+
+    tables: dict[int, np.ndarray] = {}
+
+    def table(m: int) -> np.ndarray:
+        if m not in tables:
+            image = scan.materials[m].image
+            out = np.empty((*image.shape[:2], 4), np.uint8)
+            for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
+                levels = image[r:r + 512, :, :3].astype(np.float32) * (1.0 if image.dtype == np.uint8 else 255.0)
+                w = np.clip((BLACK_LEVEL + DARK_RAMP - levels.max(axis=2, keepdims=True)) / DARK_RAMP, 0, 1)
+                # in 8-bit levels: w * 255, and w times the texel (at most BLACK_LEVEL + DARK_RAMP levels)
+                out[r:r + 512] = np.concatenate([np.rint(w * 255), np.rint(w * levels)], axis=2)
+            tables[m] = out
+        return tables[m]
+
+    def darkness(face_ids: np.ndarray, bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        share = np.zeros((len(face_ids), 1), np.float32)
+        dark = np.zeros((len(face_ids), 3), np.float32)
+        uv = hit_uvs(scan, face_ids, bary)
+        materials = scan.face_materials[face_ids]
+        for m, material in enumerate(scan.materials):
+            sel = np.flatnonzero(materials == m)
+            if material.image is None or sel.size == 0:
+                continue
+            looked = sample_texture(table(m), uv[sel])  # 0-1
+            share[sel] = looked[:, :1]
+            dark[sel] = looked[:, 1:] * np.asarray(material.diffuse[:3], np.float32)
+        return share, dark
+
+    return darkness
 
 
 def field_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device, *,
@@ -280,6 +322,8 @@ def levelled_input_colour(scan: Scan, offsets: np.ndarray, fill: np.ndarray, *, 
                 rgb[sel] -= high * np.minimum(1.0, noise_threshold / np.maximum(size, 1e-12))
         return np.clip(rgb, 0, 1)
 
-    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.holes import partly_untextured_faces, untextured_faces
 
-    return _with_hole_fill(scan, base, fill, ring=fill & ~untextured_faces(scan))
+    # faces black in part keep their own texels and take the fill where those are black, as a hole's ring does
+    partly = partly_untextured_faces(scan) & ~fill
+    return _with_hole_fill(scan, base, fill | partly, ring=(fill & ~untextured_faces(scan)) | partly)

@@ -35,3 +35,41 @@ def untextured_faces(scan: Scan) -> np.ndarray:
         rgb = sample_texture(material.image, probes[sel].reshape(-1, 2)).reshape(len(sel), 4, -1)[..., :3]
         holes[sel] |= (rgb.max(axis=(1, 2)) * 255.0 <= BLACK_LEVEL)
     return holes
+
+
+#: probes per face edge for :func:`partly_untextured_faces` (a triangular grid of (n+1)(n+2)/2 points)
+PARTIAL_PROBES = 6
+
+
+def partly_untextured_faces(scan: Scan, *, chunk: int = 65536) -> np.ndarray:
+    """``(F,) bool``: faces that are not :func:`untextured_faces` but whose texture is black somewhere inside.
+
+    A capture app leaves black where no photo reached: a face on the edge of that region is partly black,
+    and its black part is kept as the input's colour where nothing else covers it (black specks on a
+    room's walls). Probes a triangular grid of points drawn 10 % towards the face's centre (a UV triangle's
+    own border reads the atlas's gutter)."""
+    F = scan.n_faces
+    partly = np.zeros(F, bool)
+    if not scan.is_textured:
+        return partly
+    n = PARTIAL_PROBES
+    grid = np.array([(i / n, j / n) for i in range(n + 1) for j in range(n + 1 - i)])
+    weights = np.stack([1 - grid[:, 0] - grid[:, 1], grid[:, 0], grid[:, 1]], axis=1)
+    weights = 0.9 * weights + 0.1 / 3
+    uv = scan.triangle_uvs  # [F, 3, 2]
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(scan.face_materials == m)
+        if material.image is None or sel.size == 0:
+            continue
+        image = material.image
+        level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
+        # one channel to look up: 1 where a texel is black (a probe is black where all four texels it reads are)
+        brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) if image.shape[2] >= 3 \
+            else image[..., 0]
+        black = ((brightest <= level).astype(np.uint8) * np.uint8(255))[..., None]
+        per = max(1, chunk // len(grid))
+        for s in range(0, sel.size, per):
+            f = sel[s:s + per]
+            probes = np.matmul(weights, uv[f])  # [f, P, 2]
+            partly[f] = (sample_texture(black, probes.reshape(-1, 2)).reshape(len(f), -1) > 0.999).any(axis=1)
+    return partly & ~untextured_faces(scan)

@@ -182,6 +182,14 @@ def test_denoising_against_a_perfect_field_removes_noise_and_keeps_strong_detail
     assert out[61:67, 31:37].mean() - clean[61:67, 31:37].mean() > 0.2  # the mark is kept
 
 
+def reads_no_dark_texel(scan: Scan, f: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """``(N,) bool``: the points whose bilinear lookup reads no texel of 30 levels or darker (6 + the dark ramp)."""
+    from scantex.views.render import hit_uvs, sample_texture
+
+    dark = (scan.materials[0].image.max(axis=2) <= 30).astype(np.float32)[..., None]
+    return sample_texture(dark, hit_uvs(scan, f, bary))[:, 0] == 0
+
+
 def test_the_ring_around_a_hole_keeps_its_own_texels():
     """A hole (one black face) and the ring of faces around it: the hole takes the harmonic fill, the ring
     keeps its own texels (a coarse mesh's ring is a large part of the surface); only black texels blend in."""
@@ -214,10 +222,54 @@ def test_the_ring_around_a_hole_keeps_its_own_texels():
 
     own = shade_hits(scan, f, bary)
     got = colour(interpolate(f, bary, scan.triangles), scan.face_normals[f], f, bary)
-    lit = own.max(axis=1) > 0.2  # the ring's own texels, not the black ones
+    lit = reads_no_dark_texel(scan, f, bary)  # the ring's own texels, not the black ones nor lookups mixing them
     assert lit.mean() > 0.8
     np.testing.assert_allclose(got[lit], own[lit], atol=1e-5)
+    assert got.max(axis=1).min() > 0.2  # and no dark rim where lookups mix a black texel with the ring's
     centre = np.full((1, 2), 1 / 3, np.float32)
     at = np.array([hole])
     filled = colour(interpolate(at, centre, scan.triangles), scan.face_normals[at], at, centre)
     assert filled.max() > 0.2  # the hole itself is filled from around it, not black
+
+
+def test_black_specks_inside_faces_that_are_not_holes_are_filled():
+    """An app's atlas is black where its photos did not reach; that border cuts faces in part. A face black
+    only around its middle is no hole (its corners are coloured), yet its black texels must not reach the
+    output: they take the fill there, the rest of the face keeps its own texels, and a dark texture that is not
+    black (a dark stripe) is kept as it is. The real apartment's output showed such specks."""
+    from scantex.atlas.holes import partly_untextured_faces, untextured_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import shade_hits, to_uint8
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=21, size=2.0)  # 20 x 20 cells of 8 x 8 texels in a 160² atlas
+    u, v = np.meshgrid(np.linspace(0, 1, 160), np.linspace(0, 1, 160))
+    image = to_uint8(np.stack([0.45 + 0.3 * u, 0.5 + 0.2 * v, 0.6 - 0.2 * u], axis=2))
+    image[:, 8 * 15 + 3:8 * 15 + 5] = 18  # a dark stripe two texels wide down column of cells 15: not black
+    spots = [(4, 5), (10, 12), (16, 3)]  # (column, row) of cells whose middle 4 x 4 texels are black
+    for i, j in spots:
+        image[8 * j + 2:8 * j + 6, 8 * i + 2:8 * i + 6] = 0
+    scan = wall.replace(materials=(Material("wall", image),))
+    assert not untextured_faces(scan).any()  # no face is black at its centre and its corners
+    partly = partly_untextured_faces(scan)
+    centres = scan.triangle_uvs.mean(axis=1) * 20  # in cells
+    spotted = np.zeros(scan.n_faces, bool)
+    for i, j in spots:
+        spotted |= (np.floor(centres[:, 0]) == i) & (np.floor(20 - centres[:, 1]) == j)
+    assert spotted.sum() == 6 and (partly == spotted).all()  # the two triangles of each spotted cell, no other
+
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), np.zeros(scan.n_faces, bool))
+    rng = np.random.default_rng(0)
+    f = np.repeat(np.arange(scan.n_faces), 40)
+    bary = rng.dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
+    own = shade_hits(scan, f, bary)
+    got = colour(interpolate(f, bary, scan.triangles), scan.face_normals[f], f, bary)
+    stripe = (np.abs(own - 18 / 255) < 1e-3).all(axis=1)
+    assert stripe.sum() > 100 and (np.abs(got[stripe] - own[stripe]) < 1e-5).all()  # the dark stripe is kept
+    in_spot = spotted[f]
+    assert (own[in_spot].max(axis=1) < 0.02).sum() > 20  # the input is black there ...
+    assert got[in_spot].max(axis=1).min() > 0.4  # ... the output nowhere: the smooth wall is 0.45 or brighter
+    np.testing.assert_allclose(got[~in_spot], own[~in_spot], atol=1e-5)  # every other face keeps its texels
+    lit = reads_no_dark_texel(scan, f, bary)  # and so do the spotted faces' points away from the black
+    assert lit[in_spot].mean() > 0.3
+    np.testing.assert_allclose(got[lit], own[lit], atol=1e-5)
