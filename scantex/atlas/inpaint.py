@@ -23,11 +23,12 @@ def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1) -> np.ndarray:
     return grown
 
 
-def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray) -> np.ndarray:
+def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
+                            unanchored: np.ndarray | None = None) -> np.ndarray:
     """Colours ``(V, C)`` at every vertex: ``colours`` where ``known (V,) bool``, harmonic elsewhere.
 
-    Uses the uniform graph Laplacian of the mesh edges. Vertices in a part with no known vertex keep
-    the mean known colour.
+    Uses the uniform graph Laplacian of the mesh edges. Vertices in a part with no known vertex get
+    ``unanchored`` ``(C,)`` (default: the mean known colour).
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.csgraph import connected_components
@@ -54,8 +55,9 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray) 
     anchored = np.zeros(n_parts, bool)
     anchored[np.unique(label[touches])] = True
     solvable = anchored[label]
-    fallback = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
-    out[u_idx[~solvable]] = fallback
+    if unanchored is None:
+        unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
+    out[u_idx[~solvable]] = unanchored
     s_idx = u_idx[solvable]
     if s_idx.size:
         Luu = L[s_idx][:, s_idx].tocsc()

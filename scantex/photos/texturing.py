@@ -144,7 +144,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
-        ``without=k``: the same blend without view ``k`` (a leave-one-out consensus for pose refinement).
+        ``without=k``: the same blend without view ``k`` (a leave-one-out consensus for pose refinement),
+        and ``coverage=True``: it then returns ``(rgb, share)``, ``share (n,)`` the photos' part of each
+        point's colour (1: the photos alone, 0: the fallback alone).
     """
     from PIL import Image
     from scipy import ndimage
@@ -203,10 +205,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     tallying = threading.Lock()  # the report's counts, from calls in several threads
     threads = _WORKERS if threads is None else threads
 
-    def colour(points, normals, face_ids, bary, without: int | None = None):
+    def colour(points, normals, face_ids, bary, without: int | None = None, coverage: bool = False):
         n = len(points)
         if not sources or n == 0:
-            return np.asarray(fallback(points, normals, face_ids, bary), np.float32)
+            rgb = np.asarray(fallback(points, normals, face_ids, bary), np.float32)
+            return (rgb, np.zeros(n, np.float32)) if coverage else rgb
         # first pass: each photo's samples of the points it sees, their quality and feather weight, the
         # photos side by side on the cores (numpy releases the interpreter lock in the array work)
         local = (points - origin).astype(np.float32)
@@ -281,13 +284,71 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 out, _ = _weighted_mean(n, seen_by, robust)
         # the fallback only where the photos do not fully cover a point
         part = np.flatnonzero((total <= 0) | (alpha < 1))
+        share = np.ones(n, np.float32)  # the photos' share of each point's colour
         if part.size:
             base = np.asarray(fallback(points[part], normals[part], face_ids[part], bary[part]), np.float32)
             a = np.where(total[part] > 0, np.clip(alpha[part], 0, 1), 0)[:, None]
             out[part] = a * out[part] + (1 - a) * base
-        return np.clip(out, 0, 1)
+            share[part] = a[:, 0]
+        return (np.clip(out, 0, 1), share) if coverage else np.clip(out, 0, 1)
 
     return colour, report
+
+
+#: a face whose photos and fallback differ on average by more than this (any channel, 0-1) differs in content
+#: (a misregistered edge, a highlight, an object the other does not have), not in exposure: it sets no offset
+MAX_FALLBACK_STEP = 0.15
+#: barycentric sample points per face (centre, and inside each corner) for :func:`fallback_offsets`
+_FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
+
+
+def fallback_offsets(scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.ndarray, dict]:
+    """Offsets ``(V, 3)`` per vertex that bring ``fallback`` to the colours of the photos where they meet.
+
+    Where no photo sees the surface, photo mode shows its fallback (the input's texels, holes filled): a
+    texture of another exposure than the photos' blend next to it, brought to it only on average (the colour
+    transforms are global), so a step in tone where the photos end (a real apartment's unseen upper walls were
+    greyer than the photographed walls below them). As seam levelling does between charts, the step is removed
+    by a smooth additive field: at each vertex of a face the photos cover entirely (``colour``'s ``coverage``
+    share 1 at its sample points), the mean of ``photos - fallback`` over such faces; elsewhere the harmonic
+    interpolation of those over the mesh (a part with no covered face: 0). Faces whose difference exceeds
+    ``MAX_FALLBACK_STEP`` set nothing.
+
+    ``colour``: :func:`projective_colour`'s function (its fallback ``fallback``, unlevelled). Returns the offsets
+    and a small report."""
+    from scantex.atlas.inpaint import harmonic_vertex_colours
+    from scantex.views.raycast import interpolate
+
+    F, V, S = scan.n_faces, scan.n_vertices, len(_FACE_SAMPLES)
+    normals, triangles = scan.face_normals, scan.triangles
+    difference = np.zeros((F, 3), np.float32)
+    covered = np.zeros(F, bool)
+    per = max(1, chunk // S)
+    for start in range(0, F, per):
+        faces = np.arange(start, min(F, start + per))
+        f = np.repeat(faces, S)
+        bary = np.tile(_FACE_SAMPLES, (len(faces), 1))
+        points = interpolate(f, bary, triangles)
+        rgb, share = colour(points, normals[f], f, bary, coverage=True)
+        base = np.asarray(fallback(points, normals[f], f, bary), np.float32)
+        difference[faces] = (rgb - base).reshape(-1, S, 3).mean(axis=1)
+        covered[faces] = (share.reshape(-1, S) >= 1).all(axis=1)
+    usable = covered & (np.abs(difference) <= MAX_FALLBACK_STEP).all(axis=1)
+    sums, counts = np.zeros((V, 3)), np.zeros(V)
+    for k in range(3):
+        np.add.at(sums, scan.faces[usable, k], difference[usable])
+        np.add.at(counts, scan.faces[usable, k], 1.0)
+    known = counts > 0
+    offsets = np.zeros((V, 3))
+    offsets[known] = sums[known] / counts[known, None]
+    if known.any() and not known.all():
+        offsets = harmonic_vertex_colours(scan, known, offsets, unanchored=np.zeros(3))
+    reach = ~covered
+    size = np.abs(offsets[np.unique(scan.faces[reach])]) if reach.any() else np.zeros((0, 3))
+    return offsets.astype(np.float32), {
+        "faces_covered": int(covered.sum()), "faces_measured": int(usable.sum()),
+        "offset_mean": round(float(size.mean()) if size.size else 0.0, 4),
+        "offset_max": round(float(size.max()) if size.size else 0.0, 4)}
 
 
 def _incidence(faces: np.ndarray):

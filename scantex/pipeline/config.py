@@ -164,6 +164,8 @@ class PhotosConfig:
     """projective texturing: photo-consistency scale (RGB distance, 0-1 units). A photo's sample this far from what the others say of the same point keeps half its weight (occluders the mesh lacks, highlights, misregistered edges); 0 blends every sample by its view quality alone"""
     clip_overshoot: float = 0.1
     """projective texturing: a photo's clipped sample (a channel at its white point) gives way where the other photos' unclipped samples say that photo overshot its white point there; its weight is 1/1000 at this overshoot (0-1 units of the photo's range) and beyond (an over-exposed photo's clipped red otherwise turns a yellow wall blue; the synthetic room with an over-exposed photo +0.27 dB, the real bolster and facade unchanged); 0 blends clipped samples as any other"""
+    level_fallback: bool = False
+    """projective texturing: bring the fallback (the input's texels, holes filled, where no photo sees the surface) to the photos' colours where they meet, by a smooth additive offset (as seam levelling does between charts). It removes the step in tone where the photos end (a real apartment's unseen upper walls), but the offset spreads over the mesh into other surfaces (a synthetic room's unseen box took the bricks' offset): apartment +0.01 dB, synthetic wall +0.07, synthetic room -0.10, bolster and facade unchanged (bench/RESULTS.md, "apartment"), so off by default"""
     canonical: str = "input"
     """overall colour balance of the result: input (the scan's own texture's, when it has one) or photos (their average)"""
 

@@ -30,7 +30,7 @@ from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
-from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
+from scantex.views.raycast import RayCaster, cast_gbuffer, interpolate, pixel_footprints
 from scantex.views.render import downsample, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
@@ -341,9 +341,22 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     _, weld = unique_rows(scan.positions, return_inverse=True)
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot)
+    corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
+
+    def levelled(points, normals, face_ids, bary):
+        rgb = fallback(points, normals, face_ids, bary)
+        if not corner_offsets:
+            return rgb
+        return np.clip(rgb + interpolate(face_ids, bary, corner_offsets[0]), 0, 1)
+
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        fallback, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded,
+                                        levelled, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded,
                                         threads=threads)
+    if pc.level_fallback and photo.train:
+        from scantex.photos.texturing import fallback_offsets
+
+        offsets, report["fallback_levelling"] = fallback_offsets(scan, colour, fallback)
+        corner_offsets.append(offsets[scan.faces])
     return colour, {"mode": "projective", **sampled, **report}
 
 

@@ -336,3 +336,37 @@ def test_the_report_counts_the_clipped_samples_and_those_that_gave_way(tmp_path)
     tally = report["clipped"]
     assert tally["samples"] > 20000  # most points seen by both photos
     assert 0 < tally["gave_way"] <= tally["clipped"] < tally["samples"]
+
+
+def test_fallback_offsets_carry_the_photos_tone_across_what_they_do_not_see():
+    """Photo mode's fallback where no photo sees the surface, levelled to the photos where they meet
+    (``photos.level_fallback``): on a wall whose left half the photos cover, 0.1 brighter than the fallback,
+    the offset is 0.1 at the covered vertices and carries on smoothly over the uncovered half (no step in tone
+    where the photos end); a face whose difference is content (beyond ``MAX_FALLBACK_STEP``) sets nothing; a
+    part of the mesh no photo reaches keeps the fallback as it is."""
+    from scantex.photos.texturing import MAX_FALLBACK_STEP, fallback_offsets
+    from scantex.scan import Scan
+
+    wall = grid_wall(n=11, size=2.0)
+    island = wall.positions + np.array([0.0, 0.0, 5.0])  # a second wall, apart from the first
+    scan = Scan(np.concatenate([wall.positions, island]), np.concatenate([wall.faces, wall.faces + len(island)]))
+    covered_x = 1.0  # the photos see x < 1 of the first wall
+    odd = 12  # one covered face whose photos say something else entirely (an object the fallback lacks)
+    left_faces = np.flatnonzero((scan.triangles[:, :, 0].max(axis=1) <= covered_x) & (scan.triangles[:, :, 2].max(axis=1) < 3))
+    assert odd in left_faces
+
+    def fallback(points, normals, face_ids, bary):
+        return np.stack([0.3 + 0.1 * points[:, 0], np.full(len(points), 0.4), 0.5 - 0.1 * points[:, 2] / 6], 1)
+
+    def colour(points, normals, face_ids, bary, coverage=False):
+        share = np.isin(face_ids, left_faces).astype(np.float32)
+        rgb = fallback(points, normals, face_ids, bary) + 0.1 * share[:, None]
+        rgb[face_ids == odd] += 0.3
+        return rgb, share
+
+    offsets, report = fallback_offsets(scan, colour, fallback)
+    assert report["faces_covered"] == len(left_faces) and report["faces_measured"] == len(left_faces) - 1
+    first = np.arange(len(wall.positions))
+    np.testing.assert_allclose(offsets[first], 0.1, atol=1e-6)  # the covered half's tone, carried across
+    np.testing.assert_allclose(offsets[len(wall.positions):], 0.0)  # the wall no photo reaches is left alone
+    assert 0.3 > MAX_FALLBACK_STEP

@@ -155,11 +155,12 @@ def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
     assert asked.metrics["refine"]["views_refined"] == 2 and asked.metrics["geometry"]["arrays_identical"]
 
 
-def test_a_hole_a_photo_sees_only_in_part_is_filled_where_it_does_not(tmp_path):
+@pytest.mark.parametrize("level_fallback", [False, True])
+def test_a_hole_a_photo_sees_only_in_part_is_filled_where_it_does_not(tmp_path, level_fallback):
     """An app's atlas is black where its own photos did not reach. A hole that the edge of the only photo seeing
     it cuts in two: the photo colours the part it sees, and the rest is filled from the input around it, as a
     hole no photo sees is, never left black (a real apartment's photo mode showed such black, 1.3 dB below
-    its mesh-only mode)."""
+    its mesh-only mode); with the fill levelled to the photo's tone (``photos.level_fallback``) too."""
     from PIL import Image
 
     from scantex.photos import PhotoSet
@@ -181,8 +182,10 @@ def test_a_hole_a_photo_sees_only_in_part_is_filled_where_it_does_not(tmp_path):
         tmp_path / "p0.png")
     photos = PhotoSet(cameras=(cam,), images=(tmp_path / "p0.png",), source=tmp_path, format="rendered")
 
-    result = enhance(scan, TOY.override(photos__check_alignment=False, photos__holdout=0), photos=photos)
+    result = enhance(scan, TOY.override(photos__check_alignment=False, photos__holdout=0,
+                                        photos__level_fallback=level_fallback), photos=photos)
     assert result.metrics["geometry"]["arrays_identical"]
+    assert ("fallback_levelling" in result.metrics["photos"]["texturing"]) == level_fallback
     out = result.scan
     hole = (out.positions[out.faces].mean(axis=1)[:, [0, 2]] > 0.66).all(axis=1) & \
            (out.positions[out.faces].mean(axis=1)[:, [0, 2]] < 1.34).all(axis=1)
