@@ -39,8 +39,9 @@ from scantex.views.render import shade_hits
 
 log = logging.getLogger(__name__)
 
-#: barycentric sample points per face for the residual's vertex means (centre, and inside each corner)
-_FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
+#: barycentric sample points per face (centre, and inside each corner): for vertex means of a residual (here, and
+#: photo mode's fallback offsets)
+FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
 #: points per call of a colour function (bounded memory)
 CHUNK = 65536
 #: a denoising threshold below half an 8-bit step cannot change a stored texel: denoising is then skipped
@@ -271,11 +272,11 @@ def residual_vertex_means(scan: Scan, predict, usable: np.ndarray) -> np.ndarray
     if faces.size == 0:
         return sums
     normals = scan.face_normals
-    S = len(_FACE_SAMPLES)
+    S = len(FACE_SAMPLES)
     per_chunk = max(1, CHUNK // S)
     for s in range(0, faces.size, per_chunk):
         f = np.repeat(faces[s:s + per_chunk], S)
-        bary = np.tile(_FACE_SAMPLES, (len(f) // S, 1))
+        bary = np.tile(FACE_SAMPLES, (len(f) // S, 1))
         points = interpolate(f, bary, scan.triangles)
         r = shade_hits(scan, f, bary) - predict(points, normals[f], f)
         face_mean = r.reshape(-1, S, 3).mean(axis=1)  # [n, 3]

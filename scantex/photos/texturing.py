@@ -50,6 +50,7 @@ import numpy as np
 
 from scantex.photos.photoset import PhotoSet
 from scantex.photos.training import PhotoView
+from scantex.scan import Scan
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
@@ -298,11 +299,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 #: a face whose photos and fallback differ on average by more than this (any channel, 0-1) differs in content
 #: (a misregistered edge, a highlight, an object the other does not have), not in exposure: it sets no offset
 MAX_FALLBACK_STEP = 0.15
-#: barycentric sample points per face (centre, and inside each corner) for :func:`fallback_offsets`
-_FACE_SAMPLES = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]], np.float32)
 
 
-def fallback_offsets(scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.ndarray, dict]:
+def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.ndarray, dict]:
     """Offsets ``(V, 3)`` per vertex that bring ``fallback`` to the colours of the photos where they meet.
 
     Where no photo sees the surface, photo mode shows its fallback (the input's texels, holes filled): a
@@ -316,10 +315,11 @@ def fallback_offsets(scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.
 
     ``colour``: :func:`projective_colour`'s function (its fallback ``fallback``, unlevelled). Returns the offsets
     and a small report."""
+    from scantex.atlas.colour import FACE_SAMPLES
     from scantex.atlas.inpaint import harmonic_vertex_colours
     from scantex.views.raycast import interpolate
 
-    F, V, S = scan.n_faces, scan.n_vertices, len(_FACE_SAMPLES)
+    F, V, S = scan.n_faces, scan.n_vertices, len(FACE_SAMPLES)
     normals, triangles = scan.face_normals, scan.triangles
     difference = np.zeros((F, 3), np.float32)
     covered = np.zeros(F, bool)
@@ -327,7 +327,7 @@ def fallback_offsets(scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.
     for start in range(0, F, per):
         faces = np.arange(start, min(F, start + per))
         f = np.repeat(faces, S)
-        bary = np.tile(_FACE_SAMPLES, (len(faces), 1))
+        bary = np.tile(FACE_SAMPLES, (len(faces), 1))
         points = interpolate(f, bary, triangles)
         rgb, share = colour(points, normals[f], f, bary, coverage=True)
         base = np.asarray(fallback(points, normals[f], f, bary), np.float32)
