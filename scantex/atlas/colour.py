@@ -28,6 +28,7 @@ Two sources, chosen by ``bake.source``:
 from __future__ import annotations
 
 import logging
+import threading
 
 import numpy as np
 
@@ -184,9 +185,12 @@ def _dark_texels(scan: Scan):
     from scantex.views.render import hit_uvs, sample_texture
 
     tables: dict[int, np.ndarray] = {}
+    making = threading.Lock()  # the bake colours chunks in threads: the first to need a table makes it
 
     def table(m: int) -> np.ndarray:
-        if m not in tables:
+        with making:
+            if m in tables:
+                return tables[m]
             image = scan.materials[m].image
             out = np.empty((*image.shape[:2], 4), np.uint8)
             for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
