@@ -151,6 +151,7 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
         vertex_rgb[v] = base(scan.positions[v], normals[f], f, corner_bary[corner_slot[v]])
     if fill.any():
         vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
+    darkness = _dark_texels(scan)
 
     def colour(points, normals, face_ids, bary):
         rgb = np.empty((len(face_ids), 3), np.float32)
@@ -168,8 +169,6 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
                 share, dark = darkness(f, b)
                 rgb[own] = np.clip(base(points[own], normals[own], f, b) - dark + share * rgb[own], 0, 1)
         return rgb
-
-    darkness = _dark_texels(scan)
 
     return colour
 
@@ -330,5 +329,6 @@ def levelled_input_colour(scan: Scan, offsets: np.ndarray, fill: np.ndarray, *, 
     from scantex.atlas.holes import partly_untextured_faces, untextured_faces
 
     # faces black in part keep their own texels and take the fill where those are black, as a hole's ring does
-    partly = partly_untextured_faces(scan) & ~fill
-    return _with_hole_fill(scan, base, fill | partly, ring=(fill & ~untextured_faces(scan)) | partly)
+    holes = untextured_faces(scan)
+    partly = partly_untextured_faces(scan, holes) & ~fill
+    return _with_hole_fill(scan, base, fill | partly, ring=(fill & ~holes) | partly)

@@ -41,8 +41,9 @@ def untextured_faces(scan: Scan) -> np.ndarray:
 PARTIAL_PROBES = 6
 
 
-def partly_untextured_faces(scan: Scan, *, chunk: int = 65536) -> np.ndarray:
-    """``(F,) bool``: faces that are not :func:`untextured_faces` but whose texture is black somewhere inside.
+def partly_untextured_faces(scan: Scan, holes: np.ndarray | None = None, *, chunk: int = 65536) -> np.ndarray:
+    """``(F,) bool``: faces that are not :func:`untextured_faces` (``holes``, when already known) but whose
+    texture is black somewhere inside.
 
     A capture app leaves black where no photo reached: a face on the edge of that region is partly black,
     and its black part is kept as the input's colour where nothing else covers it (black specks on a
@@ -64,12 +65,11 @@ def partly_untextured_faces(scan: Scan, *, chunk: int = 65536) -> np.ndarray:
         image = material.image
         level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
         # one channel to look up: 1 where a texel is black (a probe is black where all four texels it reads are)
-        brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) if image.shape[2] >= 3 \
-            else image[..., 0]
+        brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
         black = ((brightest <= level).astype(np.uint8) * np.uint8(255))[..., None]
         per = max(1, chunk // len(grid))
         for s in range(0, sel.size, per):
             f = sel[s:s + per]
             probes = np.matmul(weights, uv[f])  # [f, P, 2]
             partly[f] = (sample_texture(black, probes.reshape(-1, 2)).reshape(len(f), -1) > 0.999).any(axis=1)
-    return partly & ~untextured_faces(scan)
+    return partly & ~(untextured_faces(scan) if holes is None else holes)

@@ -349,10 +349,11 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
             return rgb
         return np.clip(rgb + interpolate(face_ids, bary, corner_offsets[0]), 0, 1)
 
+    level = pc.level_fallback and bool(photo.train)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        levelled, settings, faces=weld.reshape(-1)[scan.faces], recorded=recorded,
-                                        threads=threads)
-    if pc.level_fallback and photo.train:
+                                        levelled if level else fallback, settings, faces=weld.reshape(-1)[scan.faces],
+                                        recorded=recorded, threads=threads)
+    if level:
         from scantex.photos.texturing import fallback_offsets
 
         offsets, report["fallback_levelling"] = fallback_offsets(scan, colour, fallback)
