@@ -27,27 +27,55 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
                             unanchored: np.ndarray | None = None) -> np.ndarray:
     """Colours ``(V, C)`` at every vertex: ``colours`` where ``known (V,) bool``, harmonic elsewhere.
 
-    Uses the uniform graph Laplacian of the mesh edges. Vertices in a part with no known vertex get
-    ``unanchored`` ``(C,)`` (default: the mean known colour).
+    Uses the uniform graph Laplacian of the mesh edges, on positions welded by value: a capture app's OBJ
+    or GLB repeats a position at every UV seam (the façade's app-style input: 44,127 vertices at 7,378
+    positions), and its faces do not connect across a seam; a hole would be cut off from the colours
+    around it. A welded position is known where any of its vertices is (their mean colour); a known vertex
+    keeps its own colour. Vertices in a part with no known vertex get ``unanchored`` ``(C,)`` (default:
+    the mean known colour).
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.csgraph import connected_components
     from scipy.sparse.linalg import spsolve
 
-    V = scan.n_vertices
-    f = scan.faces
+    from scantex.arrays import unique_rows
+
+    _, weld = unique_rows(scan.positions, return_inverse=True)
+    weld = weld.reshape(-1)
+    V = int(weld.max()) + 1 if weld.size else 0
+    f = weld[scan.faces]
+    n_known = np.bincount(weld[known], minlength=V).astype(np.float64)
+    welded_known = n_known > 0
+    welded = np.zeros((V, colours.shape[1]), np.float64)
+    for c in range(colours.shape[1]):
+        welded[:, c] = np.bincount(weld[known], colours[known, c], minlength=V)
+    welded[welded_known] /= n_known[welded_known, None]
     i = np.concatenate([f[:, 0], f[:, 1], f[:, 2], f[:, 1], f[:, 2], f[:, 0]])
     j = np.concatenate([f[:, 1], f[:, 2], f[:, 0], f[:, 0], f[:, 1], f[:, 2]])
     keep = i != j
     A = coo_matrix((np.ones(int(keep.sum())), (i[keep], j[keep])), shape=(V, V)).tocsr()
     A.data[:] = 1.0  # duplicate edges count once
     L = diags(np.asarray(A.sum(axis=1)).ravel()) - A
-    out = np.zeros((V, colours.shape[1]), np.float64)
+    unknown = ~welded_known & (np.asarray(A.sum(axis=1)).ravel() > 0)
+    if unknown.any():
+        # parts of the unknown set that touch no known vertex have nothing to interpolate from
+        n_parts, label = connected_components(A[unknown][:, unknown] + 0, directed=False)
+        u_idx = np.flatnonzero(unknown)
+        touches = np.asarray(A[unknown][:, welded_known].sum(axis=1)).ravel() > 0
+        anchored = np.zeros(n_parts, bool)
+        anchored[np.unique(label[touches])] = True
+        solvable = anchored[label]
+        if unanchored is None:
+            unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
+        welded[u_idx[~solvable]] = unanchored
+        s_idx = u_idx[solvable]
+        if s_idx.size:
+            Luu = L[s_idx][:, s_idx].tocsc()
+            rhs = -(L[s_idx][:, welded_known] @ welded[welded_known])
+            welded[s_idx] = np.column_stack([spsolve(Luu, rhs[:, c]) for c in range(colours.shape[1])])
+    out = welded[weld]
     out[known] = colours[known]
-    unknown = ~known
-    unknown &= np.asarray(A.sum(axis=1)).ravel() > 0
-    if not unknown.any():
-        return out
+    return out
     # parts of the unknown set that touch no known vertex have nothing to interpolate from
     n_parts, label = connected_components(A[unknown][:, unknown] + 0, directed=False)
     u_idx = np.flatnonzero(unknown)

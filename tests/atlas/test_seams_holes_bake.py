@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -80,6 +82,33 @@ def test_harmonic_fill_is_linear_on_a_strip():
     inside = ~known
     # linear data on a closed boundary: the graph-harmonic interior of a regular grid is that linear function
     assert np.abs(filled[inside] - colours[inside]).max() < 0.01
+
+
+def test_harmonic_fill_crosses_uv_seams_where_positions_repeat():
+    # a capture app's OBJ or GLB repeats a position at every UV seam: here every face has corners of its own,
+    # so no two faces share a vertex index, as in a GLB whose every face is a chart
+    wall = grid_wall(n=9)
+    split = dataclasses.replace(wall, positions=wall.positions[wall.faces.reshape(-1)],
+                                faces=np.arange(3 * wall.n_faces).reshape(-1, 3))
+    x, z = split.positions[:, 0], split.positions[:, 2]
+    known = (x < 0.3) | (x > 1.7) | (z < 0.01) | (z > 1.99)
+    _, weld = np.unique(split.positions, axis=0, return_inverse=True)
+    weld = weld.reshape(-1)
+    # the copies of one position disagree at a seam (charts of different exposure), by up to 0.1, about
+    # their mean x / 2
+    step = np.where(np.arange(len(x)) % 2 == 0, 0.05, -0.05)
+    step -= (np.bincount(weld[known], step[known], weld.max() + 1)
+             / np.maximum(np.bincount(weld[known], minlength=weld.max() + 1), 1))[weld]
+    colours = np.stack([x, x, x], axis=1) / 2.0 + step[:, None]
+    assert np.abs(step[known]).max() > 0.04
+    filled = harmonic_vertex_colours(split, known, np.where(known[:, None], colours, 0))
+    assert np.array_equal(filled[known], colours[known])  # known corners keep their own colour
+    inside = ~known
+    # the hole is filled from the colours around it, as on the welded strip, not with the mean colour
+    assert np.abs(filled[inside] - x[inside, None] / 2.0).max() < 0.01
+    # and the copies of one position get one colour
+    for v in np.unique(weld[inside]):
+        assert np.ptp(filled[(weld == v) & inside], axis=0).max() == 0
 
 
 def test_grow_faces_adds_a_ring():
