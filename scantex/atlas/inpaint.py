@@ -76,19 +76,3 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
     out = welded[weld]
     out[known] = colours[known]
     return out
-    # parts of the unknown set that touch no known vertex have nothing to interpolate from
-    n_parts, label = connected_components(A[unknown][:, unknown] + 0, directed=False)
-    u_idx = np.flatnonzero(unknown)
-    touches = np.asarray(A[unknown][:, known].sum(axis=1)).ravel() > 0
-    anchored = np.zeros(n_parts, bool)
-    anchored[np.unique(label[touches])] = True
-    solvable = anchored[label]
-    if unanchored is None:
-        unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
-    out[u_idx[~solvable]] = unanchored
-    s_idx = u_idx[solvable]
-    if s_idx.size:
-        Luu = L[s_idx][:, s_idx].tocsc()
-        rhs = -(L[s_idx][:, known] @ out[known])
-        out[s_idx] = np.column_stack([spsolve(Luu, rhs[:, c]) for c in range(colours.shape[1])])
-    return out
