@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from scantex.arrays import unique_rows
-from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours
+from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, texture_vertices
 from scantex.scan import Scan
 
 #: samples darker than this (0-1) are not used: black holes and deep shadow carry no exposure information
@@ -66,8 +66,10 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
     """Local seam levelling: an additive colour offset ``(T, 3)`` per UV vertex (texture coordinate).
 
     The classical global + local adjustment (Lempitsky & Ivanov 2007; Waechter et al. 2014), solved over
-    the atlas's own UV vertices: ``g`` is interpolated over each face from its corners' UV vertices and
-    added to the input's texels. It is the least-squares solution of
+    the atlas's texture vertices (:func:`~scantex.atlas.seams.texture_vertices`: a file that gives every
+    face corner a UV index of its own still has one offset where its faces meet): ``g`` is interpolated
+    over each face from its corners' offsets and added to the input's texels. It is the least-squares
+    solution of
 
     - seams: at samples along every seam edge, the two sides' corrected colours agree
       (``c_a + g_a = c_b + g_b``);
@@ -93,6 +95,8 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
         return np.zeros((0 if scan.uvs is None else len(scan.uvs), 3))
     T = len(scan.uvs)
     offsets = np.zeros((T, 3))
+    nodes = texture_vertices(scan)  # [F, 3]
+    N = int(nodes.max()) + 1
     # seams on a sharp crease join two surfaces, whose colours differ for real
     edges = (seam_edges(scan) if edges is None else edges).smooth(scan.face_normals, max_crease_deg)
     if len(edges) == 0:
@@ -112,17 +116,17 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
         return offsets
     rows_ok = np.flatnonzero(usable)
     m = rows_ok.size
-    ua = scan.face_uvs[fa[rows_ok][:, None], corners_a[rows_ok]]  # [m, 2] UV vertices of side a's edge ends
-    ub = scan.face_uvs[fb[rows_ok][:, None], corners_b[rows_ok]]
+    ua = nodes[fa[rows_ok][:, None], corners_a[rows_ok]]  # [m, 2] texture vertices of side a's edge ends
+    ub = nodes[fb[rows_ok][:, None], corners_b[rows_ok]]
     tt = t[rows_ok]
     rows = np.repeat(np.arange(m), 4)
     cols = np.stack([ua[:, 0], ua[:, 1], ub[:, 0], ub[:, 1]], axis=1).ravel()
     vals = np.stack([1 - tt, tt, -(1 - tt), -tt], axis=1).ravel()
-    seams = coo_matrix((vals, (rows, cols)), shape=(m, T)).tocsr()
+    seams = coo_matrix((vals, (rows, cols)), shape=(m, N)).tocsr()
     step = (cb - ca)[rows_ok].astype(np.float64)  # [m, 3]: g_a - g_b should equal c_b - c_a
 
-    # smoothness over the UV edges of the faces (each counted once)
-    fu = scan.face_uvs
+    # smoothness over the texture vertices' edges (each counted once)
+    fu = nodes
     i = np.concatenate([fu[:, 0], fu[:, 1], fu[:, 2]])
     j = np.concatenate([fu[:, 1], fu[:, 2], fu[:, 0]])
     keep = i != j
@@ -130,11 +134,12 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
     pairs = unique_rows(np.stack([lo, hi], axis=1))
     n_e = len(pairs)
     D = coo_matrix((np.tile([1.0, -1.0], n_e), (np.repeat(np.arange(n_e), 2), pairs.ravel())),
-                   shape=(n_e, T)).tocsr()
+                   shape=(n_e, N)).tocsr()
     # the seam terms and the smoothness terms are balanced per sample and per edge; the anchor keeps the
     # system positive definite (UV vertices of untouched charts stay at 0)
-    smooth = smoothness * (D.T @ D) + anchor * diags(np.ones(T))
+    smooth = smoothness * (D.T @ D) + anchor * diags(np.ones(N))
     weight = np.ones(m)
+    offsets = np.zeros((N, 3))
     preconditioner = None
     for _ in range(max(1, iterations)):
         system = (seams.T @ diags(weight) @ seams + smooth).tocsr()
@@ -148,4 +153,8 @@ def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEd
                                       M=preconditioner)[0] for c in range(3)])
         residual = np.abs(seams @ offsets - step).max(axis=1)
         weight = np.minimum(1.0, robust / np.maximum(residual, 1e-9))
-    return offsets
+    # each UV index takes its texture vertex's offset (the mean, where an index serves several positions)
+    uv, node = scan.face_uvs.reshape(-1), nodes.reshape(-1)
+    count = np.bincount(uv, minlength=T).astype(np.float64)
+    out = np.column_stack([np.bincount(uv, offsets[node, c], minlength=T) for c in range(3)])
+    return out / np.maximum(count, 1)[:, None]

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -293,12 +294,16 @@ def reference_faces(scan: Scan) -> np.ndarray:
     from scantex.atlas.seams import uv_shells
 
     charts = uv_shells(scan)
-    lo = np.full(scan.n_vertices, np.iinfo(np.int64).max)
-    hi = np.full(scan.n_vertices, -1)
+    # on positions welded by value: a glTF or OpenMVS file repeats a position where its charts meet
+    _, weld = unique_rows(scan.positions, return_inverse=True)
+    faces = weld.reshape(-1)[scan.faces]
+    n = int(faces.max()) + 1 if faces.size else 0
+    lo = np.full(n, np.iinfo(np.int64).max)
+    hi = np.full(n, -1)
     for k in range(3):
-        np.minimum.at(lo, scan.faces[:, k], charts)
-        np.maximum.at(hi, scan.faces[:, k], charts)
-    border = (lo[scan.faces] != hi[scan.faces]).any(axis=1)
+        np.minimum.at(lo, faces[:, k], charts)
+        np.maximum.at(hi, faces[:, k], charts)
+    border = (lo[faces] != hi[faces]).any(axis=1)
     return ~untextured_faces(scan) & ~border
 
 

@@ -108,6 +108,32 @@ def test_levelling_offsets_are_smooth_and_balanced():
     assert g[left].std() < 0.5 * np.abs(g[left].mean()) + 1e-3
 
 
+def corner_uvs(scan: Scan) -> Scan:
+    """``scan`` with a UV index of its own for every face corner (same coordinates), as OpenMVS writes its
+    OBJ, and with every position repeated per face, as a glTF file repeats them at seams."""
+    F = scan.n_faces
+    return Scan(scan.positions[scan.faces.reshape(-1)], np.arange(3 * F).reshape(F, 3),
+                scan.uvs[scan.face_uvs.reshape(-1)], np.arange(3 * F).reshape(F, 3), None, scan.materials)
+
+
+def test_charts_and_levelling_do_not_depend_on_how_the_file_indexes_its_corners():
+    from scantex.atlas.seams import uv_shells
+
+    scan = two_chart_wall(gain_right=1.1)
+    split = corner_uvs(scan)
+    assert np.array_equal(uv_shells(split), uv_shells(scan)) and uv_shells(scan).max() == 1
+    assert len(seam_edges(split)) == len(seam_edges(scan)) == 16
+    # the same offset at every face corner: a smooth field inside each chart, not a step at every face
+    a = seam_offsets(scan)[scan.face_uvs]
+    b = seam_offsets(split)[split.face_uvs]
+    assert np.abs(a).max() > 0.02
+    assert np.abs(a - b).max() < 1e-6
+    out = levelled(split)
+    assert seam_visibility(out) < 0.25 * seam_visibility(split)
+    reference = levelled(scan).materials[0].image.astype(int)
+    assert np.abs(out.materials[0].image.astype(int) - reference).max() <= 1
+
+
 def test_levelled_output_has_no_patches_against_the_input():
     scan = two_chart_wall(gain_right=1.08)
     out = levelled(scan)
@@ -273,3 +299,14 @@ def test_black_specks_inside_faces_that_are_not_holes_are_filled():
     lit = reads_no_dark_texel(scan, f, bary)  # and so do the spotted faces' points away from the black
     assert lit[in_spot].mean() > 0.3
     np.testing.assert_allclose(got[lit], own[lit], atol=1e-5)
+
+
+def test_faces_touching_another_chart_are_no_photometric_reference_however_the_file_indexes_them():
+    from scantex.photos.poses import reference_faces
+
+    scan = two_chart_wall(gain_right=1.1)
+    split = corner_uvs(scan)
+    reference = reference_faces(scan)
+    # the two columns of faces along the seam at x = 0 touch the other chart (16 rows, 2 faces a cell)
+    assert (~reference).sum() == 2 * 2 * 16
+    assert np.array_equal(reference_faces(split), reference)
