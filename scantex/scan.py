@@ -174,6 +174,19 @@ class Scan:
         return np.stack([used.min(axis=0), used.max(axis=0)])
 
     @functools.cached_property
+    def welded(self) -> np.ndarray:
+        """``(V,) int64``: one index per distinct position (compared by value), read-only, computed once.
+
+        ``welded[faces]`` connects what the file's indices may not: glTF repeats a position at every UV seam,
+        and some OBJ writers (OpenMVS) give every face corner a vertex of its own."""
+        from scantex.arrays import unique_rows
+
+        _, inverse = unique_rows(self.positions, return_inverse=True)
+        inverse = inverse.reshape(-1).astype(np.int64)
+        inverse.setflags(write=False)
+        return inverse
+
+    @functools.cached_property
     def face_normals(self) -> np.ndarray:
         """``(F, 3)`` unit geometric normals (zero for degenerate faces), read-only.
 

@@ -38,10 +38,7 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
     from scipy.sparse.csgraph import connected_components
     from scipy.sparse.linalg import spsolve
 
-    from scantex.arrays import unique_rows
-
-    _, weld = unique_rows(scan.positions, return_inverse=True)
-    weld = weld.reshape(-1)
+    weld = scan.welded
     V = int(weld.max()) + 1 if weld.size else 0
     f = weld[scan.faces]
     n_known = np.bincount(weld[known], minlength=V).astype(np.float64)

@@ -24,7 +24,7 @@ def texture_vertices(scan: Scan) -> np.ndarray:
     The faces of one chart meet at such shared corners. Their indices need not say so: a glTF file repeats a
     position at every UV seam, and some OBJ writers (OpenMVS: the façade's app-style input, 44,127 texture
     coordinates for 14,709 faces) give every face corner a texture coordinate of its own. Requires UVs."""
-    _, weld = unique_rows(scan.positions, return_inverse=True)
+    weld = scan.welded
     uv = scan.uvs[scan.face_uvs.reshape(-1)] + 0.0  # + 0.0: -0.0 and 0.0 are one coordinate
     key = np.column_stack([weld.reshape(-1)[scan.faces.reshape(-1)], uv.view(np.int64).reshape(-1, 2),
                            np.repeat(scan.face_materials.astype(np.int64), 3)])
@@ -83,7 +83,7 @@ def seam_edges(scan: Scan) -> SeamEdges:
         return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
     # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
     # so the two faces of a seam edge do not share vertex indices (an analysis-only weld)
-    _, weld = unique_rows(scan.positions, return_inverse=True)
+    weld = scan.welded
     f = weld.reshape(-1)[scan.faces]
     F = len(f)
     local = np.array([[0, 1], [1, 2], [2, 0]])

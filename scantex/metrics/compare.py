@@ -7,7 +7,6 @@ cameras file with images is given, else ``B``'s renders against ``A``'s at views
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 

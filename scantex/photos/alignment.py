@@ -506,7 +506,7 @@ class _MeshEdges:
 
     @classmethod
     def of(cls, scan: Scan) -> _MeshEdges:
-        _, weld = unique_rows(scan.positions, return_inverse=True)
+        weld = scan.welded
         faces = weld.reshape(-1)[scan.faces]
         e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
         owner = np.tile(np.arange(len(faces)), 3)

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scantex.arrays import unique_rows
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -295,8 +294,7 @@ def reference_faces(scan: Scan) -> np.ndarray:
 
     charts = uv_shells(scan)
     # on positions welded by value: a glTF or OpenMVS file repeats a position where its charts meet
-    _, weld = unique_rows(scan.positions, return_inverse=True)
-    faces = weld.reshape(-1)[scan.faces]
+    faces = scan.welded[scan.faces]
     n = int(faces.max()) + 1 if faces.size else 0
     lo = np.full(n, np.iinfo(np.int64).max)
     hi = np.full(n, -1)

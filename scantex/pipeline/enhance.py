@@ -336,9 +336,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         report["colour_transforms"] = "the field's"
     else:
         canonicalise = None
-    from scantex.arrays import unique_rows
-
-    _, weld = unique_rows(scan.positions, return_inverse=True)
+    weld = scan.welded
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot)
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
