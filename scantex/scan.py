@@ -186,6 +186,15 @@ class Scan:
         inverse.setflags(write=False)
         return inverse
 
+    def welded_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions (U, 3), faces (F, 3))``: the distinct positions (each at its first occurrence) and the
+        faces indexing them, the same triangles as ``faces``: what connectivity-based algorithms (charting,
+        unwrapping) need where the file repeats positions."""
+        weld = self.welded
+        first = np.zeros(int(weld.max()) + 1 if weld.size else 0, np.int64)
+        first[weld[::-1]] = np.arange(len(weld))[::-1]
+        return self.positions[first], weld[self.faces]
+
     @functools.cached_property
     def face_normals(self) -> np.ndarray:
         """``(F, 3)`` unit geometric normals (zero for degenerate faces), read-only.

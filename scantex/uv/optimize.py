@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scantex.atlas.seams import uv_shells
+from scantex.atlas.seams import texture_vertices, uv_shells
 from scantex.scan import Scan
 from scantex.uv.charts import Charts, assemble, compact
 from scantex.uv.merge import MergeLog, Merger, Piece
@@ -62,7 +62,7 @@ def shell_pieces(scan: Scan, texture_size: int, equalise_density: bool) -> tuple
     surface = np.bincount(shells, scan.face_areas, S)
     density = np.sqrt(np.divide(np.bincount(shells, uv_area, S), surface, out=np.zeros(S), where=surface > 0))
     common = float(np.median(density[density > 0])) if (density > 0).any() else 1.0
-    key = scan.face_uvs * len(scan.materials) + scan.face_materials[:, None]
+    key = texture_vertices(scan)  # the corners of a shell's faces meet at these (by value)
     order = np.argsort(shells, kind="stable")
     bounds = np.searchsorted(shells[order], np.arange(S + 1))
     pieces = []
@@ -89,19 +89,20 @@ def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: 
     shells, _ = shell_pieces(scan, texture_size, equalise_density)
     record.shells_in = len(shells)
     tri3 = scan.triangles
-    pairs, corners = interior_edges(scan.faces)
+    positions, faces = scan.welded_geometry()  # faces meet where their positions do, whatever the indices
+    pairs, corners = interior_edges(faces)
     pieces: list[Piece] = []
     for p in shells:
         if acceptable(tri3[p.faces], p.node_uv[p.corner_node], options.threshold):
             pieces.append(p)
             continue
-        parts = planar_charts(scan.positions, scan.faces, scan.face_normals, scan.face_areas, pairs, options,
+        parts = planar_charts(positions, faces, scan.face_normals, scan.face_areas, pairs, options,
                               subset=p.faces, record=unwrap_record)
         record.shells_split += 1
         record.charts_from_splits += len(parts)
         pieces += [Piece(*part) for part in parts]
     if merge and len(pieces) > 1:
-        merger = Merger(scan.positions, scan.faces, pieces, pairs, corners, options.threshold)
+        merger = Merger(positions, faces, pieces, pairs, corners, options.threshold)
         pieces = merger.run(start + time_budget_s, record.merge)
         if record.merge.out_of_time:
             record.fallbacks.append(f"merging stopped at the {time_budget_s:g} s budget")

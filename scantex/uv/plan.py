@@ -111,7 +111,10 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
         report["optimize"] = optimize_log.as_dict()
         report["fallbacks"] += optimize_log.fallbacks
     else:
-        charts = unwrap(scan.positions, scan.faces, options, time_budget_s=time_budget_s, record=unwrap_log)
+        # on the distinct positions: a mesh that repeats a position per face (STL, some glTF and OBJ writers)
+        # would otherwise have no edge two faces share, and every face would be a chart of its own
+        positions, faces = scan.welded_geometry()
+        charts = unwrap(positions, faces, options, time_budget_s=time_budget_s, record=unwrap_log)
     report["unwrap"] = unwrap_log.as_dict()
     report["fallbacks"] += unwrap_log.fallbacks
     planned = _packed_scan(scan, charts, size, gutter_texels, report)

@@ -130,6 +130,21 @@ def test_unwrap_a_flat_wall_is_one_chart():
     assert plan.report["after"]["shells"] == 1 and plan.report["after"]["seam_edges"] == 0
 
 
+def test_unwrap_and_optimise_see_faces_meet_where_positions_repeat():
+    # an STL, or a glTF whose normals are split, repeats a position for every face using it
+    wall = grid_wall(n=20)
+    split = Scan(wall.positions[wall.faces.reshape(-1)], np.arange(3 * wall.n_faces).reshape(-1, 3))
+    plan = plan_uvs(split, "unwrap", texture_size=128)
+    assert plan.report["after"]["shells"] == 1 and plan.report["after"]["seam_edges"] == 0
+    assert np.array_equal(plan.scan.positions, split.positions) and np.array_equal(plan.scan.faces, split.faces)
+    # the unwrapped wall stored with a UV index and a vertex of its own for every face corner: one shell, kept
+    F = plan.scan.n_faces
+    corners = Scan(split.positions, split.faces, plan.scan.uvs[plan.scan.face_uvs.reshape(-1)],
+                   np.arange(3 * F).reshape(F, 3))
+    optimised = plan_uvs(corners, "optimize", texture_size=128)
+    assert optimised.report["before"]["shells"] == 1 and optimised.report["after"]["shells"] == 1
+
+
 def test_xatlas_runs_in_a_subprocess_and_times_out_cleanly():
     sphere = trimesh.creation.icosphere(2)
     result = _run_xatlas(sphere.vertices, sphere.faces, timeout=120)
