@@ -24,10 +24,11 @@ def texture_vertices(scan: Scan) -> np.ndarray:
     The faces of one chart meet at such shared corners. Their indices need not say so: a glTF file repeats a
     position at every UV seam, and some OBJ writers (OpenMVS: the façade's app-style input, 44,127 texture
     coordinates for 14,709 faces) give every face corner a texture coordinate of its own. Requires UVs."""
-    weld = scan.welded
-    uv = scan.uvs[scan.face_uvs.reshape(-1)] + 0.0  # + 0.0: -0.0 and 0.0 are one coordinate
-    key = np.column_stack([weld.reshape(-1)[scan.faces.reshape(-1)], uv.view(np.int64).reshape(-1, 2),
-                           np.repeat(scan.face_materials.astype(np.int64), 3)])
+    # the texture coordinates by value (+ 0.0: -0.0 and 0.0 are one), then (position, coordinate, material)
+    # as two small integers a corner: unique_rows's fast path
+    _, uv_id = unique_rows(scan.uvs + 0.0, return_inverse=True)
+    uv_key = uv_id.reshape(-1)[scan.face_uvs] * len(scan.materials) + scan.face_materials[:, None]
+    key = np.column_stack([scan.welded[scan.faces].reshape(-1), uv_key.reshape(-1)])
     _, node = unique_rows(key, return_inverse=True)
     return node.reshape(-1, 3).astype(np.int64)
 
