@@ -184,3 +184,29 @@ def _estimated_texels(tri_uv: np.ndarray, H: int, W: int) -> int:
     e1, e2 = tri_uv[:, 1] - tri_uv[:, 0], tri_uv[:, 2] - tri_uv[:, 0]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     return max(1, min(H * W, int(round(area * H * W))))
+
+
+def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, time_budget_s: float = 60.0) -> Scan:
+    """``scan``'s vertex colours as a texture: UVs unwrapped afresh and a ``size`` square atlas baked from the
+    colours interpolated over each face. Positions and faces are the same arrays.
+
+    A fused RGB-D mesh (Open3D, KinectFusion, ScanNet) carries its colour per vertex. As a texture it serves
+    photo mode as any capture app's atlas does: the reference the photos' colours are brought to, the
+    colour where no photo reaches, and texture edges for the alignment check."""
+    import dataclasses
+
+    from scantex.uv.plan import plan_uvs
+    from scantex.views.render import shade_hits
+
+    if scan.vertex_colors is None:
+        raise ValueError("the scan has no vertex colours")
+    planned = plan_uvs(scan, "unwrap", texture_size=size, time_budget_s=time_budget_s).scan
+
+    def colour(points, normals, face_ids, bary):
+        return shade_hits(scan, face_ids, bary)
+
+    (image,) = bake(planned, colour, size=size)
+    # white base colour: a texture is multiplied by it, and an untextured mesh's default is grey
+    material = dataclasses.replace(planned.materials[0], image=image, image_name="vertex_colours.png",
+                                   diffuse=(1.0, 1.0, 1.0, 1.0))
+    return planned.replace(materials=(material,), face_materials=np.zeros(planned.n_faces, np.int32))

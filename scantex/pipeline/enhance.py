@@ -159,6 +159,10 @@ SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
 PHOTO_DENSITY_FOR_2X = 2.0
+#: side of the atlas a vertex-coloured mesh's colours are baked into before photo mode (the colour of a fused
+#: depth scan varies per vertex, a centimetre or so apart: 2048^2 holds a room's at several texels a vertex;
+#: the photos then bake at twice that when they resolve the surface finer, :func:`photo_atlas_scale`)
+VERTEX_COLOUR_ATLAS = 2048
 
 
 def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
@@ -430,6 +434,15 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     validate(config)
     reporter = reporter or Reporter()
+    from_vertex_colours = photos is not None and not scan.is_textured and scan.vertex_colors is not None
+    if from_vertex_colours:
+        # a fused RGB-D mesh's colour per vertex, made the texture photo mode takes as the input's (the
+        # photos' colour reference, the fill where no photo reaches, texture edges for the alignment check)
+        from scantex.atlas.bake import texture_from_vertex_colours
+
+        with reporter.stage("texture from the vertex colours") as update:
+            scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS)
+            update(1, 1)
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
@@ -655,6 +668,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     comparisons: dict[str, np.ndarray] = {}
     with reporter.stage("measuring") as update:
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches)
+        if from_vertex_colours:
+            metrics["input"]["texture"] = f"baked from the vertex colours ({VERTEX_COLOUR_ATLAS}x{VERTEX_COLOUR_ATLAS})"
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
         metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())

@@ -255,3 +255,19 @@ def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
 
     _, (iy, ix) = distance_transform_edt(~covered, return_indices=True)
     assert np.array_equal(padded, image[iy, ix]) and padded is not image
+
+
+def test_vertex_colours_baked_into_a_texture_render_as_the_vertex_colours():
+    from scantex.atlas.bake import texture_from_vertex_colours
+
+    wall = grid_wall(n=12)
+    x, z = wall.positions[:, 0], wall.positions[:, 2]
+    rgb = np.stack([0.2 + 0.3 * x, 0.5 + 0.2 * z, 0.8 - 0.1 * x * z], axis=1)
+    coloured = Scan(wall.positions, wall.faces, vertex_colors=np.column_stack(
+        [np.round(rgb * 255), np.full(len(x), 255)]).astype(np.uint8))
+    textured = texture_from_vertex_colours(coloured, size=256)
+    assert textured.is_textured and textured.positions is coloured.positions and textured.faces is coloured.faces
+    rng = np.random.default_rng(0)
+    face = rng.integers(0, wall.n_faces, 2000)
+    bary = rng.dirichlet(np.ones(3), 2000)[:, 1:]
+    assert np.abs(shade_hits(textured, face, bary) - shade_hits(coloured, face, bary)).max() < 3 / 255

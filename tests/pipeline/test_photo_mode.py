@@ -92,6 +92,30 @@ def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     assert image is not None and image.std() > 10  # a real texture, not one flat colour
 
 
+def test_vertex_coloured_mesh_takes_its_colours_as_the_input_texture(toy_demo, toy_photos):
+    """A fused depth scan's colour is per vertex: photo mode bakes it into a texture first and then treats it as
+    a capture app's atlas (no field, closed-form colour transforms against it, its colour where no photo looks)."""
+    from scantex.views.render import shade_hits
+
+    scan = toy_demo.scan
+    face = np.zeros(scan.n_vertices, int)
+    corner = np.zeros(scan.n_vertices, int)
+    for k in range(3):
+        face[scan.faces[:, k]], corner[scan.faces[:, k]] = np.arange(scan.n_faces), k
+    bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[corner]
+    rgb = shade_hits(scan, face, bary)  # the degraded atlas's colour at every vertex
+    coloured = Scan(scan.positions, scan.faces, vertex_colors=np.column_stack(
+        [np.round(rgb * 255), np.full(len(rgb), 255)]).astype(np.uint8))
+    result = enhance(coloured, TOY.override(photos__check_alignment=False), photos=toy_photos)
+    m = result.metrics
+    assert m["input"]["texture"].startswith("baked from the vertex colours")
+    assert result.scan.positions is coloured.positions and result.scan.faces is coloured.faces
+    assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
+    assert m["field"]["trained"] is False and m["photos"]["photo_rays"] > 0
+    s = m["held_out_photos"]
+    assert s["enhanced"]["psnr_matched"] > s["input"]["psnr_matched"]
+
+
 def test_photos_of_another_place_are_refused(toy_demo, toy_photos):
     away = dataclasses.replace(toy_demo.scan, positions=toy_demo.scan.positions + np.array([1.5, 0.0, 0.8]))
     with pytest.raises(ScanError, match="not in the cameras' frame"):
