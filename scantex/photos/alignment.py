@@ -506,8 +506,7 @@ class _MeshEdges:
 
     @classmethod
     def of(cls, scan: Scan) -> _MeshEdges:
-        weld = scan.welded
-        faces = weld.reshape(-1)[scan.faces]
+        P, faces = scan.welded_geometry()
         e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
         owner = np.tile(np.arange(len(faces)), 3)
         key = np.sort(e, axis=1)
@@ -529,12 +528,9 @@ class _MeshEdges:
         cos_smooth = np.einsum("ij,ij->i", m[a], m[b])
         sharp = (cos < np.cos(np.radians(CREASE_DEG))) & (cos_smooth < np.cos(np.radians(CREASE_SMOOTH_DEG)))
         crease = key[pairs[sharp, 0]]
-        P = scan.positions
-        first = np.zeros(weld.max() + 1 if weld.size else 0, int)
-        first[weld.reshape(-1)[::-1]] = np.arange(len(P))[::-1]
         from scantex.photos.poses import reference_faces
 
-        return cls(P[first[border]], P[first[crease]],
+        return cls(P[border], P[crease],
                    ~reference_faces(scan) if scan.is_textured else np.zeros(scan.n_faces, bool))
 
 
