@@ -435,7 +435,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     validate(config)
     reporter = reporter or Reporter()
     from_vertex_colours = photos is not None and not scan.is_textured and scan.vertex_colors is not None
+    vertex_colour_seconds = 0.0
     if from_vertex_colours:
+        t = time.perf_counter()
         # a fused RGB-D mesh's colour per vertex, made the texture photo mode takes as the input's (the
         # photos' colour reference, the fill where no photo reaches, texture edges for the alignment check)
         from scantex.atlas.bake import texture_from_vertex_colours
@@ -443,13 +445,14 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         with reporter.stage("texture from the vertex colours") as update:
             scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS)
             update(1, 1)
+        vertex_colour_seconds = time.perf_counter() - t
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
     # the torch device, resolved (and torch imported) only by what trains or runs a network; CUDA asked for
     # and missing is an error whether or not this run would have used it
     device = torch_device(config) if config.device == "cuda" else None
-    timings: dict[str, float] = {}
+    timings: dict[str, float] = {"vertex_colours": vertex_colour_seconds} if from_vertex_colours else {}
     rng_seed = config.seed
     vc, tc = config.views, config.train
 

@@ -109,6 +109,7 @@ def test_vertex_coloured_mesh_takes_its_colours_as_the_input_texture(toy_demo, t
     result = enhance(coloured, TOY.override(photos__check_alignment=False), photos=toy_photos)
     m = result.metrics
     assert m["input"]["texture"].startswith("baked from the vertex colours")
+    assert m["timings_s"]["vertex_colours"] > 0  # the stage is timed with the others
     assert result.scan.positions is coloured.positions and result.scan.faces is coloured.faces
     assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
     assert m["field"]["trained"] is False and m["photos"]["photo_rays"] > 0
