@@ -84,8 +84,7 @@ def seam_edges(scan: Scan) -> SeamEdges:
         return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
     # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
     # so the two faces of a seam edge do not share vertex indices (an analysis-only weld)
-    weld = scan.welded
-    f = weld.reshape(-1)[scan.faces]
+    f = scan.welded[scan.faces]
     F = len(f)
     local = np.array([[0, 1], [1, 2], [2, 0]])
     a = f[:, local[:, 0]].ravel()  # [F*3]

@@ -340,7 +340,6 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         report["colour_transforms"] = "the field's"
     else:
         canonicalise = None
-    weld = scan.welded
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot)
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
@@ -353,7 +352,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
 
     level = pc.level_fallback and bool(photo.train)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        levelled if level else fallback, settings, faces=weld.reshape(-1)[scan.faces],
+                                        levelled if level else fallback, settings, faces=scan.welded[scan.faces],
                                         recorded=recorded, threads=threads)
     if level:
         from scantex.photos.texturing import fallback_offsets
@@ -434,8 +433,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     validate(config)
     reporter = reporter or Reporter()
+    timings: dict[str, float] = {}
     from_vertex_colours = photos is not None and not scan.is_textured and scan.vertex_colors is not None
-    vertex_colour_seconds = 0.0
     if from_vertex_colours:
         t = time.perf_counter()
         # a fused RGB-D mesh's colour per vertex, made the texture photo mode takes as the input's (the
@@ -445,14 +444,13 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         with reporter.stage("texture from the vertex colours") as update:
             scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS)
             update(1, 1)
-        vertex_colour_seconds = time.perf_counter() - t
+        timings["vertex_colours"] = time.perf_counter() - t
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
     # the torch device, resolved (and torch imported) only by what trains or runs a network; CUDA asked for
     # and missing is an error whether or not this run would have used it
     device = torch_device(config) if config.device == "cuda" else None
-    timings: dict[str, float] = {"vertex_colours": vertex_colour_seconds} if from_vertex_colours else {}
     rng_seed = config.seed
     vc, tc = config.views, config.train
 
