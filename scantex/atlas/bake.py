@@ -186,21 +186,42 @@ def _estimated_texels(tri_uv: np.ndarray, H: int, W: int) -> int:
     return max(1, min(H * W, int(round(area * H * W))))
 
 
-def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, time_budget_s: float = 60.0) -> Scan:
-    """``scan``'s vertex colours as a texture: UVs unwrapped afresh and a ``size`` square atlas baked from the
-    colours interpolated over each face. Positions and faces are the same arrays.
+def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, texels_per_vertex: float = 0.0,
+                                time_budget_s: float = 60.0) -> Scan:
+    """``scan``'s vertex colours as a texture: UVs unwrapped afresh and a square atlas baked from the colours
+    interpolated over each face. Positions and faces are the same arrays.
+
+    The atlas is ``size`` square, doubled (up to 8192) until its charts hold ``texels_per_vertex`` texels for
+    every distinct position: a noisy fused surface unwraps into many small charts whose gutters leave a small
+    share of the atlas to texels (a fused apartment of 105,796 vertices: 11 % of 2048^2, 4 texels a vertex).
 
     A fused RGB-D mesh (Open3D, KinectFusion, ScanNet) carries its colour per vertex. As a texture it serves
-    photo mode as any capture app's atlas does: the reference the photos' colours are brought to, the
-    colour where no photo reaches, and texture edges for the alignment check."""
+    as any capture app's atlas does: the texels mesh-only mode keeps, and in photo mode the reference the
+    photos' colours are brought to, the colour where no photo reaches, and texture edges for the alignment
+    check. Vertices black in all three channels are taken as uncoloured (what a fusion leaves where no frame
+    saw the surface) and get the harmonic fill of the colours around them first: interpolated over a face
+    towards a black corner, they would draw dark rims that the texture's hole fill (black faces) misses."""
     import dataclasses
 
+    from scantex.atlas.inpaint import harmonic_vertex_colours
     from scantex.uv.plan import plan_uvs
     from scantex.views.render import shade_hits
 
     if scan.vertex_colors is None:
         raise ValueError("the scan has no vertex colours")
+    rgba = scan.vertex_colors
+    uncoloured = ~rgba[:, :3].any(axis=1)
+    if uncoloured.any() and not uncoloured.all():
+        rgb = harmonic_vertex_colours(scan, ~uncoloured, rgba[:, :3].astype(np.float64))
+        rgba = np.column_stack([np.clip(np.round(rgb), 0, 255), rgba[:, 3]]).astype(np.uint8)
+        scan = scan.replace(vertex_colors=rgba)
     planned = plan_uvs(scan, "unwrap", texture_size=size, time_budget_s=time_budget_s).scan
+    uv = planned.triangle_uvs
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    used = 0.5 * float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())  # the charts' share of the atlas
+    positions = int(scan.welded.max()) + 1 if scan.n_vertices else 0
+    while size < 8192 and used * size * size < texels_per_vertex * positions:
+        size *= 2
 
     def colour(points, normals, face_ids, bary):
         return shade_hits(scan, face_ids, bary)

@@ -15,6 +15,9 @@ from scantex.views.render import render_scans
 
 #: the key a reference scan is rendered under, beside the scored scans (no name of theirs can equal it)
 _REFERENCE = object()
+#: a view's PSNR where the images are identical (infinite): a mean over views with one such view would be
+#: infinite too, hiding the others' errors (and ``Infinity`` is not JSON)
+PSNR_CAP_DB = 100.0
 
 
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
@@ -25,7 +28,8 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
     ground truth): that one is rendered with ``scans`` from the same rays, as ``render(reference, cam,
     caster, supersample=supersample)`` would render it, with one ray cast fewer per camera.
 
-    Pixels count where the reference fully covers them; ``hole_psnr`` is over pixels whose surface is
+    Pixels count where the reference fully covers them; a view whose images are identical scores
+    ``PSNR_CAP_DB``; ``hole_psnr`` is over pixels whose surface is
     one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
     has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
 
@@ -49,7 +53,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam)
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
-        return {name: ({"psnr": psnr(img, ref, mask), "ssim": ssim(img, ref, mask),
+        return {name: ({"psnr": min(psnr(img, ref, mask), PSNR_CAP_DB), "ssim": ssim(img, ref, mask),
                         "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},
                        ((img - ref) ** 2)[holes] if holes.any() else None)
                 for name, (img, _) in shown.items()}
@@ -71,6 +75,6 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim", "patches")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())
-            r["hole_psnr"] = float(10 * np.log10(1 / e)) if e > 0 else float("inf")
+            r["hole_psnr"] = float(min(10 * np.log10(1 / e), PSNR_CAP_DB)) if e > 0 else PSNR_CAP_DB
         result[name] = r
     return result

@@ -159,10 +159,11 @@ SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
 PHOTO_DENSITY_FOR_2X = 2.0
-#: side of the atlas a vertex-coloured mesh's colours are baked into before photo mode (the colour of a fused
-#: depth scan varies per vertex, a centimetre or so apart: 2048^2 holds a room's at several texels a vertex;
-#: the photos then bake at twice that when they resolve the surface finer, :func:`photo_atlas_scale`)
+#: the smallest atlas a vertex-coloured mesh's colours are baked into, and the texels each of its vertices gets at
+#: least (a larger atlas where the charts leave too few: :func:`scantex.atlas.bake.texture_from_vertex_colours`;
+#: the colour of a fused depth scan varies per vertex, a centimetre or so apart)
 VERTEX_COLOUR_ATLAS = 2048
+TEXELS_PER_VERTEX = 16
 
 
 def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
@@ -434,17 +435,24 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     validate(config)
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    from_vertex_colours = photos is not None and not scan.is_textured and scan.vertex_colors is not None
+    from_vertex_colours = not scan.is_textured and scan.vertex_colors is not None
     if from_vertex_colours:
         t = time.perf_counter()
-        # a fused RGB-D mesh's colour per vertex, made the texture photo mode takes as the input's (the
-        # photos' colour reference, the fill where no photo reaches, texture edges for the alignment check)
+        # a fused RGB-D mesh's colour per vertex, made a texture that both modes treat as a capture app's atlas:
+        # mesh-only mode keeps its texels (holes filled, seams blended; a field trained on its renders took
+        # 145 s on a 12,712-face scan and drew seams the colours do not have), photo mode takes it as the photos'
+        # colour reference, the fill where no photo reaches, and texture edges for the alignment check
         from scantex.atlas.bake import texture_from_vertex_colours
 
         with reporter.stage("texture from the vertex colours") as update:
-            scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS)
+            scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS, texels_per_vertex=TEXELS_PER_VERTEX)
+            vertex_atlas = scan.materials[0].image.shape[0]
             update(1, 1)
         timings["vertex_colours"] = time.perf_counter() - t
+    # such a texture has no exposure steps at its seams (the colours are continuous across them): what differs
+    # there is detail a texel or two apart, which seam levelling would take for a step and blending would smear
+    bake_config = dataclasses.replace(config.bake, levelling=False) if from_vertex_colours else config.bake
+    blends = config.uv.blend_seams and not (from_vertex_colours and photos is None)
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
@@ -515,8 +523,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         noise = atlas_noise(scan, exclude=excluded)
         if not (tc.always or denoising_matters(noise, config.bake.denoise)):
             field_skipped = (
-                "not trained: the input's texels are kept (levelled, holes filled) and denoising against the "
-                "field is off (bake.denoise 0, the default; train.always trains it anyway)"
+                f"not trained: the input's texels are kept ({'levelled, ' if bake_config.levelling else ''}holes "
+                "filled) and denoising against the field is off (bake.denoise 0, the default; train.always trains "
+                "it anyway)"
                 if config.bake.denoise == 0 else
                 f"not trained: the atlas's estimated noise ({noise:.4f}) times bake.denoise "
                 f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
@@ -581,7 +590,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         # every hole of the input is filled, in photo mode too, seen by a photo or not: this colour is what the
         # photos' samples fall back to (where they are too few to cover a hole, its black texels showed
         # through: a real apartment's photo mode scored 1.3 dB below its mesh-only mode)
-        colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device, config.bake, noise)
+        colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device, bake_config, noise)
     else:
         from scantex.atlas.colour import field_colour
 
@@ -633,14 +642,14 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                 scale = 1 if mode == "keep" and bake_report["source"] == "input" else 2
             layouts: list = []  # the atlas's texel map and gutter padding, for the seam blending to reuse
             images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
-                          chunk=config.bake.chunk, progress=update, layouts=layouts if uc.blend_seams else None,
+                          chunk=config.bake.chunk, progress=update, layouts=layouts if blends else None,
                           workers=workers)
         materials = tuple(
             m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
                                                       diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
             for m, img in zip(target.materials, images))
         baked = target.replace(materials=materials, source=None)
-        return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts) if uc.blend_seams else baked
+        return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts) if blends else baked
 
     t = time.perf_counter() - bake_seconds
     baked, enhanced = bake_and_blend(colour, "baking the texture", workers)
@@ -659,7 +668,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                              f"the input's seam visibility ({seams_in:.2f} -> {seams_out:.2f})"}
             log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
             colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device,
-                                                   dataclasses.replace(config.bake, levelling=False), noise)
+                                                   dataclasses.replace(bake_config, levelling=False), noise)
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
             bake_report["safety"] = safety
@@ -670,7 +679,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     with reporter.stage("measuring") as update:
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches)
         if from_vertex_colours:
-            metrics["input"]["texture"] = f"baked from the vertex colours ({VERTEX_COLOUR_ATLAS}x{VERTEX_COLOUR_ATLAS})"
+            metrics["input"]["texture"] = (f"baked from the vertex colours ({vertex_atlas}x{vertex_atlas}; not levelled"
+                                         f"{'' if blends else ' nor blended'} at its seams: the colours are "
+                                         f"continuous across them)")
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
         metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())

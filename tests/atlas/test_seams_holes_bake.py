@@ -271,3 +271,8 @@ def test_vertex_colours_baked_into_a_texture_render_as_the_vertex_colours():
     face = rng.integers(0, wall.n_faces, 2000)
     bary = rng.dirichlet(np.ones(3), 2000)[:, 1:]
     assert np.abs(shade_hits(textured, face, bary) - shade_hits(coloured, face, bary)).max() < 3 / 255
+
+    # an atlas too coarse for the vertices is doubled (the charts' UV area times its texels below the target)
+    (image,) = [m.image for m in texture_from_vertex_colours(coloured, size=64, texels_per_vertex=64).materials]
+    assert image.shape[:2] in ((128, 128), (256, 256)) and image.shape[0] ** 2 > 64 * coloured.n_vertices
+    assert texture_from_vertex_colours(coloured, size=64).materials[0].image.shape[:2] == (64, 64)

@@ -15,7 +15,7 @@ from scantex.pipeline.config import EnhanceConfig, FieldSettings, TrainConfig, V
     preset, save_config
 from scantex.pipeline.enhance import enhance
 from scantex.refine.config import RefineConfig
-from scantex.scan import triangle_multiset_key
+from scantex.scan import Scan, triangle_multiset_key
 from scantex.synth import make_wall
 from scantex.synth.degrade import Degradation
 
@@ -198,3 +198,47 @@ def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypa
     assert m["bake"]["safety"]["fallback"] == "no levelling, no refiner" and "seam visibility" in m["bake"]["safety"]["why"]
     assert m["bake"]["levelling_offset_max"] == 0 and "refine" not in m
     assert result.scan.positions is toy_demo.scan.positions and result.scan.faces is toy_demo.scan.faces
+
+
+def test_vertex_coloured_mesh_keeps_its_colours_in_a_texture(toy_demo):
+    """Mesh-only mode on a fused depth scan's vertex colours: they are baked into a texture and kept as a capture
+    app's texels are (no field learning them back from renders), its black vertices filled; no seam levelling
+    or blending, as the colours are continuous across the new layout's seams."""
+    from scantex.views.render import shade_hits
+
+    scan = toy_demo.scan
+    face = np.zeros(scan.n_vertices, int)
+    corner = np.zeros(scan.n_vertices, int)
+    for k in range(3):
+        face[scan.faces[:, k]], corner[scan.faces[:, k]] = np.arange(scan.n_faces), k
+    bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[corner]
+    rgb = shade_hits(toy_demo.ground_truth, face, bary)
+    coloured = Scan(scan.positions, scan.faces, vertex_colors=np.column_stack(
+        [np.round(rgb * 255), np.full(len(rgb), 255)]).astype(np.uint8))
+    result = enhance(coloured, TOY)
+    m = result.metrics
+    assert m["input"]["texture"].startswith("baked from the vertex colours (2048x2048; not levelled nor blended")
+    assert m["field"]["trained"] is False and m["timings_s"]["vertex_colours"] > 0
+    assert result.scan.positions is coloured.positions and result.scan.faces is coloured.faces
+    assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
+    assert m["bake"]["levelling_offset_max"] == 0
+    assert m["seam_visibility"]["enhanced"] == m["seam_visibility"]["before_blending"]
+    # the result shows the vertex colours: at random surface points, within a level or two of them
+    rng = np.random.default_rng(0)
+    f = rng.integers(0, scan.n_faces, 4000)
+    b = rng.dirichlet(np.ones(3), 4000)[:, 1:]
+    assert np.abs(shade_hits(result.scan, f, b) - shade_hits(coloured, f, b)).mean() < 2 / 255
+
+
+def test_black_vertex_colours_are_filled(toy_demo):
+    """Vertices a fusion left uncoloured (black) are holes: the texture fills them from around."""
+    scan = toy_demo.scan
+    x = scan.positions[:, 0]
+    rgb = np.column_stack([np.full_like(x, 150), np.full_like(x, 100), np.full_like(x, 60), np.full_like(x, 255)])
+    lo, hi = np.quantile(x, [0.45, 0.55])
+    rgb[(x > lo) & (x < hi), :3] = 0  # a band of uncoloured vertices
+    coloured = Scan(scan.positions, scan.faces, vertex_colors=rgb.astype(np.uint8))
+    result = enhance(coloured, TOY)
+    image = result.scan.materials[0].image
+    used = image.reshape(-1, 3)[image.reshape(-1, 3).any(axis=1)]
+    assert np.abs(used.astype(int) - [150, 100, 60]).max() <= 2  # no black left, no other colour invented
