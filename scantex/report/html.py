@@ -28,6 +28,7 @@ from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges
 from scantex.io.atomic import atomic_files
 from scantex.metrics.image import psnr, ssim
+from scantex.metrics.views import PSNR_CAP_DB
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import PAIR_THREADS, RayCaster
@@ -255,8 +256,8 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
             ref, ref_alpha = scored.pop("ground truth")
             mask = ref_alpha >= 0.999
             measured = {n: im for n, (im, _) in scored.items()}
-            view_scores = ("ground truth", {n: {"psnr": psnr(im, ref, mask), "ssim": ssim(im, ref, mask)}
-                                            for n, im in measured.items()})
+            view_scores = ("ground truth", {n: {"psnr": min(psnr(im, ref, mask), PSNR_CAP_DB),
+                                                "ssim": ssim(im, ref, mask)} for n, im in measured.items()})
         elif scores is not None:
             against, per_view = scores
             view_scores = (against, {n: {m: v[m][k] for m in ("psnr", "ssim") if k < len(v.get(m, []))}
