@@ -33,7 +33,8 @@ from itertools import pairwise
 import numpy as np
 
 from scantex.uv.charts import Charts, assemble, compact
-from scantex.uv.param import distortion, overlap_share, planar_projection
+from scantex.uv.param import distortion, distortions, overlap_share, overlap_shares, planar_projection, \
+    planar_projections
 
 log = logging.getLogger(__name__)
 
@@ -203,6 +204,36 @@ def flatten_planar(positions: np.ndarray, faces: np.ndarray, chart_faces: np.nda
     return corner_node, uv
 
 
+def flatten_planar_all(positions: np.ndarray, faces: np.ndarray, charts: list[np.ndarray],
+                       threshold: float) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    """:func:`flatten_planar` of every chart of ``charts`` (disjoint face sets), the same results without a
+    call per chart (a fused room's 29,000 small charts took 46 s one by one)."""
+    if not charts:
+        return []
+    sizes = np.array([len(c) for c in charts])
+    chart_faces = np.concatenate(charts)
+    chart_of_face = np.repeat(np.arange(len(charts)), sizes)
+    # each chart's own nodes, numbered chart by chart in vertex order (as compact() numbers one chart's)
+    V = int(faces.max()) + 1
+    keys, inverse = np.unique(chart_of_face[:, None].astype(np.int64) * V + faces[chart_faces], return_inverse=True)
+    inverse = inverse.reshape(-1, 3)
+    chart_of_node, vertex = keys // V, keys % V
+    first_node = np.searchsorted(chart_of_node, np.arange(len(charts)))
+    uv = planar_projections(positions[vertex], inverse, chart_of_face, len(charts), chart_of_node)
+    triangles_3d, triangles_uv = positions[vertex][inverse], uv[inverse]
+    ok = np.array([np.isfinite(d.stretch) and d.stretch <= threshold and d.flipped_share <= 0
+                   for d in distortions(triangles_3d, triangles_uv, chart_of_face, len(charts))])
+    flat = ok[chart_of_face]
+    shares = np.zeros(len(charts))
+    shares[ok] = overlap_shares(triangles_uv[flat], np.searchsorted(np.flatnonzero(ok), chart_of_face[flat]),
+                                int(ok.sum()))
+    ok &= shares <= OVERLAP_TOLERANCE
+    ends = np.concatenate([first_node[1:], [len(keys)]])
+    face_start = np.concatenate([[0], np.cumsum(sizes)])
+    return [(inverse[face_start[c]:face_start[c + 1]] - first_node[c], uv[first_node[c]:ends[c]]) if ok[c] else None
+            for c in range(len(charts))]
+
+
 def acceptable(triangles_3d: np.ndarray, triangles_uv: np.ndarray, threshold: float) -> bool:
     """A chart may be used: no mirrored faces, stretch within ``threshold``, no overlap."""
     d = distortion(triangles_3d, triangles_uv)
@@ -240,19 +271,20 @@ def planar_charts(positions: np.ndarray, faces: np.ndarray, face_normals: np.nda
     sel = np.flatnonzero(labels >= 0)
     order = sel[np.argsort(labels[sel], kind="stable")]
     bounds = np.searchsorted(labels[order], np.arange(int(labels.max()) + 2))
-    todo = deque(order[a:b] for a, b in pairwise(bounds) if b > a)
+    todo = [order[a:b] for a, b in pairwise(bounds) if b > a]
     pieces = []
-    while todo:
-        chart = todo.popleft()
-        flat = flatten_planar(positions, faces, chart, options.threshold)
-        if flat is not None or len(chart) == 1:
-            if flat is None:  # a single degenerate face: any layout will do
-                corner_node, vertex = compact(faces[chart])
-                flat = corner_node, planar_projection(positions[vertex], corner_node)
-            pieces.append((chart, *flat))
-        else:
-            record.overlap_splits += 1
-            todo.extend(_bisect(positions, faces, chart, pairs))
+    while todo:  # all charts at once, then the halves of those that failed (the order of a queue)
+        cut = []
+        for chart, flat in zip(todo, flatten_planar_all(positions, faces, todo, options.threshold)):
+            if flat is not None or len(chart) == 1:
+                if flat is None:  # a single degenerate face: any layout will do
+                    corner_node, vertex = compact(faces[chart])
+                    flat = corner_node, planar_projection(positions[vertex], corner_node)
+                pieces.append((chart, *flat))
+            else:
+                record.overlap_splits += 1
+                cut.extend(_bisect(positions, faces, chart, pairs))
+        todo = cut
     record.planar_charts += len(pieces)
     return pieces
 

@@ -142,3 +142,31 @@ def test_pack_fails_loudly_when_nothing_fits():
     charts = Charts(np.zeros(1, np.int64), np.array([[0, 1, 2]]), np.array([[0, 0], [1, 0], [0, 1.0]]))
     with pytest.raises(ValueError, match="do not fit"):
         pack(charts, 8, gutter=4)
+
+
+def test_charts_flattened_together_as_one_by_one():
+    """``flatten_planar_all`` and ``overlap_shares`` give each chart what the one-chart functions give it: planar
+    projections, the same acceptance (stretch, mirrored faces, overlap) and overlap shares."""
+    from scantex.uv.param import overlap_shares
+    from scantex.uv.unwrap import flatten_planar, flatten_planar_all
+
+    sphere = trimesh.creation.icosphere(3)
+    rng = np.random.default_rng(1)
+    positions = sphere.vertices + rng.normal(0, 0.01, sphere.vertices.shape)  # rough: some charts fail
+    order = np.argsort(sphere.triangles_center[:, 0] * 7 + sphere.triangles_center[:, 1])  # bands, some folded
+    sizes = [1, 2, 3, 5, 8, 40, 120, 200]
+    charts = [np.sort(c) for c in np.split(order, np.cumsum(sizes))]
+    together = flatten_planar_all(positions, sphere.faces, charts, 1.1)
+    results = [flatten_planar(positions, sphere.faces, c, 1.1) for c in charts]
+    assert {r is None for r in results} == {True, False}  # both verdicts occur
+    for one, both in zip(results, together):
+        assert (one is None) == (both is None)
+        if one is not None:
+            assert np.array_equal(one[0], both[0]) and np.allclose(one[1], both[1], atol=1e-12)
+    points, tris = flat_grid()
+    folded = points[:, :2].copy()
+    folded[folded[:, 0] > 1.0, 0] = 2.0 - folded[folded[:, 0] > 1.0, 0]
+    uv = np.concatenate([points[tris][..., :2], folded[tris], folded[tris][:2], folded[tris][:1]])
+    chart = np.repeat([0, 1, 2, 3], [len(tris), len(tris), 2, 1])
+    shares = overlap_shares(uv, chart, 5)
+    assert shares[0] == 0 and shares[1] == overlap_share(folded[tris]) > 0.3 and not shares[2:].any()
