@@ -130,11 +130,13 @@ def coverage(scan: Scan) -> dict:
     return out
 
 
-def texture_summary(scan: Scan, unit_m: float = 1.0) -> dict:
-    """The atlas's own properties: charts, seams and how visible they are, texel density, coverage."""
+def texture_summary(scan: Scan, unit_m: float = 1.0, visibility: float | None = None) -> dict:
+    """The atlas's own properties: charts, seams and how visible they are (``visibility``: its
+    :func:`seam_visibility` when already measured), texel density, coverage."""
     edges = seam_edges(scan)
+    visibility = seam_visibility(scan, edges) if visibility is None else visibility
     return {"charts": int(uv_shells(scan).max()) + 1, "seam_edges": len(edges),
-            "seam_visibility": round(seam_visibility(scan, edges), 3),
+            "seam_visibility": round(visibility, 3),
             "texel_density": texel_density(scan, unit_m), "coverage": coverage(scan),
             "atlas_sizes": [list(m.image.shape[:2]) if m.image is not None else None for m in scan.materials]}
 
