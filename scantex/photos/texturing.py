@@ -301,7 +301,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 MAX_FALLBACK_STEP = 0.15
 
 
-def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536) -> tuple[np.ndarray, dict]:
+def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536,
+                     max_step: float | None = MAX_FALLBACK_STEP) -> tuple[np.ndarray, dict]:
     """Offsets ``(V, 3)`` per vertex that bring ``fallback`` to the colours of the photos where they meet.
 
     Where no photo sees the surface, photo mode shows its fallback (the input's texels, holes filled): a
@@ -311,7 +312,8 @@ def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536) -> tup
     by a smooth additive field: at each vertex of a face the photos cover entirely (``colour``'s ``coverage``
     share 1 at its sample points), the mean of ``photos - fallback`` over such faces; elsewhere the harmonic
     interpolation of those over the mesh (a part with no covered face: 0). Faces whose difference exceeds
-    ``MAX_FALLBACK_STEP`` set nothing.
+    ``max_step`` set nothing (``None``: every covered face counts; a flat fallback then becomes the photos'
+    colours carried over what they do not see).
 
     ``colour``: :func:`projective_colour`'s function (its fallback ``fallback``, unlevelled). Returns the offsets
     and a small report."""
@@ -333,7 +335,7 @@ def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536) -> tup
         base = np.asarray(fallback(points, normals[f], f, bary), np.float32)
         difference[faces] = (rgb - base).reshape(-1, S, 3).mean(axis=1)
         covered[faces] = (share.reshape(-1, S) >= 1).all(axis=1)
-    usable = covered & (np.abs(difference) <= MAX_FALLBACK_STEP).all(axis=1)
+    usable = covered if max_step is None else covered & (np.abs(difference) <= max_step).all(axis=1)
     sums, counts = np.zeros((V, 3)), np.zeros(V)
     for k in range(3):
         np.add.at(sums, scan.faces[usable, k], difference[usable])
@@ -497,7 +499,7 @@ def _bilinear(pixels: np.ndarray, W: int, H: int, pix: np.ndarray) -> np.ndarray
     return (top + fy * (bottom - top)) * np.float32(1 / 255)
 
 
-def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoView],
+def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence[PhotoView],
                          charts: np.ndarray | None = None, chart_area: np.ndarray | None = None,
                          blur_px: float = 1.0, min_pixels: int = 50, pair_weight: float = 0.0) -> np.ndarray:
     """Each photo's colour transform onto the reference texture's appearance, in closed form.
@@ -519,10 +521,14 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
     (photo, chart) pair of the same size. The photos are then brought to one another's exposure and,
     together, to the texture's average.
 
+    Without a reference (``None``: an untextured scan), the photo pairs alone decide, with the photos' mean
+    log gain held at 0: every photo is brought to the photos' average appearance.
+
     Args:
         charts: ``(F,)`` chart of each face (default: one chart).
         chart_area: ``(C,)`` weights of the gauge (default: equal).
-        pair_weight: weight of the photo-to-photo ratios (0: the photos are tied to the texture only).
+        pair_weight: weight of the photo-to-photo ratios (0: the photos are tied to the texture only; taken
+            as 1 without a reference).
 
     Returns:
         ``(P, 4, 3)``: rows 0-2 are ``A`` (diagonal), row 3 is ``b`` (0): ``photo = canonical @ A + b``.
@@ -532,12 +538,12 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
 
     P = len(views)
     charts = np.zeros(max((int(v.face_id.max()) + 1 for v in views), default=1), np.int64) if charts is None else charts
-    C = int(charts.max()) + 1
+    C = int(charts.max()) + 1 if reference is not None else 0
     area = np.ones(C) if chart_area is None else np.asarray(chart_area, np.float64)
     rows: list[tuple[int, int, np.ndarray, float]] = []  # (photo, chart, median log ratio (3,), weight)
     blurred = [np.stack([ndimage.gaussian_filter(view.image[..., c], blur_px) for c in range(3)], -1)
                for view in views]
-    for k, (view, ref) in enumerate(zip(views, reference)):
+    for k, (view, ref) in enumerate(zip(views, reference if reference is not None else [])):
         mask = view.valid & (view.face_id >= 0)
         if mask.sum() < min_pixels:
             continue
@@ -553,28 +559,33 @@ def fit_photo_transforms(reference: Sequence[np.ndarray], views: Sequence[PhotoV
             if len(part) >= min_pixels:
                 rows.append((k, int(c), np.median(part, axis=0), float(np.sqrt(len(part)))))
     out = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (P, 1, 1))
-    if not rows:
+    if reference is None:
+        pair_weight = pair_weight or 1.0
+    elif not rows:
         return out
     pairs = _photo_pairs(views, blurred, min_pixels) if pair_weight > 0 else []
+    if not rows and not pairs:
+        return out
     n, m = len(rows), len(pairs)
     r = np.arange(n)
-    k_idx = np.array([row[0] for row in rows])
-    c_idx = np.array([row[1] for row in rows])
-    w = np.array([row[3] for row in rows])
+    k_idx = np.array([row[0] for row in rows], int)
+    c_idx = np.array([row[1] for row in rows], int)
+    w = np.array([row[3] for row in rows], float)
     # photo-to-photo rows: log g_l - log g_k = median log(photo_l / photo_k) at the points both see
     pw = pair_weight * np.array([pair[3] for pair in pairs], float)
     pk, pl = np.array([pair[0] for pair in pairs], int), np.array([pair[1] for pair in pairs], int)
     q = n + np.arange(m)
-    # unknowns: log g_photo (P), then log g_chart (C); gauge row: area-weighted mean chart gain 0; a weak
-    # ridge keeps charts (and photos) that no pair ties down at gain 1
+    # unknowns: log g_photo (P), then log g_chart (C); gauge row: the charts' area-weighted mean gain 0 (without
+    # a reference, the photos' mean gain); a weak ridge keeps charts (and photos) that nothing ties down at gain 1
+    gauge = (area / area.sum(), P + np.arange(C)) if C else (np.full(P, 1.0 / P), np.arange(P))
     A = sparse.vstack([
         sparse.csr_matrix((np.r_[w, -w, pw, -pw], (np.r_[r, r, q, q], np.r_[k_idx, P + c_idx, pl, pk])),
                           shape=(n + m, P + C)),
-        sparse.csr_matrix((100.0 * w.sum() * area / area.sum(), (np.zeros(C, int), P + np.arange(C))),
+        sparse.csr_matrix((100.0 * (w.sum() if n else pw.sum()) * gauge[0], (np.zeros(len(gauge[1]), int), gauge[1])),
                           shape=(1, P + C)),
         1e-3 * sparse.identity(P + C, format="csr")]).tocsr()
     for ch in range(3):
-        rhs = np.r_[w * np.array([row[2][ch] for row in rows]),
+        rhs = np.r_[w * np.array([row[2][ch] for row in rows]).reshape(n),
                     pw * np.array([pair[2][ch] for pair in pairs]).reshape(m), 0.0, np.zeros(P + C)]
         solution = lsqr(A, rhs, atol=1e-10, btol=1e-10)[0]
         out[:, ch, ch] = np.exp(np.clip(solution[:P], -2.5, 2.5))

@@ -174,10 +174,11 @@ def keeps_input_texels(scan: Scan, config: EnhanceConfig, photos) -> bool:
 def photos_need_no_field(scan: Scan, config: EnhanceConfig, photos) -> bool:
     """Whether photo mode can do without the field: projective texturing of a textured scan in the input's
     colour balance takes each photo's colour transform in closed form against the input texture and fills
-    what no photo sees with the input's own texels."""
+    what no photo sees with the input's own texels; of an untextured scan, it takes the transforms in closed
+    form from the photos' overlaps and fills what no photo sees from the photos' colours around it."""
     pc = config.photos
-    return (photos is not None and scan.is_textured and pc.texturing == "projective" and pc.canonical == "input"
-            and not config.train.always)
+    return (photos is not None and pc.texturing == "projective" and not config.train.always
+            and (pc.canonical == "input" or not scan.is_textured))
 
 
 def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
@@ -257,13 +258,14 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
     """``(canonicalise, transforms)``: each photo's colour transform onto the input texture's appearance,
     fitted in closed form (:func:`scantex.photos.texturing.fit_photo_transforms`; ``charts``: the input
     atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
-    function that undoes it."""
+    function that undoes it. An untextured scan's photos are brought to their average appearance, from
+    their overlaps alone."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
     from scantex.photos.training import halved, texture_seen
 
     # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
     small = [halved(view) for view in views]
-    references = [texture_seen(scan, view, caster) for view in small]
+    references = [texture_seen(scan, view, caster) for view in small] if scan.is_textured else None
     transforms = fit_photo_transforms(references, small, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       blur_px=0.5, pair_weight=pair_weight)
@@ -325,7 +327,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     if fitted is None:
         canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts, pc.pair_weight)
         recorded = recorded_transforms(transforms)
-        report["colour_transforms"] = "closed form, against the input texture"
+        report["colour_transforms"] = ("closed form, against the input texture" if scan.is_textured else
+                                       "closed form, from the photos' overlaps")
         report["photo_gains"] = [[round(float(g), 3) for g in np.diagonal(t[:3])] for t in transforms]
     elif fitted.appearance is not None:
         import torch
@@ -351,14 +354,18 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
             return rgb
         return np.clip(rgb + interpolate(face_ids, bary, corner_offsets[0]), 0, 1)
 
-    level = pc.level_fallback and bool(photo.train)
+    # an untextured scan without a field has no colour of its own where no photo looks: the photos' colours
+    # around it are carried there (the fallback's offsets from a flat grey, ungated, harmonic over the mesh)
+    from_photos = fitted is None and not scan.is_textured
+    level = (pc.level_fallback or from_photos) and bool(photo.train)
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
                                         levelled if level else fallback, settings, faces=scan.welded[scan.faces],
                                         recorded=recorded, threads=threads)
     if level:
-        from scantex.photos.texturing import fallback_offsets
+        from scantex.photos.texturing import MAX_FALLBACK_STEP, fallback_offsets
 
-        offsets, report["fallback_levelling"] = fallback_offsets(scan, colour, fallback)
+        offsets, report["fallback_levelling"] = fallback_offsets(scan, colour, fallback,
+                                                                 max_step=None if from_photos else MAX_FALLBACK_STEP)
         corner_offsets.append(offsets[scan.faces])
     return colour, {"mode": "projective", **sampled, **report}
 
@@ -533,8 +540,11 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             log.info("field %s", field_skipped)
     if photos_need_no_field(scan, config, photos):
         field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to the "
-                         "input texture's colours by a transform fitted in closed form; the input's own texels "
-                         "fill what no photo sees (train.always trains it anyway)")
+                         + ("input texture's colours by a transform fitted in closed form; the input's own texels "
+                            "fill what no photo sees" if scan.is_textured else
+                            "photos' average colours by a transform fitted in closed form from their overlaps; "
+                            "what no photo sees takes the photos' colours around it")
+                         + " (train.always trains it anyway)")
         log.info("field %s", field_skipped)
     fitted = None
     if field_skipped is None:
@@ -586,7 +596,12 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         taught = seen | (taught_faces(tv, scan.n_faces) if scan.is_textured else False)
         # the photos teach the holes they see; an untextured scan knows nothing where no photo looked
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
-    if photo is None or fitted is None:
+    if photo is not None and fitted is None and not scan.is_textured:
+        # nothing but the photos: where none sees the surface, their colours around it (photo_texture)
+        def colour(points, normals, face_ids, bary):
+            return np.full((len(points), 3), 0.5, np.float32)
+        bake_report = {"source": "photos"}
+    elif photo is None or fitted is None:
         # every hole of the input is filled, in photo mode too, seen by a photo or not: this colour is what the
         # photos' samples fall back to (where they are too few to cover a hole, its black texels showed
         # through: a real apartment's photo mode scored 1.3 dB below its mesh-only mode)

@@ -218,6 +218,21 @@ def test_photo_pairs_level_photos_whose_texture_is_a_patchwork(tmp_path):
     np.testing.assert_allclose(ratio(paired), 0.8, atol=0.03)  # 0.78: the texture still pulls a little
 
 
+def test_photo_pairs_alone_level_the_photos_of_an_untextured_scan(tmp_path):
+    """No texture to fit to (an untextured scan): the photos' overlaps alone give their exposures relative to
+    one another, and the photos' mean log gain is the gauge, so gains 0.6 and 1.2 come out as their ratio
+    about their geometric mean (sqrt(0.72)); a photo seeing nothing the others see keeps gain 1."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(0.6, 1.2))
+    transforms = fit_photo_transforms(None, views)
+    gains = np.array([np.diagonal(t[:3]) for t in transforms])  # [2, 3]
+    np.testing.assert_allclose(gains[1] / gains[0], 2.0, rtol=0.03)
+    np.testing.assert_allclose(np.log(gains).mean(axis=0), 0.0, atol=1e-3)
+    np.testing.assert_allclose(gains[0], 0.6 / np.sqrt(0.72), rtol=0.03)
+    alone = fit_photo_transforms(None, views[:1])
+    np.testing.assert_allclose(alone[0, :3], np.eye(3))
+
+
 def test_packed_photo_samples_are_bilinear():
     """Samples of a photo packed four bytes a pixel are plain bilinear interpolation of its pixels."""
     from scipy import ndimage
@@ -370,3 +385,6 @@ def test_fallback_offsets_carry_the_photos_tone_across_what_they_do_not_see():
     np.testing.assert_allclose(offsets[first], 0.1, atol=1e-6)  # the covered half's tone, carried across
     np.testing.assert_allclose(offsets[len(wall.positions):], 0.0)  # the wall no photo reaches is left alone
     assert 0.3 > MAX_FALLBACK_STEP
+    # ungated (an untextured scan's flat fallback, whose every difference is content): every covered face counts
+    _, ungated = fallback_offsets(scan, colour, fallback, max_step=None)
+    assert ungated["faces_measured"] == len(left_faces)

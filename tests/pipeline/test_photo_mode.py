@@ -86,6 +86,12 @@ def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     m = result.metrics
     assert m["geometry"]["arrays_identical"] and m["uv"]["mode"] == "unwrap"
     assert m["photos"]["synthetic_rays"] == 0  # an untextured scan's renders teach nothing
+    # no field either: the photos' exposures in closed form from their overlaps, their colours carried over
+    # what none of them sees
+    assert m["field"]["trained"] is False and "from their overlaps" in m["field"]["why"]
+    texturing = m["photos"]["texturing"]
+    assert texturing["colour_transforms"] == "closed form, from the photos' overlaps"
+    assert texturing["fallback_levelling"]["faces_covered"] > 0
     s = m["held_out_photos"]
     assert s["enhanced"]["psnr_matched"] > s["input"]["psnr_matched"] + 3
     image = result.scan.materials[0].image
