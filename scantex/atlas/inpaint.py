@@ -24,7 +24,7 @@ def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1) -> np.ndarray:
 
 
 def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
-                            unanchored: np.ndarray | None = None) -> np.ndarray:
+                            unanchored: np.ndarray | None = None, *, nearest: bool = False) -> np.ndarray:
     """Colours ``(V, C)`` at every vertex: ``colours`` where ``known (V,) bool``, harmonic elsewhere.
 
     Uses the uniform graph Laplacian of the mesh edges, on positions welded by value: a capture app's OBJ
@@ -32,7 +32,8 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
     positions), and its faces do not connect across a seam; a hole would be cut off from the colours
     around it. A welded position is known where any of its vertices is (their mean colour); a known vertex
     keeps its own colour. Vertices in a part with no known vertex get ``unanchored`` ``(C,)`` (default:
-    the mean known colour).
+    the mean known colour), or with ``nearest`` the colour of the nearest known position in space (a fused
+    scan's loose fragments lie on or beside the surfaces they belong to).
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.csgraph import connected_components
@@ -62,9 +63,17 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
         anchored = np.zeros(n_parts, bool)
         anchored[np.unique(label[touches])] = True
         solvable = anchored[label]
-        if unanchored is None:
-            unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
-        welded[u_idx[~solvable]] = unanchored
+        if nearest and welded_known.any() and not solvable.all():
+            from scipy.spatial import cKDTree
+
+            where = np.zeros((V, 3))
+            where[weld] = scan.positions
+            _, closest = cKDTree(where[welded_known]).query(where[u_idx[~solvable]])
+            welded[u_idx[~solvable]] = welded[np.flatnonzero(welded_known)[closest]]
+        else:
+            if unanchored is None:
+                unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
+            welded[u_idx[~solvable]] = unanchored
         s_idx = u_idx[solvable]
         if s_idx.size:
             Luu = L[s_idx][:, s_idx].tocsc()

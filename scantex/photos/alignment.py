@@ -36,11 +36,24 @@ Two measures follow:
 The set is judged misaligned when the mesh covers less than 1 % of most checked photos; when even
 after the best rigid correction the edges of the best third of the photos match no better than
 ``MAX_EDGE_RATIO`` (0.5) of unrelated edges (a mesh in another frame matches none; an aligned room may
-show only a blurred atlas's smudges in its photos of bare walls); or when the correction moves the mesh's
+show only a blurred atlas's smudges in its photos of bare walls), unless the capture's depth maps confirm
+the mesh (below); or when the correction moves the mesh's
 image by more than ``MAX_DISPLACEMENT`` of the image side (real captures' poses are off by 1-5 px, about
 0.1-0.4 %, per photo; a correction shared by all photos averages those out). Four photos are checked;
 when fewer than three of them show edges, or their edges miss, up to twelve. Measured values are in
 ``bench/RESULTS.md`` ("alignment").
+
+**Depth maps**, where the capture has them (RGB-D: Kinect, a phone's LiDAR), are the most direct evidence
+there is: ``depth_agreement`` is the share of the mesh's pixels (away from its contours) where the photo's
+depth map reads the mesh's depth within ``DEPTH_AGREE`` (2 %). A mesh fused from those very depth maps
+agrees almost everywhere (median over the checked photos: the bolster 100 %, a fused apartment of Kinect
+frames 87 %), while the same meshes moved by 5 cm or turned by 5 degrees agree on at most 79 % (the bolster
+turned, which its edges refuse by how much) and 53 % (the apartment). When the median over the checked
+photos with depth reaches ``DEPTH_CONFIRMS`` (80 %), the edges' "miss" is not held against the mesh: a bare
+fused mesh's edges are the noisy contours and creases of a depth fusion, which may match a room's photos
+no better than random ones (the bare apartment: 0.55). Depth maps only confirm: one that disagrees may be a depth camera not registered
+to the colour camera (photo mode then uses the photo without it), so it refuses nothing. A measured move
+or turn (the rigid correction above) is refused whatever the depth maps say.
 """
 
 from __future__ import annotations
@@ -96,6 +109,13 @@ BORDER_PX = 3
 PRIOR_SCALE = np.array([np.radians(3.0)] * 3 + [0.05] * 3)
 #: most edge points per photo used to estimate the rigid correction
 MAX_FIT_POINTS = 3000
+#: relative difference between a depth map's reading and the mesh's depth within which a pixel agrees
+DEPTH_AGREE = 0.02
+#: median share of agreeing pixels (over the checked photos with depth maps) from which the depth maps
+#: confirm the mesh is in the cameras' frame (see the module docstring)
+DEPTH_CONFIRMS = 0.8
+#: fewest mesh pixels with a depth reading for a photo's depth agreement to count
+MIN_DEPTH_PIXELS = 100
 
 
 @dataclass(frozen=True)
@@ -114,6 +134,8 @@ class PhotoAlignment:
         n_edges: number of render edge pixels.
         corrected_distance_px: ``edge_distance_px`` with the mesh moved by the best rigid correction.
         n_border: contour pixels dropped because the mesh ends there (open border).
+        depth_agreement: share of the mesh's pixels (away from contours, with a reading) where the photo's
+            depth map agrees with the mesh's depth within ``DEPTH_AGREE``; NaN without a depth map.
     """
 
     index: int
@@ -125,6 +147,7 @@ class PhotoAlignment:
     n_edges: int
     corrected_distance_px: float = float("nan")
     n_border: int = 0
+    depth_agreement: float = float("nan")
 
     @property
     def ratio(self) -> float:
@@ -181,13 +204,20 @@ class AlignmentReport:
     def coverage(self) -> float:
         return float(np.median([p.coverage for p in self.photos]))
 
+    @property
+    def depth_agreement(self) -> float:
+        """Median over the photos with depth maps of their depth agreement (NaN when none has one)."""
+        return _nanmedian([p.depth_agreement for p in self.photos])
+
     def summary(self) -> str:
         size = max(self.photos[0].size) if self.photos else 0
         verdict = "aligned" if self.ok else f"NOT aligned: {self.problem}"
+        depth = (f"; the depth maps agree with it on {100 * self.depth_agreement:.0f} % of its pixels"
+                 if np.isfinite(self.depth_agreement) else "")
         return (f"mesh and photos {verdict}; median edge distance {self.edge_distance_px:.1f} px "
                 f"(random offsets: {self.baseline_px:.1f} px, ratio {self.ratio:.2f}; "
                 f"{self.corrected_ratio:.2f} after the best rigid correction: {_amount(self)}), mesh covers "
-                f"{100 * self.coverage:.0f} % of the photo; {len(self.photos)} photos at {size} px")
+                f"{100 * self.coverage:.0f} % of the photo{depth}; {len(self.photos)} photos at {size} px")
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,6 +290,9 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
     size = float(np.linalg.norm(np.ptp(scan.positions, axis=0)))
     problem = None
     edges_miss = False
+    agreements = [results[k].depth_agreement for k in covered if np.isfinite(results[k].depth_agreement)]
+    depth_confirms = (len(agreements) >= min(MIN_JUDGED, len(covered)) > 0
+                      and float(np.median(agreements)) >= DEPTH_CONFIRMS)
     offset = turn = displacement = float("nan")
     if 2 * len(covered) <= len(results):
         problem = (f"it projects outside {len(results) - len(covered)} of the {len(results)} photos "
@@ -268,7 +301,8 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
     else:
         samples = [checked[k][1] for k in covered if checked[k][1] is not None]
         if not samples or not np.isfinite(_nanmedian([results[k].ratio for k in covered])):
-            problem = "the rendered mesh shows no edges to compare with the photos"
+            if not depth_confirms:
+                problem = "the rendered mesh shows no edges to compare with the photos"
         else:
             R, t, centre = fit_rigid_correction(samples)
             offset = float(np.linalg.norm(t))
@@ -293,7 +327,7 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
             # smudges on a bare wall), which match nothing wherever the mesh is
             best = [np.fmin(results[k].corrected_ratio, results[k].ratio) for k in covered]
             fitted = _nanquantile(best, MATCH_QUANTILE)
-            if not fitted <= MAX_EDGE_RATIO:
+            if not fitted <= MAX_EDGE_RATIO and not depth_confirms:
                 edges_miss = True
                 problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
                            f"moved at random, even after the best small correction; aligned data gives "
@@ -641,8 +675,26 @@ def _check_photo(scan: Scan, photos: PhotoSet, i: int, max_side: int, caster,
         points = g.points(scan.positions, scan.faces)[ys[pick], xs[pick]]
         sample = _EdgeSample(small, points, np.minimum(dt, cap))
     result = PhotoAlignment(i, photos.images[i], (w, h), float(mask.mean()), distance, baseline, n,
-                            n_border=n_border)
+                            n_border=n_border, depth_agreement=_depth_agreement(
+                                photos, i, g, mask & ~ndimage.binary_dilation(contours)))
     return result, sample
+
+
+def _depth_agreement(photos: PhotoSet, i: int, g, mask: np.ndarray) -> float:
+    """Share of ``mask``'s pixels with a reading in photo ``i``'s depth map (at the G-buffer's size) where it
+    agrees with the mesh's depth ``g.depth`` within ``DEPTH_AGREE``; NaN without a depth map or readings."""
+    from scantex.photos.training import resize_depth
+
+    measured = photos.load_depth(i)
+    if measured is None:
+        return float("nan")
+    h, w = mask.shape
+    measured = resize_depth(measured, w, h)
+    both = mask & np.isfinite(measured) & (measured > 0)
+    if both.sum() < MIN_DEPTH_PIXELS:
+        return float("nan")
+    mesh = g.depth[both]
+    return float((np.abs(measured[both] - mesh) <= DEPTH_AGREE * mesh).mean())
 
 
 def fit_exposure(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.ndarray:

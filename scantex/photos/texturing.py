@@ -312,8 +312,9 @@ def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536,
     by a smooth additive field: at each vertex of a face the photos cover entirely (``colour``'s ``coverage``
     share 1 at its sample points), the mean of ``photos - fallback`` over such faces; elsewhere the harmonic
     interpolation of those over the mesh (a part with no covered face: 0). Faces whose difference exceeds
-    ``max_step`` set nothing (``None``: every covered face counts; a flat fallback then becomes the photos'
-    colours carried over what they do not see).
+    ``max_step`` set nothing (``None``: every covered face counts, and a part of the mesh with no covered face
+    takes the offset of the nearest covered point in space; a flat fallback then becomes the photos' colours
+    carried over what they do not see).
 
     ``colour``: :func:`projective_colour`'s function (its fallback ``fallback``, unlevelled). Returns the offsets
     and a small report."""
@@ -344,7 +345,7 @@ def fallback_offsets(scan: Scan, colour, fallback, *, chunk: int = 65536,
     offsets = np.zeros((V, 3))
     offsets[known] = sums[known] / counts[known, None]
     if known.any() and not known.all():
-        offsets = harmonic_vertex_colours(scan, known, offsets, unanchored=np.zeros(3))
+        offsets = harmonic_vertex_colours(scan, known, offsets, unanchored=np.zeros(3), nearest=max_step is None)
     reach = ~covered
     size = np.abs(offsets[np.unique(scan.faces[reach])]) if reach.any() else np.zeros((0, 3))
     return offsets.astype(np.float32), {

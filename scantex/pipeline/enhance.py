@@ -159,6 +159,10 @@ SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
 PHOTO_DENSITY_FOR_2X = 2.0
+#: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
+#: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
+#: 4.5 GB against 3.5 (bench/RESULTS.md); ``--texture-size`` asks for another
+UNTEXTURED_ATLASES = (2048, 4096)
 #: the smallest atlas a vertex-coloured mesh's colours are baked into, and the texels each of its vertices gets at
 #: least (a larger atlas where the charts leave too few: :func:`scantex.atlas.bake.texture_from_vertex_colours`;
 #: the colour of a fused depth scan varies per vertex, a centimetre or so apart)
@@ -379,11 +383,26 @@ def photo_atlas_scale(scan: Scan, photo: PhotoData) -> tuple[int, dict]:
     from scantex.metrics.texture import texel_density
 
     atlas = texel_density(scan)["px_per_cm_mean"] if scan.is_textured else 0.0
-    per_photo = [float(np.median(photo.photos.cameras[v.index].K[0, 0] / v.depth[v.valid])) / 100.0
-                 for v in photo.train if v.valid.any()]
-    photos = float(np.median(per_photo)) if per_photo else 0.0
+    photos = photo_density(photo)
     scale = 2 if atlas <= 0 or photos >= PHOTO_DENSITY_FOR_2X * atlas else 1
     return scale, {"photos_px_per_cm": round(photos, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
+
+
+def photo_density(photo: PhotoData) -> float:
+    """How finely the training photos resolve the surface: the median over the photos of their usable pixels'
+    median full-resolution pixels per centimetre (0 when none has usable pixels)."""
+    per_photo = [float(np.median(photo.photos.cameras[v.index].K[0, 0] / v.depth[v.valid])) / 100.0
+                 for v in photo.train if v.valid.any()]
+    return float(np.median(per_photo)) if per_photo else 0.0
+
+
+def untextured_atlas_size(scan: Scan, photo: PhotoData) -> int:
+    """The atlas an untextured scan's photos are baked into: the smallest of ``UNTEXTURED_ATLASES`` whose
+    texels, spread over the whole surface without gutters, would be as fine as the photos' pixels there
+    (the charts and their gutters then leave a fraction of that: a fused apartment of 31,000 charts, 106 m²,
+    photos 3.5 pixels per cm, gets 0.56 texels per cm at 2048², 2.2 at 4096²)."""
+    wanted = photo_density(photo) * np.sqrt(float(scan.face_areas.sum()) * 1e4)  # texels a side
+    return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
 
 
 def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
@@ -579,7 +598,9 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     mode = uc.mode if scan.has_uvs else "unwrap"  # an untextured mesh needs an atlas to hold its texture
     size = config.bake.texture_size or max(output_size(scan, m)[0] for m in range(len(scan.materials)))
     if photo is not None and not scan.is_textured and not config.bake.texture_size:
-        size = 2048  # photos hold far more detail than the 1024 atlas given to an untextured mesh
+        # photos hold far more detail than the 1024 atlas given to an untextured mesh; laid out at the size it
+        # is baked at (gutters and all): a layout made for a smaller atlas and baked larger wastes its texels
+        size = untextured_atlas_size(scan, photo)
     with reporter.stage(f"UV layout ({mode})") as update:
         plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
         update(1, 1)

@@ -393,6 +393,7 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
 
     # largest first, so a late small region is what misses the deadline
     eligible.sort(key=len, reverse=True)
+    missed: dict[str, list[int]] = {"failed or ran out of time": [], "overlapped": []}  # region sizes
     with ThreadPoolExecutor(max_workers=max(1, options.workers)) as pool:
         for region, result in pool.map(work, eligible):
             got = xatlas_pieces(positions, faces, region, result) if result is not None else None
@@ -402,7 +403,12 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
                 record.xatlas_charts += len(got)
             else:
                 out += planar_of(region)
-                record.fallbacks.append(f"xatlas on a {len(region)}-face region "
-                                        f"{'failed or ran out of time' if got is None else 'overlapped'}: "
-                                        "kept its small planar charts")
+                missed["failed or ran out of time" if got is None else "overlapped"].append(len(region))
+    # one line per outcome, not per region (a fused room has thousands of such regions)
+    for why, sizes in missed.items():
+        if sizes:
+            what = (f"a {sizes[0]}-face region" if len(sizes) == 1 else
+                    f"{len(sizes)} regions of {min(sizes)}-{max(sizes)} faces ({sum(sizes)} in all)")
+            record.fallbacks.append(f"xatlas on {what} {why}: kept {'its' if len(sizes) == 1 else 'their'} "
+                                    "small planar charts")
     return assemble(keep + out, len(faces))

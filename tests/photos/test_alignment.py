@@ -195,6 +195,41 @@ def test_photos_of_bare_and_smudged_walls_do_not_refuse_an_aligned_scan(tmp_path
     assert not far.ok
 
 
+def with_depth_maps(photos: PhotoSet, scan, folder) -> PhotoSet:
+    """``photos`` with a depth map each (uint16 PNG, millimetres), read off ``scan`` as an RGB-D camera would."""
+    from scantex.views.raycast import cast_gbuffer
+
+    caster = RayCaster(scan.positions, scan.faces)
+    paths = []
+    for i, cam in enumerate(photos.cameras):
+        g = cast_gbuffer(caster, cam)
+        mm = np.where(g.mask, np.round(np.nan_to_num(g.depth, posinf=0) * 1000), 0).astype(np.uint16)
+        Image.fromarray(mm).save(folder / f"d{i}.png")
+        paths.append(folder / f"d{i}.png")
+    return dataclasses.replace(photos, depths=tuple(paths))
+
+
+def test_depth_maps_confirm_a_bare_scan_whose_edges_show_nothing(tmp_path):
+    """A bare (untextured) scan of a flat printed wall: its render has no edges at all (its border is the
+    scan's end), so the photos cannot confirm it by edges and it was refused. The capture's depth maps agree
+    with it on every pixel: it passes, saying so. The same scan 10 cm nearer the cameras, or turned 5 degrees,
+    gets no confirmation from them and is refused."""
+    printed = grid_wall(n=21, size=2.0)
+    bare = dataclasses.replace(printed, uvs=None, face_uvs=None, materials=(dataclasses.replace(
+        printed.materials[0], image=None),))
+    eyes = [(0.6, -1.8, 1.0), (1.4, -1.7, 0.8), (1.0, -2.0, 1.3), (0.8, -1.6, 0.7)]
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=45, width=120, height=90) for e in eyes]
+    photos = photograph(printed, cams, tmp_path)
+    assert not check_alignment(bare, photos).ok  # nothing but its border to compare
+    rgbd = with_depth_maps(photos, printed, tmp_path)
+    report = require_alignment(bare, rgbd)
+    assert report.ok and report.depth_agreement > 0.99
+    assert "the depth maps agree with it on 100 % of its pixels" in report.summary()
+    assert not check_alignment(moved(bare, offset=(0.0, -0.1, 0.0)), rgbd).ok
+    turned = check_alignment(moved(bare, turn_deg=5, axis=0, about=(1.0, 0.0, 1.0)), rgbd)
+    assert not turned.ok and turned.depth_agreement < 0.8
+
+
 def test_contour_map_marks_the_nearer_side():
     mask = np.zeros((6, 8), bool)
     mask[1:5, 2:6] = True

@@ -385,6 +385,8 @@ def test_fallback_offsets_carry_the_photos_tone_across_what_they_do_not_see():
     np.testing.assert_allclose(offsets[first], 0.1, atol=1e-6)  # the covered half's tone, carried across
     np.testing.assert_allclose(offsets[len(wall.positions):], 0.0)  # the wall no photo reaches is left alone
     assert 0.3 > MAX_FALLBACK_STEP
-    # ungated (an untextured scan's flat fallback, whose every difference is content): every covered face counts
-    _, ungated = fallback_offsets(scan, colour, fallback, max_step=None)
+    # ungated (an untextured scan's flat fallback, whose every difference is content): every covered face counts,
+    # and the wall no photo reaches takes the offset of the nearest covered point (the first wall's top: 0.1)
+    carried, ungated = fallback_offsets(scan, colour, fallback, max_step=None)
     assert ungated["faces_measured"] == len(left_faces)
+    np.testing.assert_allclose(carried[len(wall.positions):], 0.1, atol=1e-6)

@@ -224,3 +224,27 @@ def test_a_hole_a_photo_sees_only_in_part_is_filled_where_it_does_not(tmp_path, 
     uv = np.einsum("kc,fcd->fkd", w, out.triangle_uvs[hole]).reshape(-1, 2)
     colour = sample_texture(out.materials[0].image, uv)[:, :3]
     assert colour.max(axis=1).min() > 0.2  # nowhere black: seen part photographed, the rest filled
+
+
+def test_an_untextured_scans_atlas_is_as_fine_as_its_photos():
+    """The new atlas of an untextured scan: the smallest of 2048² and 4096² whose texels, over the whole
+    surface, would be as fine as the photos' pixels there (the photos' px/cm: focal length over depth)."""
+    from types import SimpleNamespace
+
+    from scantex.pipeline.enhance import photo_density, untextured_atlas_size
+    from scantex.views.camera import Camera
+
+    def capture(px_per_cm: float):
+        camera = Camera.look_at((0.0, -2.0, 0.0), (0.0, 0.0, 0.0), fov_deg=60, width=640, height=480)
+        depth = np.full((48, 64), camera.K[0, 0] / (100.0 * px_per_cm), np.float32)  # f / depth = px per metre
+        view = SimpleNamespace(index=0, depth=depth, valid=np.ones(depth.shape, bool))
+        return SimpleNamespace(photos=SimpleNamespace(cameras=[camera]), train=[view])
+
+    def square(side_m: float) -> Scan:  # a square of that side, two triangles
+        return Scan(np.array([[0, 0, 0], [side_m, 0, 0], [side_m, 0, side_m], [0, 0, side_m]], float),
+                    np.array([[0, 1, 2], [0, 2, 3]]))
+
+    assert photo_density(capture(3.5)) == pytest.approx(3.5)
+    assert untextured_atlas_size(square(1.0), capture(10.0)) == 2048  # 1,000 texels a side wanted
+    assert untextured_atlas_size(square(10.0), capture(3.5)) == 4096  # 3,500: a room
+    assert untextured_atlas_size(square(40.0), capture(3.5)) == 4096  # 14,000: the largest it lays out

@@ -165,6 +165,20 @@ def test_unwrap_hands_small_charts_to_xatlas():
         assert d.flipped_share == 0
 
 
+def test_regions_xatlas_misses_are_reported_in_one_line():
+    """A fused room leaves thousands of small regions to xatlas; those it misses (here: every one, the time
+    budget spent) are one line of the report, not one each, and keep their planar charts."""
+    balls = [trimesh.creation.icosphere(1) for _ in range(5)]
+    positions = np.concatenate([b.vertices + [3.0 * k, 0, 0] for k, b in enumerate(balls)])
+    faces = np.concatenate([b.faces + len(balls[0].vertices) * k for k, b in enumerate(balls)])
+    record = UnwrapLog()
+    charts = unwrap(positions, faces, UnwrapOptions(min_chart_faces=10**6), time_budget_s=0.0, record=record)
+    missed = [f for f in record.fallbacks if f.startswith("xatlas on")]
+    assert missed == ["xatlas on 5 regions of 80-80 faces (400 in all) failed or ran out of time: kept their "
+                      "small planar charts"]
+    assert record.xatlas_regions == 0 and charts.n_charts >= 5
+
+
 # -- the public entry point ------------------------------------------------------------------------
 
 
