@@ -498,7 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="speed/quality preset (default: default; ~3 min on a 2-core CPU for an 80k-face scan)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
     p.add_argument("--texture-size", type=whole(16, 16384),
-                   help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode)")
+                   help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
     p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
                    help="texture layout: keep the input's (default), optimize it (merge/split charts by "
                         "stretch, uniform texel density) or unwrap afresh; meshes without UVs are unwrapped")
@@ -573,7 +573,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset for every scan (default: default)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
-    p.add_argument("--texture-size", type=int, help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode)")
+    p.add_argument("--texture-size", type=int, help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
     p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
     p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
