@@ -248,13 +248,17 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         else:
             canonicalise = None
 
-            def fallback(points, normals, face_ids, bary):
-                return np.full((len(points), 3), 0.5, np.float32)
+            fallback = flat_grey
         photos, train_views, corrections = consensus_poses(
             scan, photos, train_views, canonicalise, caster, fallback, pc.refine_iterations, pc.temperature,
             prepare=lambda refined: prepare_photos(scan, refined, train, caster, pc.max_side, settings),
             update=update)
     return PhotoData(photos, train_views, held_views, report, corrections)
+
+
+def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
+    """An untextured scan's colour of its own, where nothing else gives one: ``(n, 3)`` mid grey."""
+    return np.full((len(points), 3), 0.5, np.float32)
 
 
 def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray,
@@ -374,18 +378,17 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     return colour, {"mode": "projective", **sampled, **report}
 
 
-def photo_atlas_scale(scan: Scan, photo: PhotoData) -> tuple[int, dict]:
+def photo_atlas_scale(scan: Scan, photos_px_per_cm: float) -> tuple[int, dict]:
     """How much finer than the input atlas photo mode bakes: 2 when the photos resolve the surface at least
     ``PHOTO_DENSITY_FOR_2X`` (2) times finer than the input atlas's texels do (median over the training
     photos' usable pixels of full-resolution pixels per centimetre), else 1 (a finer atlas would only
-    resample the same detail). At 1.4 (before), a real apartment (photos 1.52x the atlas's density) scored
+    resample the same detail). ``photos_px_per_cm``: :func:`photo_density`. At 1.4 (before), a real apartment (photos 1.52x the atlas's density) scored
     +0.02 dB for 1.6x the time and +1.1 GB, and the synthetic room (1.93x) 0.07 dB less (bench/RESULTS.md)."""
     from scantex.metrics.texture import texel_density
 
     atlas = texel_density(scan)["px_per_cm_mean"] if scan.is_textured else 0.0
-    photos = photo_density(photo)
-    scale = 2 if atlas <= 0 or photos >= PHOTO_DENSITY_FOR_2X * atlas else 1
-    return scale, {"photos_px_per_cm": round(photos, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
+    scale = 2 if atlas <= 0 or photos_px_per_cm >= PHOTO_DENSITY_FOR_2X * atlas else 1
+    return scale, {"photos_px_per_cm": round(photos_px_per_cm, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
 
 
 def photo_density(photo: PhotoData) -> float:
@@ -396,12 +399,13 @@ def photo_density(photo: PhotoData) -> float:
     return float(np.median(per_photo)) if per_photo else 0.0
 
 
-def untextured_atlas_size(scan: Scan, photo: PhotoData) -> int:
+def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
     """The atlas an untextured scan's photos are baked into: the smallest of ``UNTEXTURED_ATLASES`` whose
     texels, spread over the whole surface without gutters, would be as fine as the photos' pixels there
     (the charts and their gutters then leave a fraction of that: a fused apartment of 31,000 charts, 106 m²,
-    photos 3.5 pixels per cm, gets 0.56 texels per cm at 2048², 2.2 at 4096²)."""
-    wanted = photo_density(photo) * np.sqrt(float(scan.face_areas.sum()) * 1e4)  # texels a side
+    photos 3.5 pixels per cm, gets 0.56 texels per cm at 2048², 2.2 at 4096²). ``photos_px_per_cm``:
+    :func:`photo_density`."""
+    wanted = photos_px_per_cm * np.sqrt(float(scan.face_areas.sum()) * 1e4)  # texels a side
     return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
 
 
@@ -596,11 +600,12 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     t = time.perf_counter()
     uc = config.uv
     mode = uc.mode if scan.has_uvs else "unwrap"  # an untextured mesh needs an atlas to hold its texture
+    photos_px_per_cm = photo_density(photo) if photo is not None else 0.0
     size = config.bake.texture_size or max(output_size(scan, m)[0] for m in range(len(scan.materials)))
     if photo is not None and not scan.is_textured and not config.bake.texture_size:
         # photos hold far more detail than the 1024 atlas given to an untextured mesh; laid out at the size it
         # is baked at (gutters and all): a layout made for a smaller atlas and baked larger wastes its texels
-        size = untextured_atlas_size(scan, photo)
+        size = untextured_atlas_size(scan, photos_px_per_cm)
     with reporter.stage(f"UV layout ({mode})") as update:
         plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
         update(1, 1)
@@ -619,9 +624,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         fill = (excluded & ~seen) | (~taught if not scan.is_textured else False)
     if photo is not None and fitted is None and not scan.is_textured:
         # nothing but the photos: where none sees the surface, their colours around it (photo_texture)
-        def colour(points, normals, face_ids, bary):
-            return np.full((len(points), 3), 0.5, np.float32)
-        bake_report = {"source": "photos"}
+        colour, bake_report = flat_grey, {"source": "photos"}
     elif photo is None or fitted is None:
         # every hole of the input is filled, in photo mode too, seen by a photo or not: this colour is what the
         # photos' samples fall back to (where they are too few to cover a hole, its black texels showed
@@ -635,7 +638,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     projective_report = None
     photo_scale = 2
     if photo is not None:
-        photo_scale, density = photo_atlas_scale(scan, photo)
+        photo_scale, density = photo_atlas_scale(scan, photos_px_per_cm)
         bake_report.update(density)
     photo_fallback = colour
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x

@@ -245,6 +245,6 @@ def test_an_untextured_scans_atlas_is_as_fine_as_its_photos():
                     np.array([[0, 1, 2], [0, 2, 3]]))
 
     assert photo_density(capture(3.5)) == pytest.approx(3.5)
-    assert untextured_atlas_size(square(1.0), capture(10.0)) == 2048  # 1,000 texels a side wanted
-    assert untextured_atlas_size(square(10.0), capture(3.5)) == 4096  # 3,500: a room
-    assert untextured_atlas_size(square(40.0), capture(3.5)) == 4096  # 14,000: the largest it lays out
+    assert untextured_atlas_size(square(1.0), photo_density(capture(10.0))) == 2048  # 1,000 texels a side wanted
+    assert untextured_atlas_size(square(10.0), photo_density(capture(3.5))) == 4096  # 3,500: a room
+    assert untextured_atlas_size(square(40.0), photo_density(capture(3.5))) == 4096  # 14,000: the largest it lays out
