@@ -97,8 +97,12 @@ class ProjectiveSettings:
 class _Source:
     camera: Camera  # at the sampling resolution
     pixels: np.ndarray  # (H * W,) uint32: the RGB image at the sampling resolution, a pixel in one word
-    to_view: np.ndarray  # (3, 3): a pixel of ``camera`` to the same point's pixel in ``view.camera``
-    view: PhotoView  # working-resolution G-buffer and usable mask
+    to_view: np.ndarray  # (3, 3): a pixel of ``camera`` to the same point's pixel at the working resolution
+    # of the working view only what sampling asks (its image, barycentrics and faces are not kept: a room's
+    # hundred views would hold 0.6 GB more through the bake)
+    centre: np.ndarray  # (3,) the camera's centre
+    valid: np.ndarray  # (h, w) bool: the usable pixels at the working resolution
+    depth: np.ndarray  # (h, w) float32: their depth
     feather: np.ndarray  # (h, w) float32 in [0, 1] at the working resolution
     log_sharpness: float
     group: int
@@ -187,7 +191,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen = np.zeros(len(faces), np.float32)
             seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
             seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
-        return _Source(cam, _packed(image), to_view.astype(np.float32), view, feather, sharpness, int(group),
+        return _Source(cam, _packed(image), to_view.astype(np.float32), view.camera.center, view.valid, view.depth,
+                       feather, sharpness, int(group),
                        seen, cam.R.astype(np.float32), (cam.R @ origin + cam.t).astype(np.float32))
 
     # the photos read and prepared side by side (decoding and numpy release the interpreter lock)
@@ -218,7 +223,6 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         facing = np.einsum("ij,ij->i", unit, local)  # n . (X - origin): the view angle needs n . (X - C)
 
         def sample(s: _Source):
-            view = s.view
             sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
             if sub is not None and sub.size == 0:
                 return None
@@ -226,9 +230,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             z = cam[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 full = (cam @ s.camera.K.T.astype(np.float32))
-                full = full[:, :2] / full[:, 2:]
-            pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
-            idx, xi, yi = _seen_in(view, pix, z, settings.depth_tolerance)
+                full = full[:, :2] / full[:, 2:]  # a point in the camera's plane (z = 0) is not finite
+                pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
+            idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
             if idx.size == 0:
                 return None
             seen = cam[idx]
@@ -236,7 +240,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             z, full = z[idx], full[idx]
             if sub is not None:
                 idx = sub[idx]
-            centre = (view.camera.center - origin).astype(np.float32)
+            centre = (s.centre - origin).astype(np.float32)
             cos = np.abs(facing[idx] - unit[idx] @ centre) / distance
             quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
                 + np.float32(s.log_sharpness)
@@ -363,18 +367,18 @@ def _incidence(faces: np.ndarray):
                              shape=(F, int(faces.max()) + 1 if F else 0))
 
 
-def _seen_in(view: PhotoView, pix: np.ndarray, z: np.ndarray, depth_tolerance: float
+def _seen_in(valid: np.ndarray, depth: np.ndarray, pix: np.ndarray, z: np.ndarray, depth_tolerance: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(idx, x, y)``: the points (of working-resolution pixels ``pix (n, 2)`` and camera depths ``z (n,)``)
-    that ``view`` sees, a usable pixel whose depth agrees within ``depth_tolerance`` (relative), and their
-    nearest pixel."""
-    h, w = view.valid.shape
+    that a view sees (``valid`` and ``depth``: its usable pixels and their depth), a usable pixel whose depth
+    agrees within ``depth_tolerance`` (relative), and their nearest pixel."""
+    h, w = valid.shape
     with np.errstate(invalid="ignore"):
         x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
         y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
     idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
     z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
-    seen = view.valid[yi, xi] & (np.abs(view.depth[yi, xi] - z) < depth_tolerance * z)
+    seen = valid[yi, xi] & (np.abs(depth[yi, xi] - z) < depth_tolerance * z)
     return idx[seen], xi[seen], yi[seen]
 
 
@@ -625,7 +629,7 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
         for l, u in enumerate(views):
             if l == k or shared[k, l] < 1:
                 continue
-            ok, x, y = _seen_in(u, *u.camera.project(points), depth_tolerance)
+            ok, x, y = _seen_in(u.valid, u.depth, *u.camera.project(points), depth_tolerance)
             a, b = own[ok], blurred[l][y, x]
             good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)  # neither dark nor clipped
             if good.sum() >= min_pixels:

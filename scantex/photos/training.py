@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +58,8 @@ class PhotoView:
     Attributes:
         index: the photo's index in its :class:`PhotoSet`.
         camera: its camera for the working resolution.
-        image: ``(H, W, 3) float32`` in [0, 1], box-filtered down from the photo.
+        image: ``(H, W, 3) float32`` in [0, 1], box-filtered down from the photo; ``None`` once
+            :meth:`sampled` (the texture made, what teaches it is no longer held).
         face_id: ``(H, W) int32`` face at the pixel centre, -1 for none.
         depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z).
         valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed).
@@ -68,12 +70,18 @@ class PhotoView:
 
     index: int
     camera: Camera
-    image: np.ndarray
+    image: np.ndarray | None
     face_id: np.ndarray
     depth: np.ndarray
     valid: np.ndarray
     rejected: dict
     bary: np.ndarray | None = None
+
+    def sampled(self) -> PhotoView:
+        """The view without its image and barycentrics, once the texture has been sampled: what the report
+        still asks (camera, usable pixels, rejections) at a third of the memory (a room's hundred views of
+        640x480 hold 0.6 GB less through the bake)."""
+        return dataclasses.replace(self, image=None, bary=None)
 
 
 def working_camera(camera: Camera, max_side: int) -> Camera:

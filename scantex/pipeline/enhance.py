@@ -652,6 +652,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
                                                   atlas_density, threads=sampling_threads)
+        if not (photo.held_out and config.photos.final == "all"):  # a texture made again needs them
+            photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
     bake_seconds = time.perf_counter() - t
 
     refine_report = None

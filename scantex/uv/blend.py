@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: candidate texels examined per batch of seam edges (bounds memory on large atlases)
-CANDIDATES_PER_BATCH = 2_000_000
+CANDIDATES_PER_BATCH = 500_000
 
 
 def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.5, inset_texels: float = 1.0,
