@@ -121,6 +121,8 @@ def atlas_noise(scan: Scan, exclude: np.ndarray | None = None) -> float:
 
 #: input texels up to this many 8-bit levels above the black level blend from the hole fill into their own colour
 DARK_RAMP = 24.0
+#: a hole fill's seed vertex whose lookup is more than this share black texels seeds nothing (its neighbours do)
+MAX_BLACK_SHARE = 0.5
 
 
 def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.ndarray | None = None
@@ -145,13 +147,21 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     idx = np.flatnonzero(known)
     corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
     normals = scan.face_normals
+    darkness = _dark_texels(scan)
     for s in range(0, idx.size, CHUNK):
         v = idx[s:s + CHUNK]
-        f = corner_face[v]
-        vertex_rgb[v] = base(scan.positions[v], normals[f], f, corner_bary[corner_slot[v]])
+        f, b = corner_face[v], corner_bary[corner_slot[v]]
+        rgb = base(scan.positions[v], normals[f], f, b)
+        if fill.any():
+            # a vertex beside a hole reads its black texels too (the bilinear lookup at a chart's corner): the
+            # colour of the others, or nothing where they are most of it (a real apartment's fill of its unseen
+            # upper walls had a dark drip below every such vertex)
+            share, dark = darkness(f, b)
+            rgb = (rgb - dark) / np.maximum(1.0 - share, 1e-6)
+            known[v[share[:, 0] > MAX_BLACK_SHARE]] = False
+        vertex_rgb[v] = rgb
     if fill.any():
         vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
-    darkness = _dark_texels(scan)
 
     def colour(points, normals, face_ids, bary):
         rgb = np.empty((len(face_ids), 3), np.float32)

@@ -310,3 +310,33 @@ def test_faces_touching_another_chart_are_no_photometric_reference_however_the_f
     # the two columns of faces along the seam at x = 0 touch the other chart (16 rows, 2 faces a cell)
     assert (~reference).sum() == 2 * 2 * 16
     assert np.array_equal(reference_faces(split), reference)
+
+
+
+def test_a_holes_fill_is_seeded_by_the_colours_around_it_not_by_their_black():
+    """A hole's fill is interpolated from the input's colours at the vertices around it, each read in the atlas
+    at the vertex's UV corner, a bilinear lookup of the four texels about it. Where one of them is black (an
+    app's atlas is black where its photos did not reach, and that border need not follow the faces), the seed
+    is the colour of the others: on a uniform wall the fill is the wall's colour, not darker near that vertex
+    (a real room's fill of its unseen upper walls had a dark drip below every vertex that read black)."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.inpaint import grow_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import to_uint8
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=21, size=2.0)  # 20 x 20 cells of 8 x 8 texels in a 160² atlas, v up, rows down
+    image = np.zeros((160, 160, 3), np.uint8)
+    image[:] = to_uint8(np.array([0.6, 0.5, 0.4]))
+    image[40:120, 48:80] = 0  # a hole of whole faces: cells 6-9 across, 5-14 down
+    for row in range(48, 120, 8):  # single black texels at the corners just outside the hole's ring of faces
+        image[row - 1, 39] = 0
+    scan = wall.replace(materials=(Material("wall", image),))
+    holes = untextured_faces(scan)
+    fill = grow_faces(scan, holes, rings=1)  # as photo and mesh-only modes fill: the hole and its ring
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), fill)
+    f = np.flatnonzero(holes)
+    centre = np.full((len(f), 2), 1 / 3, np.float32)
+    got = colour(interpolate(f, centre, scan.triangles), scan.face_normals[f], f, centre)
+    assert holes.sum() == 2 * 4 * 10
+    np.testing.assert_allclose(got, np.broadcast_to([0.6, 0.5, 0.4], got.shape), atol=0.01)
