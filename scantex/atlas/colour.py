@@ -121,8 +121,9 @@ def atlas_noise(scan: Scan, exclude: np.ndarray | None = None) -> float:
 
 #: input texels up to this many 8-bit levels above the black level blend from the hole fill into their own colour
 DARK_RAMP = 24.0
-#: a hole fill's seed vertex whose lookup is more than this share black texels seeds nothing (its neighbours do)
-MAX_BLACK_SHARE = 0.5
+#: a hole fill's seed vertex whose lookup is more than this share black texels seeds nothing (its neighbours do);
+#: below it, a uniformly dark texture (13-17 levels count as 0.5-0.7 black on the ramp) still seeds its own colour
+MAX_BLACK_SHARE = 0.9
 
 
 def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.ndarray | None = None
@@ -154,8 +155,8 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
         rgb = base(scan.positions[v], normals[f], f, b)
         if fill.any():
             # a vertex beside a hole reads its black texels too (the bilinear lookup at a chart's corner): the
-            # colour of the others, or nothing where they are most of it (a real apartment's fill of its unseen
-            # upper walls had a dark drip below every such vertex)
+            # colour of the others, or nothing where they are nearly all of it (a real apartment's fill of its
+            # unseen upper walls had a dark drip below every such vertex)
             share, dark = darkness(f, b)
             rgb = (rgb - dark) / np.maximum(1.0 - share, 1e-6)
             known[v[share[:, 0] > MAX_BLACK_SHARE]] = False
