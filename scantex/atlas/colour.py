@@ -149,11 +149,12 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
     normals = scan.face_normals
     darkness = _dark_texels(scan)
+    filling = bool(fill.any())
     for s in range(0, idx.size, CHUNK):
         v = idx[s:s + CHUNK]
         f, b = corner_face[v], corner_bary[corner_slot[v]]
         rgb = base(scan.positions[v], normals[f], f, b)
-        if fill.any():
+        if filling:
             # a vertex beside a hole reads its black texels too (the bilinear lookup at a chart's corner): the
             # colour of the others, or nothing where they are nearly all of it (a real apartment's fill of its
             # unseen upper walls had a dark drip below every such vertex)
@@ -161,7 +162,7 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
             rgb = (rgb - dark) / np.maximum(1.0 - share, 1e-6)
             known[v[share[:, 0] > MAX_BLACK_SHARE]] = False
         vertex_rgb[v] = rgb
-    if fill.any():
+    if filling:
         vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
 
     def colour(points, normals, face_ids, bary):
