@@ -710,6 +710,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
             colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device,
                                                    dataclasses.replace(bake_config, levelling=False), noise)
+            if refine_report is not None:  # it ran; its colour is not in the result
+                safety["refine_discarded"] = refine_report
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
             bake_report["safety"] = safety

@@ -19,8 +19,8 @@ from scantex.pipeline.enhance import enhance
 from scantex.refine.config import RefineConfig
 from scantex.refine.train import corrupt
 from scantex.synth.photos import capture_photos
-from tests.device.test_device_audit import ALL_STAGES
-from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
+from tests.device.test_device_audit import ALL_STAGES, PHOTO_TOY, assert_every_stage_ran
+from tests.pipeline.test_enhance import toy_demo  # noqa: F401  (a fixture)
 from tests.pipeline.test_photo_mode import CAPTURE
 
 pytestmark = [pytest.mark.gpu,
@@ -40,15 +40,13 @@ def test_refiner_corruption_is_the_same_on_cuda_and_cpu():
 
 def test_mesh_only_with_refiner_and_diffusion_on_cuda(toy_demo):
     result = enhance(toy_demo.scan, ALL_STAGES.override(device="cuda"), ground_truth=toy_demo.ground_truth)
-    m = result.metrics
-    assert m["geometry"]["arrays_identical"] and m["refine"]["views_refined"] == 2
-    assert np.isfinite(m["refine"]["diffusion_final_loss"])
-    assert np.isfinite(m["held_out_vs_ground_truth"]["enhanced"]["psnr"])
+    assert_every_stage_ran(result.metrics)
 
 
-def test_photo_mode_on_cuda(toy_demo, tmp_path):
+@pytest.mark.parametrize("texturing", ["projective", "field"])
+def test_photo_mode_on_cuda(toy_demo, tmp_path, texturing):
     photos = capture_photos(toy_demo, tmp_path, CAPTURE, seed=1)
-    result = enhance(toy_demo.scan, TOY.override(device="cuda", train__steps=50), photos=photos)
+    result = enhance(toy_demo.scan, PHOTO_TOY.override(device="cuda", photos__texturing=texturing), photos=photos)
     assert result.metrics["geometry"]["arrays_identical"]
     assert np.isfinite(result.metrics["held_out_photos"]["enhanced"]["psnr"])
 
