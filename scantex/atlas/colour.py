@@ -163,7 +163,10 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
             known[v[share[:, 0] > MAX_BLACK_SHARE]] = False
         vertex_rgb[v] = rgb
     if filling:
-        vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb)
+        # a fill cut off from every seed (a fused scan's loose fragment, floating off the surface it belongs to
+        # and seen cleanly by no photo) takes the colour of the nearest seeded position in space, not the scan's
+        # mean colour: a real apartment's dark cabinets were dotted with light grey where their floaters were
+        vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb, nearest=True)
 
     def colour(points, normals, face_ids, bary):
         rgb = np.empty((len(face_ids), 3), np.float32)

@@ -12,6 +12,9 @@ import numpy as np
 
 from scantex.scan import Scan
 
+#: how many known positions, nearest in space, colour a vertex that no known vertex connects to (``nearest``)
+NEAREST_SEEDS = 8
+
 
 def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1) -> np.ndarray:
     """``(F,) bool`` ``faces`` grown by ``rings`` rings of faces that share a vertex with them."""
@@ -32,8 +35,9 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
     positions), and its faces do not connect across a seam; a hole would be cut off from the colours
     around it. A welded position is known where any of its vertices is (their mean colour); a known vertex
     keeps its own colour. Vertices in a part with no known vertex get ``unanchored`` ``(C,)`` (default:
-    the mean known colour), or with ``nearest`` the colour of the nearest known position in space (a fused
-    scan's loose fragments lie on or beside the surfaces they belong to).
+    the mean known colour), or with ``nearest`` the mean colour of the ``NEAREST_SEEDS`` nearest positions
+    in space that are known or interpolated (a fused scan's loose fragments lie on or beside the surfaces
+    they belong to, which may be holes themselves; one position's colour alone may be a seed's noise).
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.csgraph import connected_components
@@ -63,22 +67,27 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
         anchored = np.zeros(n_parts, bool)
         anchored[np.unique(label[touches])] = True
         solvable = anchored[label]
-        if nearest and welded_known.any() and not solvable.all():
-            from scipy.spatial import cKDTree
-
-            where = np.zeros((V, 3))
-            where[weld] = scan.positions
-            _, closest = cKDTree(where[welded_known]).query(where[u_idx[~solvable]])
-            welded[u_idx[~solvable]] = welded[np.flatnonzero(welded_known)[closest]]
-        else:
-            if unanchored is None:
-                unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
-            welded[u_idx[~solvable]] = unanchored
         s_idx = u_idx[solvable]
         if s_idx.size:
             Luu = L[s_idx][:, s_idx].tocsc()
             rhs = -(L[s_idx][:, welded_known] @ welded[welded_known])
             welded[s_idx] = np.column_stack([spsolve(Luu, rhs[:, c]) for c in range(colours.shape[1])])
+        if nearest and welded_known.any() and not solvable.all():
+            from scipy.spatial import cKDTree
+
+            # the surface beside a loose fragment may be a hole itself: its solved colours count as well
+            where = np.zeros((V, 3))
+            where[weld] = scan.positions
+            coloured = welded_known.copy()
+            coloured[s_idx] = True
+            coloured_idx = np.flatnonzero(coloured)
+            k = min(NEAREST_SEEDS, coloured_idx.size)
+            _, closest = cKDTree(where[coloured]).query(where[u_idx[~solvable]], k=k)
+            welded[u_idx[~solvable]] = welded[coloured_idx[closest.reshape(-1, k)]].mean(axis=1)
+        else:
+            if unanchored is None:
+                unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)
+            welded[u_idx[~solvable]] = unanchored
     out = welded[weld]
     out[known] = colours[known]
     return out

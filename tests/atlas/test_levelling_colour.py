@@ -340,3 +340,38 @@ def test_a_holes_fill_is_seeded_by_the_colours_around_it_not_by_their_black():
     got = colour(interpolate(f, centre, scan.triangles), scan.face_normals[f], f, centre)
     assert holes.sum() == 2 * 4 * 10
     np.testing.assert_allclose(got, np.broadcast_to([0.6, 0.5, 0.4], got.shape), atol=0.01)
+
+
+def test_a_loose_fragments_fill_takes_the_colour_of_the_surface_it_floats_on():
+    """A fused scan's loose fragments (a TSDF's floaters a centimetre off a cabinet) are seen by no photo
+    cleanly, so the input is black on them and their fill has no seed of its own: they take the colour of
+    the nearest textured surface in space, not the mean colour of the whole scan (a real apartment's dark
+    cabinets were dotted with light grey where their floaters were)."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.inpaint import grow_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import to_uint8
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=21, size=2.0)  # x-z plane, normals towards -y; u along x
+    image = np.zeros((160, 160, 3), np.uint8)
+    image[:, :80] = to_uint8(np.array([0.35, 0.25, 0.2]))  # dark wood on the left (x < 1)
+    image[:, 80:] = to_uint8(np.array([0.9, 0.9, 0.85]))   # a white wall on the right
+    image[:4, 150:] = 0  # black texels for the fragment's UVs (a corner of the atlas no wall face uses)
+    # a fragment of two triangles 1 cm in front of the dark half, on UVs of that black corner
+    square = np.array([[0.3, -0.01, 0.8], [0.5, -0.01, 0.8], [0.5, -0.01, 1.0], [0.3, -0.01, 1.0]])
+    positions = np.concatenate([wall.positions, square])
+    n = len(wall.positions)
+    faces = np.concatenate([wall.faces, [[n, n + 1, n + 2], [n, n + 2, n + 3]]])
+    corner_uvs = np.array([[0.95, 0.985], [0.99, 0.985], [0.99, 0.99], [0.95, 0.99]])
+    t = len(wall.uvs)
+    uvs = np.concatenate([wall.uvs, corner_uvs])
+    face_uvs = np.concatenate([wall.face_uvs, [[t, t + 1, t + 2], [t, t + 2, t + 3]]])
+    scan = Scan(positions, faces, uvs, face_uvs, None, (Material("wall", image),))
+    holes = untextured_faces(scan)
+    assert np.flatnonzero(holes).tolist() == [len(faces) - 2, len(faces) - 1]
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), grow_faces(scan, holes, rings=1))
+    f = np.flatnonzero(holes)
+    centre = np.full((len(f), 2), 1 / 3, np.float32)
+    got = colour(interpolate(f, centre, scan.triangles), scan.face_normals[f], f, centre)
+    np.testing.assert_allclose(got, np.broadcast_to([0.35, 0.25, 0.2], got.shape), atol=0.02)
