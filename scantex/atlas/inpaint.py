@@ -36,8 +36,9 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
     around it. A welded position is known where any of its vertices is (their mean colour); a known vertex
     keeps its own colour. Vertices in a part with no known vertex get ``unanchored`` ``(C,)`` (default:
     the mean known colour), or with ``nearest`` the mean colour of the ``NEAREST_SEEDS`` nearest positions
-    in space that are known or interpolated (a fused scan's loose fragments lie on or beside the surfaces
-    they belong to, which may be holes themselves; one position's colour alone may be a seed's noise).
+    in space that are known or interpolated, averaged over the part (a fused scan's loose fragments lie on
+    or beside the surfaces they belong to, which may be holes themselves; one position's colour alone may be
+    a seed's noise).
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.csgraph import connected_components
@@ -82,8 +83,13 @@ def harmonic_vertex_colours(scan: Scan, known: np.ndarray, colours: np.ndarray,
             coloured[s_idx] = True
             coloured_idx = np.flatnonzero(coloured)
             k = min(NEAREST_SEEDS, coloured_idx.size)
-            _, closest = cKDTree(where[coloured]).query(where[u_idx[~solvable]], k=k)
-            welded[u_idx[~solvable]] = welded[coloured_idx[closest.reshape(-1, k)]].mean(axis=1)
+            lone = u_idx[~solvable]
+            _, closest = cKDTree(where[coloured]).query(where[lone], k=k)
+            near = welded[coloured_idx[closest.reshape(-1, k)]].mean(axis=1)
+            # one colour a part: a large unseen object is not painted as a patchwork of whatever lies nearest
+            part = np.unique(label[~solvable], return_inverse=True)[1].ravel()
+            count = np.bincount(part).astype(np.float64)
+            welded[lone] = np.column_stack([np.bincount(part, near[:, c]) / count for c in range(near.shape[1])])[part]
         else:
             if unanchored is None:
                 unanchored = colours[known].mean(axis=0) if known.any() else np.full(colours.shape[1], 0.5)

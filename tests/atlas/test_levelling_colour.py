@@ -358,20 +358,26 @@ def test_a_loose_fragments_fill_takes_the_colour_of_the_surface_it_floats_on():
     image[:, :80] = to_uint8(np.array([0.35, 0.25, 0.2]))  # dark wood on the left (x < 1)
     image[:, 80:] = to_uint8(np.array([0.9, 0.9, 0.85]))   # a white wall on the right
     image[:4, 150:] = 0  # black texels for the fragment's UVs (a corner of the atlas no wall face uses)
-    # a fragment of two triangles 1 cm in front of the dark half, on UVs of that black corner
-    square = np.array([[0.3, -0.01, 0.8], [0.5, -0.01, 0.8], [0.5, -0.01, 1.0], [0.3, -0.01, 1.0]])
-    positions = np.concatenate([wall.positions, square])
-    n = len(wall.positions)
-    faces = np.concatenate([wall.faces, [[n, n + 1, n + 2], [n, n + 2, n + 3]]])
+    # fragments of two triangles 1 cm in front of the wall, on UVs of that black corner: one over the dark
+    # half, one straddling both halves
+    squares = [np.array([[x0, -0.01, 0.8], [x1, -0.01, 0.8], [x1, -0.01, 1.0], [x0, -0.01, 1.0]])
+               for x0, x1 in ((0.3, 0.5), (0.7, 1.3))]
+    positions = np.concatenate([wall.positions, *squares])
+    n, t = len(wall.positions), len(wall.uvs)
+    quads = [[[n + o, n + o + 1, n + o + 2], [n + o, n + o + 2, n + o + 3]] for o in (0, 4)]
+    faces = np.concatenate([wall.faces, *quads])
     corner_uvs = np.array([[0.95, 0.985], [0.99, 0.985], [0.99, 0.99], [0.95, 0.99]])
-    t = len(wall.uvs)
     uvs = np.concatenate([wall.uvs, corner_uvs])
-    face_uvs = np.concatenate([wall.face_uvs, [[t, t + 1, t + 2], [t, t + 2, t + 3]]])
+    face_uvs = np.concatenate([wall.face_uvs, [[t, t + 1, t + 2], [t, t + 2, t + 3]] * 2])
     scan = Scan(positions, faces, uvs, face_uvs, None, (Material("wall", image),))
     holes = untextured_faces(scan)
-    assert np.flatnonzero(holes).tolist() == [len(faces) - 2, len(faces) - 1]
+    assert np.flatnonzero(holes).tolist() == list(range(len(wall.faces), len(faces)))
     colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), grow_faces(scan, holes, rings=1))
     f = np.flatnonzero(holes)
-    centre = np.full((len(f), 2), 1 / 3, np.float32)
-    got = colour(interpolate(f, centre, scan.triangles), scan.face_normals[f], f, centre)
-    np.testing.assert_allclose(got, np.broadcast_to([0.35, 0.25, 0.2], got.shape), atol=0.02)
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
+    got = np.stack([colour(scan.triangles[f, k], scan.face_normals[f], f, np.repeat(corners[k:k + 1], len(f), 0))
+                    for k in range(3)], axis=1)  # [4 faces, 3 corners, RGB]
+    np.testing.assert_allclose(got[:2], np.broadcast_to([0.35, 0.25, 0.2], got[:2].shape), atol=0.02)
+    # the straddling one is one colour between the two, not dark at one end and white at the other
+    assert np.ptp(got[2:].reshape(-1, 3), axis=0).max() < 1e-6
+    assert np.all(got[2, 0] > [0.35, 0.25, 0.2]) and np.all(got[2, 0] < [0.9, 0.9, 0.85])
