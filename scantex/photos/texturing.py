@@ -93,6 +93,11 @@ class ProjectiveSettings:
     """reweighting rounds of the robust blend"""
 
 
+#: a connected part of the mesh holding less than this share of its faces is a loose fragment (see
+#: :func:`loose_fragments`)
+LOOSE_SHARE = 0.01
+
+
 @dataclass(frozen=True, eq=False)
 class _Source:
     camera: Camera  # at the sampling resolution
@@ -126,7 +131,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                       fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings(),
                       faces: np.ndarray | None = None,
                       recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                      threads: int | None = None) -> tuple[SurfaceColour, dict]:
+                      threads: int | None = None, through: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -146,6 +151,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         threads: threads sampling the photos of one call side by side (``None``: one a core, up to 8).
             ``colour`` may be called from several threads at once: a caller that colours chunks in parallel
             (``bake``'s ``workers``) passes 1 here (both at once oversubscribe the cores).
+        through: ``(F,) bool`` faces few photos see cleanly (:func:`loose_fragments`: a fused scan's loose
+            fragments, all contour to every photo, or floating where the depth maps see nothing). Where no
+            photo's usable pixel gives them a colour, they take the mean of the photos' pixels they project to
+            where no surface of the mesh is in front of them: what the photos show there is what lies behind
+            a fragment the scene does not have, as a held-out photo will show it. ``None``: the fallback.
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
@@ -254,13 +264,33 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
             return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
+        loose = np.flatnonzero(through[face_ids]) if through is not None else np.zeros(0, np.intp)
+
+        def sample_through(s: _Source):
+            """The photo's pixels at the loose points it has in view, no surface of the mesh in front of them."""
+            cam = local[loose] @ s.rotation.T + s.translation
+            with np.errstate(divide="ignore", invalid="ignore"):
+                full = cam @ s.camera.K.T.astype(np.float32)
+                full = full[:, :2] / full[:, 2:]
+                pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]
+            idx, _, _ = _seen_in(None, s.depth, pix, cam[:, 2], settings.depth_tolerance)
+            if idx.size == 0:
+                return None
+            rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full[idx])
+            if canonicalise is not None:
+                rgb = canonicalise(rgb, np.full(idx.size, s.group))
+            ones = np.ones(idx.size, np.float32)
+            return _Samples(loose[idx], ones, ones, rgb, np.zeros(idx.size, bool), s.group)
+
         asked = [s for k, s in enumerate(sources) if k != without]
+        jobs = [sample] + ([sample_through] if loose.size else [])
         if len(asked) > 1 and threads > 1:
             with ThreadPoolExecutor(min(threads, len(asked))) as pool:
-                samples = list(pool.map(sample, asked))
+                samples = [list(pool.map(job, asked)) for job in jobs]
         else:
-            samples = [sample(s) for s in asked]
-        seen_by: list[_Samples] = [x for x in samples if x is not None]
+            samples = [[job(s) for s in asked] for job in jobs]
+        seen_by: list[_Samples] = [x for x in samples[0] if x is not None]
+        seen_through: list[_Samples] = [x for x in samples[-1] if x is not None] if loose.size else []
         best = np.full(n, -np.inf, np.float32)
         for x in seen_by:
             best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
@@ -287,6 +317,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
                           for x, w in zip(seen_by, weights)]
                 out, _ = _weighted_mean(n, seen_by, robust)
+        if seen_through:
+            behind, support = _weighted_mean(n, seen_through, [x.feather for x in seen_through])
+            take = np.flatnonzero((total <= 0) & (support > 0))
+            out[take], total[take], alpha[take] = behind[take], support[take], 1
         # the fallback only where the photos do not fully cover a point
         part = np.flatnonzero((total <= 0) | (alpha < 1))
         share = np.ones(n, np.float32)  # the photos' share of each point's colour
@@ -367,18 +401,42 @@ def _incidence(faces: np.ndarray):
                              shape=(F, int(faces.max()) + 1 if F else 0))
 
 
-def _seen_in(valid: np.ndarray, depth: np.ndarray, pix: np.ndarray, z: np.ndarray, depth_tolerance: float
+def loose_fragments(faces: np.ndarray, max_share: float = LOOSE_SHARE) -> np.ndarray | None:
+    """``(F,) bool`` the faces of the mesh's connected parts (``faces``: welded vertex indices) that hold less
+    than ``max_share`` of its faces; ``None`` when there are none. A fused scan's loose fragments (a TSDF's
+    floaters, a centimetre off a cabinet or in mid-air) are all contour to every photo, and the depth maps
+    see nothing where they float: few of their points pass any photo's usability test."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if not faces.size:
+        return None
+    n_vertices = int(faces.max()) + 1
+    i = np.concatenate([faces[:, 0], faces[:, 1]])
+    j = np.concatenate([faces[:, 1], faces[:, 2]])
+    graph = coo_matrix((np.ones(i.size, np.int8), (i, j)), shape=(n_vertices, n_vertices))
+    _, label = connected_components(graph, directed=False)
+    part = label[faces[:, 0]]
+    loose = np.bincount(part)[part] < max_share * len(faces)
+    return loose if loose.any() else None
+
+
+def _seen_in(valid: np.ndarray | None, depth: np.ndarray, pix: np.ndarray, z: np.ndarray, depth_tolerance: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(idx, x, y)``: the points (of working-resolution pixels ``pix (n, 2)`` and camera depths ``z (n,)``)
     that a view sees (``valid`` and ``depth``: its usable pixels and their depth), a usable pixel whose depth
-    agrees within ``depth_tolerance`` (relative), and their nearest pixel."""
-    h, w = valid.shape
+    agrees within ``depth_tolerance`` (relative), and their nearest pixel. ``valid`` ``None``: the points
+    with no surface in front of them closer than that (any pixel, usable or not)."""
+    h, w = depth.shape
     with np.errstate(invalid="ignore"):
         x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
         y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
     idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
     z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
-    seen = valid[yi, xi] & (np.abs(depth[yi, xi] - z) < depth_tolerance * z)
+    if valid is None:
+        seen = depth[yi, xi] > (1 - depth_tolerance) * z
+    else:
+        seen = valid[yi, xi] & (np.abs(depth[yi, xi] - z) < depth_tolerance * z)
     return idx[seen], xi[seen], yi[seen]
 
 

@@ -328,7 +328,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     (``charts``: the input atlas's chart of each face). ``texel_px_per_cm``: the output atlas's texel density
     (photos much finer than it are sampled at a lower resolution; 0: full resolution). ``threads``: how many
     sample one call's photos side by side (``None``: the cores; 1 when the bake colours chunks in parallel)."""
-    from scantex.photos.texturing import ProjectiveSettings, projective_colour, recorded_transforms
+    from scantex.photos.texturing import ProjectiveSettings, loose_fragments, projective_colour, recorded_transforms
 
     report: dict = {}
     recorded = None
@@ -366,9 +366,12 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     # around it are carried there (the fallback's offsets from a flat grey, ungated, harmonic over the mesh)
     from_photos = fitted is None and not scan.is_textured
     level = (pc.level_fallback or from_photos) and bool(photo.train)
+    welded = scan.welded[scan.faces]
+    through = loose_fragments(welded)
+    report["loose_fragment_faces"] = int(through.sum()) if through is not None else 0
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
-                                        levelled if level else fallback, settings, faces=scan.welded[scan.faces],
-                                        recorded=recorded, threads=threads)
+                                        levelled if level else fallback, settings, faces=welded,
+                                        recorded=recorded, threads=threads, through=through)
     if level:
         from scantex.photos.texturing import MAX_FALLBACK_STEP, fallback_offsets
 

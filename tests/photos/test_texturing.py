@@ -11,6 +11,7 @@ from scantex.photos.texturing import (
     ProjectiveSettings,
     fit_photo_transforms,
     inverse_transforms,
+    loose_fragments,
     photo_sharpness,
     projective_colour,
     recorded_transforms,
@@ -390,3 +391,43 @@ def test_fallback_offsets_carry_the_photos_tone_across_what_they_do_not_see():
     carried, ungated = fallback_offsets(scan, colour, fallback, max_step=None)
     assert ungated["faces_measured"] == len(left_faces)
     np.testing.assert_allclose(carried[len(wall.positions):], 0.1, atol=1e-6)
+
+
+def test_a_loose_fragment_takes_what_the_photos_show_behind_it(tmp_path):
+    """A fused scan's floater (a fragment of the mesh 15 cm off a wall, in front of its dark half, that the
+    scene does not have) is all contour to the photos: no usable pixel colours it, and it took the fallback.
+    Now it takes the photos' pixels it projects to, where no surface is in front of it: the dark wall behind
+    it, as a held-out photo shows it. The wall's own colours do not change."""
+    wall = grid_wall(n=21, size=2.0)  # x-z plane, normals towards -y
+    image = np.zeros((160, 160, 3), np.uint8)
+    image[:, :80] = (90, 64, 51)      # dark wood on the left half (x < 1)
+    image[:, 80:] = (230, 230, 217)   # a white wall on the right
+    wall = dataclasses.replace(wall, materials=(dataclasses.replace(wall.materials[0], image=image),))
+    eyes = [(0.5, -2.2, 1.0), (0.8, -2.0, 1.1), (0.6, -2.4, 0.8)]
+    cams = [Camera.look_at(e, (0.6, 0.0, 1.0), fov_deg=55, width=640, height=480) for e in eyes]
+    photos = photograph(wall, cams, tmp_path)  # the scene: the wall alone
+    s = 0.008  # the floater: a 1.6 cm square 15 cm in front of the dark half
+    square = np.array([[0.6 - s, -0.15, 1.0 - s], [0.6 + s, -0.15, 1.0 - s], [0.6 + s, -0.15, 1.0 + s],
+                       [0.6 - s, -0.15, 1.0 + s]])
+    n, t = len(wall.positions), len(wall.uvs)
+    scan = dataclasses.replace(
+        wall, positions=np.concatenate([wall.positions, square]),
+        faces=np.concatenate([wall.faces, [[n, n + 1, n + 2], [n, n + 2, n + 3]]]),
+        uvs=np.concatenate([wall.uvs, np.full((1, 2), 0.25)]),
+        face_uvs=np.concatenate([wall.face_uvs, np.full((2, 3), t)]), face_materials=None)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = prepare_photos(scan, photos, range(3), caster, 160, VisibilitySettings(supersample=2))
+    loose = loose_fragments(scan.faces)
+    floater = np.flatnonzero(loose)
+    assert floater.tolist() == [scan.n_faces - 2, scan.n_faces - 1]
+    assert not any(np.isin(v.face_id[v.valid], floater).any() for v in views)  # no usable pixel on it
+    points, normals, f, b = surface_points(scan, 20000)
+    centre = np.full((2, 2), 1 / 3, np.float32)
+    fp = scan.triangles[floater].mean(axis=1)
+    before, _ = projective_colour(photos, views, range(3), None, grey, faces=scan.faces)
+    after, _ = projective_colour(photos, views, range(3), None, grey, faces=scan.faces, through=loose)
+    np.testing.assert_allclose(before(fp, scan.face_normals[floater], floater, centre), 0.5)
+    np.testing.assert_allclose(after(fp, scan.face_normals[floater], floater, centre),
+                               np.broadcast_to(np.array([90, 64, 51]) / 255, (2, 3)), atol=0.02)
+    on_wall = ~np.isin(f, floater)
+    np.testing.assert_array_equal(after(points, normals, f, b)[on_wall], before(points, normals, f, b)[on_wall])
