@@ -164,7 +164,7 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
         vertex_rgb[v] = rgb
     if filling:
         # a fill cut off from every seed (a fused scan's loose fragment, floating off the surface it belongs to
-        # and seen cleanly by no photo) takes the colour of the nearest seeded position in space, not the scan's
+        # and seen cleanly by no photo) takes the colour of the surfaces nearest to it in space, not the scan's
         # mean colour: a real apartment's dark cabinets were dotted with light grey where their floaters were
         vertex_rgb = harmonic_vertex_colours(scan, known, vertex_rgb, nearest=True)
 

@@ -318,7 +318,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                           for x, w in zip(seen_by, weights)]
                 out, _ = _weighted_mean(n, seen_by, robust)
         if seen_through:
-            behind, support = _weighted_mean(n, seen_through, [x.feather for x in seen_through])
+            behind, support = _weighted_mean(n, seen_through, [np.ones(len(x.idx), np.float32) for x in seen_through])
             take = np.flatnonzero((total <= 0) & (support > 0))
             out[take], total[take], alpha[take] = behind[take], support[take], 1
         # the fallback only where the photos do not fully cover a point
