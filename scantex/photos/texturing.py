@@ -232,16 +232,22 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         unit = normals.astype(np.float32)
         facing = np.einsum("ij,ij->i", unit, local)  # n . (X - origin): the view angle needs n . (X - C)
 
-        def sample(s: _Source):
-            sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
-            if sub is not None and sub.size == 0:
-                return None
-            cam = (local if sub is None else local[sub]) @ s.rotation.T + s.translation  # camera frame
-            z = cam[:, 2]
+        def project(s: _Source, at: np.ndarray):
+            """Points ``at`` (about the origin) in the photo's camera frame, at its sampling resolution's pixels
+            and at its working resolution's."""
+            cam = at @ s.rotation.T + s.translation
             with np.errstate(divide="ignore", invalid="ignore"):
                 full = (cam @ s.camera.K.T.astype(np.float32))
                 full = full[:, :2] / full[:, 2:]  # a point in the camera's plane (z = 0) is not finite
                 pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
+            return cam, full, pix
+
+        def sample(s: _Source):
+            sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
+            if sub is not None and sub.size == 0:
+                return None
+            cam, full, pix = project(s, local if sub is None else local[sub])
+            z = cam[:, 2]
             idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
             if idx.size == 0:
                 return None
@@ -264,33 +270,15 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
             return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
-        loose = np.flatnonzero(through[face_ids]) if through is not None else np.zeros(0, np.intp)
-
-        def sample_through(s: _Source):
-            """The photo's pixels at the loose points it has in view, no surface of the mesh in front of them."""
-            cam = local[loose] @ s.rotation.T + s.translation
-            with np.errstate(divide="ignore", invalid="ignore"):
-                full = cam @ s.camera.K.T.astype(np.float32)
-                full = full[:, :2] / full[:, 2:]
-                pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]
-            idx, _, _ = _seen_in(None, s.depth, pix, cam[:, 2], settings.depth_tolerance)
-            if idx.size == 0:
-                return None
-            rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full[idx])
-            if canonicalise is not None:
-                rgb = canonicalise(rgb, np.full(idx.size, s.group))
-            ones = np.ones(idx.size, np.float32)
-            return _Samples(loose[idx], ones, ones, rgb, np.zeros(idx.size, bool), s.group)
-
         asked = [s for k, s in enumerate(sources) if k != without]
-        jobs = [sample] + ([sample_through] if loose.size else [])
-        if len(asked) > 1 and threads > 1:
-            with ThreadPoolExecutor(min(threads, len(asked))) as pool:
-                samples = [list(pool.map(job, asked)) for job in jobs]
-        else:
-            samples = [[job(s) for s in asked] for job in jobs]
-        seen_by: list[_Samples] = [x for x in samples[0] if x is not None]
-        seen_through: list[_Samples] = [x for x in samples[-1] if x is not None] if loose.size else []
+
+        def each_photo(job):
+            if len(asked) > 1 and threads > 1:
+                with ThreadPoolExecutor(min(threads, len(asked))) as pool:
+                    return [x for x in pool.map(job, asked) if x is not None]
+            return [x for x in map(job, asked) if x is not None]
+
+        seen_by: list[_Samples] = each_photo(sample)
         best = np.full(n, -np.inf, np.float32)
         for x in seen_by:
             best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
@@ -317,9 +305,26 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
                           for x, w in zip(seen_by, weights)]
                 out, _ = _weighted_mean(n, seen_by, robust)
-        if seen_through:
-            behind, support = _weighted_mean(n, seen_through, [np.ones(len(x.idx), np.float32) for x in seen_through])
-            take = np.flatnonzero((total <= 0) & (support > 0))
+        # the loose fragments' points no usable pixel coloured: the photos seen through them
+        loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
+        if loose.size:
+            def sample_through(s: _Source):
+                """The photo's pixels at the loose points no usable pixel coloured that it has in view, no
+                surface of the mesh in front of them."""
+                cam, full, pix = project(s, local[loose])
+                idx, _, _ = _seen_in(None, s.depth, pix, cam[:, 2], settings.depth_tolerance)
+                if idx.size == 0:
+                    return None
+                rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full[idx])
+                if canonicalise is not None:
+                    rgb = canonicalise(rgb, np.full(idx.size, s.group))
+                ones = np.ones(idx.size, np.float32)
+                return _Samples(loose[idx], ones, ones, rgb, np.zeros(idx.size, bool), s.group)
+
+            seen_through = each_photo(sample_through)
+            alike = [np.ones(len(x.idx), np.float32) for x in seen_through]
+            behind, support = _weighted_mean(n, seen_through, alike)
+            take = np.flatnonzero(support > 0)
             out[take], total[take], alpha[take] = behind[take], support[take], 1
         # the fallback only where the photos do not fully cover a point
         part = np.flatnonzero((total <= 0) | (alpha < 1))
