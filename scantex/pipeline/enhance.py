@@ -118,7 +118,7 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
         depths.append(mean_depth)
         valids.append(valid)
         update(i + 1, len(cameras))
-    views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test)
+    views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test, rendered=rendered)
     return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
 
 

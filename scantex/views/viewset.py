@@ -28,6 +28,8 @@ class ViewSet:
         alpha: ``(N, H, W) float32`` share of each pixel covered by the mesh.
         train: indices of the training views.
         test: indices of the held-out views.
+        rendered: ``(N,) bool``, the views whose images were rendered; None when all were (a run that
+            trains nothing on its views renders only the held-out ones and leaves the others black).
     """
 
     cameras: tuple[Camera, ...]
@@ -35,6 +37,7 @@ class ViewSet:
     alpha: np.ndarray
     train: np.ndarray
     test: np.ndarray
+    rendered: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -68,7 +71,8 @@ def render_views(scan: Scan, cameras: Sequence[Camera], *, lit: bool = False, su
 
 
 def write_views(views: ViewSet, out_dir: str | Path) -> Path:
-    """Write ``view_000.png ...`` and ``cameras.json`` (OpenCV convention) into ``out_dir``.
+    """Write ``view_000.png ...`` and ``cameras.json`` (OpenCV convention) into ``out_dir``: the views
+    that were rendered, under their index in the set (views never rendered are left out, not written black).
 
     ``cameras.json``: ``{"convention": ..., "frames": [{image, width, height, K, world_to_camera,
     split}]}`` with image paths relative to the file.
@@ -83,6 +87,8 @@ def write_views(views: ViewSet, out_dir: str | Path) -> Path:
     frames = []
     with atomic_files() as files:
         for i, (cam, img) in enumerate(zip(views.cameras, views.images)):
+            if views.rendered is not None and not views.rendered[i]:
+                continue
             name = f"view_{i:03d}.png"
             Image.fromarray(to_uint8(img)).save(files.path(out_dir / name), format="PNG",
                                                     compress_level=PNG_COMPRESS_LEVEL)

@@ -175,6 +175,13 @@ def test_photo_mode_without_a_field_never_imports_torch(tmp_path, toy_demo, toy_
     assert run.returncode == 0 and run.stdout.split() == ["0", "False"], run.stdout + run.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     assert not metrics["field"]["trained"] and metrics["held_out_photos"]["enhanced"]["ssim"] > 0
+    # only the held-out synthetic views are rendered (for the report's score): renders/ holds those, none black
+    from PIL import Image
+
+    frames = json.loads((out / "renders" / "cameras.json").read_text())["frames"]
+    assert frames and {f["split"] for f in frames} == {"test"}
+    assert len(list((out / "renders").glob("view_*.png"))) == len(frames)
+    assert all(np.asarray(Image.open(out / "renders" / f["image"])).max() > 0 for f in frames)
 
 
 def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
