@@ -517,10 +517,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
-    p.add_argument("--final-texture", choices=("training", "all"), default=None,
-                   help="with --photos: write the texture the held-out photos scored (training, the default) or, "
-                        "once scored, make it again from every photo (all: one run, both the score and every "
-                        "photo in the texture; a second bake)")
+    p.add_argument("--final-texture", choices=("auto", "training", "all"), default=None,
+                   help="with --photos: write the texture the held-out photos scored (training) or, once scored, "
+                        "make it again from every photo (all: one run, both the score and every photo in the "
+                        "texture; a second bake); auto (the default): all for fewer than 50 photos, else training")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame)")

@@ -151,12 +151,15 @@ class PhotosConfig:
     """refine_poses consensus: rounds of aligning every photo to the others"""
     texturing: str = "projective"
     """texel colours: projective (sampled from the photos that see them, at full resolution, blended smoothly; the input's texels, or the field when it is trained, fill the rest) or field (the field's colour everywhere)"""
-    final: str = "training"
+    final: str = "auto"
     """the texture written: training (the texture the held-out photos scored, made without them: the score is
-    exactly the written texture's) or all (once scored, made again from every photo, the held-out ones
-    included; projective texturing without a trained field only). Measured on the real captures with 10 %
-    held out, scored on photos neither saw: all -0.14 dB on the bolster, +0.10 dB on the facade, +12-28 s
-    (bench/RESULTS.md, "real photos"), so training stays the default"""
+    exactly the written texture's), all (once scored, made again from every photo, the held-out ones
+    included, at the cost of a second bake; projective texturing without a trained field only) or auto (all
+    for a capture of fewer than 50 photos, where each held-out photo is a large share of the evidence and
+    the second bake costs seconds; training above). Measured on the real captures, scored on photos neither
+    texture saw, over several draws of the run's held-out photos: training 16.66-17.26 dB (mean 17.07) on
+    the bolster, 21.77-22.35 (22.09) on the facade; all 17.12 and 22.12 whatever the draw, for 6-20 s more
+    (bench/RESULTS.md, "real photos final")"""
     temperature: float = 5.0
     """projective texturing: softmax temperature on the view quality (log units). High (the default, 5) blends every photo that sees a texel almost equally: noise, occluders and the poses' errors average out; low (0.15) lets the best view dominate: sharper where poses are exact, ghosted where they are not"""
     pair_weight: float = 4.0
@@ -304,7 +307,7 @@ RANGES: dict[str, tuple] = {
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
     "photos.texturing": ("projective", "field"), "photos.refine_poses": ("off", "input", "consensus"),
-    "photos.refine_iterations": (1, 10), "photos.final": ("all", "training"), "photos.consistency": (0.0, 10.0),
+    "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
     "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),

@@ -159,6 +159,10 @@ SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
 PHOTO_DENSITY_FOR_2X = 2.0
+#: ``photos.final`` auto: a capture of fewer photos than this writes the texture made again from all of them
+#: once scored (a held-out photo is a large share of so few; a second bake costs seconds); larger ones write
+#: the texture scored (:func:`final_texture_mode`)
+FINAL_ALL_BELOW = 50
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
 #: 4.5 GB against 3.5 (bench/RESULTS.md); ``--texture-size`` asks for another
@@ -412,6 +416,14 @@ def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
     return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
 
 
+def final_texture_mode(final: str, n_photos: int) -> str:
+    """``photos.final`` as a run applies it: ``training`` or ``all`` (``auto``: all below
+    ``FINAL_ALL_BELOW`` photos)."""
+    if final == "auto":
+        return "all" if n_photos < FINAL_ALL_BELOW else "training"
+    return final
+
+
 def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
     """A digest of what a field checkpoint depends on: the scan's geometry and UVs, the photos' cameras
     and the settings (but the step count, which a resumed run may raise): ``--resume`` refuses another's."""
@@ -644,6 +656,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         photo_scale, density = photo_atlas_scale(scan, photos_px_per_cm)
         bake_report.update(density)
     photo_fallback = colour
+    final = final_texture_mode(config.photos.final, len(photo.photos)) if photo is not None else "training"
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x
     # faster than the photos of one chunk side by side; the refiner, when it wraps the colour, takes one chunk
     # at a time
@@ -655,7 +668,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
                                                   atlas_density, threads=sampling_threads)
-        if not (photo.held_out and config.photos.final == "all"):  # a texture made again needs them
+        if not (photo.held_out and final == "all"):  # a texture made again needs them
             photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
     bake_seconds = time.perf_counter() - t
 
@@ -746,8 +759,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     if photo is not None and photo.held_out and projective_report is not None and fitted is None:
-        metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": config.photos.final}
-        if config.photos.final == "all":
+        metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": final, "setting": config.photos.final}
+        if final == "all":
             # scored: the texture made without the held-out photos; written: the one made from every photo
             t = time.perf_counter()
             every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
@@ -758,7 +771,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)
             metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
             metrics["photos"]["final_texture"] = {
-                "photos": len(every.train), "mode": "all",
+                "photos": len(every.train), "mode": "all", "setting": config.photos.final,
                 "note": f"the held-out scores are those of the texture made from the {len(photo.train)} training "
                         f"photos; the texture written was made again from all {len(every.train)}",
                 "texturing": final_report}

@@ -13,7 +13,7 @@ import pytest
 from scantex.errors import ScanError
 from scantex.io import save_scan
 from scantex.photos import load_photos
-from scantex.pipeline.enhance import enhance
+from scantex.pipeline.enhance import FINAL_ALL_BELOW, enhance, final_texture_mode
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
 from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
@@ -59,18 +59,23 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
 
 
 def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos, photo_result):
-    """photos.final training (the default) writes the texture the held-out photo scored; all makes it again
-    from all ten photos once scored: the same score, another texture, the same geometry."""
+    """photos.final auto (the default) on a capture of 10 photos makes the texture again from all of them once
+    scored; training writes the texture the held-out photo scored: the same score, another texture, the same
+    geometry. A capture of 50 photos or more keeps the texture scored."""
     m = photo_result.metrics
-    assert m["photos"]["final_texture"] == {"photos": 9, "mode": "training"}
-    every = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="all"),
-                    ground_truth=toy_demo.ground_truth, photos=toy_photos)
-    final = every.metrics["photos"]["final_texture"]
-    assert final["mode"] == "all" and final["photos"] == 10
-    assert every.metrics["geometry"]["arrays_identical"] and every.metrics["geometry"]["triangles_identical"]
-    assert every.metrics["held_out_photos"] == m["held_out_photos"]  # the same texture was scored
-    written, scored = every.scan.materials[0].image, photo_result.scan.materials[0].image
-    assert written.shape == scored.shape and not np.array_equal(written, scored)
+    final = m["photos"]["final_texture"]
+    assert final["mode"] == "all" and final["setting"] == "auto" and final["photos"] == 10
+    assert m["geometry"]["arrays_identical"] and m["geometry"]["triangles_identical"]
+    scored = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="training"),
+                     ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    assert scored.metrics["photos"]["final_texture"] == {"photos": 9, "mode": "training", "setting": "training"}
+    assert scored.metrics["held_out_photos"] == m["held_out_photos"]  # the same texture was scored
+    written, kept = photo_result.scan.materials[0].image, scored.scan.materials[0].image
+    assert written.shape == kept.shape and not np.array_equal(written, kept)
+    assert final_texture_mode("auto", FINAL_ALL_BELOW - 1) == "all"
+    assert final_texture_mode("auto", FINAL_ALL_BELOW) == "training"
+    assert final_texture_mode("training", 3) == "training" and final_texture_mode("all", 500) == "all"
+
 
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
     """The photos hold what the degraded atlas lost: with them, the held-out views come out closer to the truth."""
