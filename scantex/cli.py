@@ -348,8 +348,8 @@ def enhance_summary(m: dict) -> str:
                      "photos too, which favours the input)")
         final = m.get("photos", {}).get("final_texture", {})
         if final.get("mode") == "all":
-            lines.append(f"texture written: made again from all {final['photos']} photos, the held-out ones "
-                         f"included (the scores above are the texture without them; photos.final)")
+            lines.append(f"texture written: made from all {final['photos']} photos, the held-out ones included (the "
+                         f"scores above are the texture made without them; photos.final {final.get('setting', 'all')})")
     if "held_out_photos_vs_ground_truth" in m:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
@@ -518,9 +518,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--final-texture", choices=("auto", "training", "all"), default=None,
-                   help="with --photos: write the texture the held-out photos scored (training) or, once scored, "
-                        "make it again from every photo (all: one run, both the score and every photo in the "
-                        "texture; a second bake); auto (the default): all for fewer than 50 photos, else training")
+                   help="with --photos: write the texture the held-out photos scored (training) or the one made "
+                        "from every photo (all: one run, both the score and every photo in the texture; the scored "
+                        "texture is baked again where they see it); auto (the default): all for fewer than 50 "
+                        "photos, else training")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame)")

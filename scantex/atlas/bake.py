@@ -50,7 +50,8 @@ def output_size(scan: Scan, material: int, requested: int = 0, cap: int = 8192, 
 
 def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, chunk: int = 65536,
          progress: Callable[[int, int], None] | None = None,
-         layouts: list[AtlasLayout | None] | None = None, workers: int = 1) -> tuple[np.ndarray, ...]:
+         layouts: list[AtlasLayout | None] | None = None, workers: int = 1,
+         only: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """New ``(H, W, 3) uint8`` images, one per material (``None`` for materials without UVs/faces).
 
     Each is ``size`` square, or ``scale`` times its input atlas (:func:`output_size`). At ``scale`` 1 on
@@ -72,11 +73,14 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     ``workers`` > 1 colours that many chunks at once, in threads (``colour`` must then allow calls from
     several threads at once; numpy releases the interpreter lock in its array work). The texels are the
     same, as each chunk's colours depend on that chunk alone; at most twice ``workers`` chunks are held.
+    ``only``: ``(F,) bool``, the faces to colour (``None``: all); the texels of the others are gutter, filled
+    from the nearest coloured texel. Away from the faces left out, the coloured texels are those of a full
+    bake to one 8-bit level (a strip's texel map starts at another row: barycentrics agree to 1e-7).
     """
     tri_uv = scan.triangle_uvs
     corners = scan.triangles
     normals = scan.face_normals
-    plans = _plans(scan, size, scale)
+    plans = _plans(scan, size, scale, only)
     total = sum(_estimated_texels(tri_uv[p[0]], p[1], p[2]) for p in plans if p is not None)
     images, done = [], 0
 
@@ -170,11 +174,13 @@ def bake_reference(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: i
     return tuple(images)
 
 
-def _plans(scan: Scan, size: int, scale: int = 2) -> list[tuple[np.ndarray, int, int] | None]:
-    """Per material: its faces and atlas height and width, or ``None`` when it has no faces."""
+def _plans(scan: Scan, size: int, scale: int = 2, only: np.ndarray | None = None
+           ) -> list[tuple[np.ndarray, int, int] | None]:
+    """Per material: its faces (of ``only``, when given) and atlas height and width, or ``None`` when it has
+    no faces."""
     plans = []
     for m in range(len(scan.materials)):
-        faces = np.flatnonzero(scan.face_materials == m)
+        faces = np.flatnonzero((scan.face_materials == m) & (True if only is None else only))
         plans.append((faces, *output_size(scan, m, size, scale=scale)) if faces.size else None)
     return plans
 

@@ -424,6 +424,20 @@ def final_texture_mode(final: str, n_photos: int) -> str:
     return final
 
 
+def faces_in_view(scan: Scan, views, rings: int = 2) -> np.ndarray:
+    """``(F,) bool``: the faces the views' pixels hit, grown by ``rings`` rings of faces sharing a position with
+    them (what bilinear lookups and seam blending beside them read)."""
+    seen = np.zeros(scan.n_faces, bool)
+    for view in views:
+        seen[view.face_id[(view.face_id >= 0) & (view.face_id < scan.n_faces)]] = True
+    welded = scan.welded[scan.faces]
+    for _ in range(rings):
+        touched = np.zeros(int(welded.max()) + 1, bool)
+        touched[welded[seen].ravel()] = True
+        seen = touched[welded].any(axis=1)
+    return seen
+
+
 def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
     """A digest of what a field checkpoint depends on: the scan's geometry and UVs, the photos' cameras
     and the settings (but the step count, which a resumed run may raise): ``--resume`` refuses another's."""
@@ -656,26 +670,34 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         photo_scale, density = photo_atlas_scale(scan, photos_px_per_cm)
         bake_report.update(density)
     photo_fallback = colour
+    refines_photos = config.refine.enabled and config.refine.with_photos
     final = final_texture_mode(config.photos.final, len(photo.photos)) if photo is not None else "training"
+    scored_colour = final_report = None  # photos.final all: the training photos' colour, for the held-out score
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x
     # faster than the photos of one chunk side by side; the refiner, when it wraps the colour, takes one chunk
     # at a time
     workers = 1
     if photo is not None and config.photos.texturing != "field":
         atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * photo_scale
-        if not (config.refine.enabled and config.refine.with_photos):
+        if not refines_photos:
             workers = min(8, config.threads or os.cpu_count() or 1)
         sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side
         colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
                                                   atlas_density, threads=sampling_threads)
-        if not (photo.held_out and final == "all"):  # a texture made again needs them
-            photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
+        if photo.held_out and final == "all" and fitted is None and not refines_photos:
+            # the texture written is made from every photo; the held-out photos score the one made without
+            # them, baked only where they see the surface
+            every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
+            scored_colour = colour
+            colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
+                                                 device, atlas_density, threads=sampling_threads)
+        photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
     # mesh-only mode's default bake keeps the input's own texels, levelled: refining them measured a loss
     over_input = photo is None and bake_report["source"] == "input"
-    if (config.refine.enabled and (photo is None or config.refine.with_photos)
+    if (config.refine.enabled and (photo is None or refines_photos)
             and (not over_input or config.refine.over_input)):
         from scantex.refine.stage import refine_colour
 
@@ -688,7 +710,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             colour, refine_report = refined.colour, refined.report
         timings["refine"] = time.perf_counter() - t
 
-    def bake_and_blend(colour: SurfaceColour, stage: str, workers: int = 1) -> tuple[Scan, Scan]:
+    def bake_and_blend(colour: SurfaceColour, stage: str, workers: int = 1,
+                       only: np.ndarray | None = None) -> tuple[Scan, Scan]:
         with reporter.stage(stage) as update:
             target = plan.scan
             # the input's own texels on the input's own layout: its atlas size keeps each texel exactly (twice
@@ -700,7 +723,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             layouts: list = []  # the atlas's texel map and gutter padding, for the seam blending to reuse
             images = bake(target, colour, size=config.bake.texture_size if mode == "keep" else size, scale=scale,
                           chunk=config.bake.chunk, progress=update, layouts=layouts if blends else None,
-                          workers=workers)
+                          workers=workers, only=only)
         materials = tuple(
             m if img is None else dataclasses.replace(m, image=img, image_name=f"enhanced_{m.name}.png",
                                                       diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
@@ -731,6 +754,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
             bake_report["safety"] = safety
+    scored = enhanced
+    if scored_colour is not None:
+        _, scored = bake_and_blend(scored_colour, "baking the texture the held-out photos score", workers,
+                                   only=faces_in_view(scan, photo.held_out))
     timings["bake"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -753,29 +780,20 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             metrics["refine"] = refine_report
         if photo is not None:
             sheets: dict = {}
-            metrics.update(photo_metrics(scan, enhanced, ground_truth, photo, ray_counts, holes, caster, sheets))
+            metrics.update(photo_metrics(scan, scored, ground_truth, photo, ray_counts, holes, caster, sheets))
             metrics["photos"]["texturing"] = projective_report or {"mode": "field"}
             comparisons.update({f"held_out_photo_{i:03d}": im for i, im in sheets.items()})
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     if photo is not None and photo.held_out and projective_report is not None and fitted is None:
-        metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": final, "setting": config.photos.final}
-        if final == "all":
-            # scored: the texture made without the held-out photos; written: the one made from every photo
-            t = time.perf_counter()
-            every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
-            colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
-                                                 device, atlas_density, threads=sampling_threads)
-            baked, enhanced = bake_and_blend(colour, "baking the texture from every photo", workers)
-            metrics["geometry"] = geometry_metrics(scan, enhanced)
-            metrics["seam_visibility"]["enhanced"] = round(seam_visibility(enhanced), 3)
-            metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
-            metrics["photos"]["final_texture"] = {
-                "photos": len(every.train), "mode": "all", "setting": config.photos.final,
-                "note": f"the held-out scores are those of the texture made from the {len(photo.train)} training "
-                        f"photos; the texture written was made again from all {len(every.train)}",
-                "texturing": final_report}
-            timings["final"] = time.perf_counter() - t
+        metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": "training",
+                                              "setting": config.photos.final}
+        if scored_colour is not None:
+            n = len(photo.train) + len(photo.held_out)
+            metrics["photos"]["final_texture"].update(
+                photos=n, mode="all", texturing=final_report,
+                note=f"the held-out scores are those of the texture made from the {len(photo.train)} training photos "
+                     f"(baked where the held-out photos see the surface); the texture written was made from all {n}")
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
     return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)

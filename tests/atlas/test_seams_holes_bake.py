@@ -158,6 +158,30 @@ def test_bake_at_the_input_size_keeps_every_covered_texel_exactly(wall):
     assert covered.mean() > 0.5 and np.array_equal(same[covered], image[covered])
 
 
+def test_a_bake_of_some_faces_colours_their_texels_as_a_full_bake_does(wall):
+    """``only``: the texels of those faces are the full bake's, away from the faces left out (a texel beside
+    an edge is rasterised from the faces about it), to one 8-bit level (a strip's texel map starts at another
+    row: the barycentrics agree to 1e-7); the rest of the atlas is gutter, filled from them (the held-out
+    photos' texture of ``photos.final`` all is baked so, its faces grown by 2 rings)."""
+    from scipy import ndimage
+
+    def colour(points, normals, faces, bary):
+        return shade_hits(wall, faces, bary)
+
+    only = np.zeros(wall.n_faces, bool)
+    only[: wall.n_faces // 3] = True
+    (full,) = bake(wall, colour)
+    (part,) = bake(wall, colour, only=only)
+    H, W = full.shape[:2]
+    whole = texel_map(wall.triangle_uvs, W, H, np.arange(wall.n_faces)).face_id
+    theirs = (whole >= 0) & only[np.maximum(whole, 0)]  # texels a face of ``only`` colours in the full bake
+    inside = ndimage.binary_erosion(theirs | (whole < 0), iterations=2) & theirs
+    assert inside.mean() > 0.05 and np.abs(part[inside].astype(int) - full[inside].astype(int)).max() <= 1
+    assert (part[inside] == full[inside]).all(axis=1).mean() > 0.9
+    others = (whole >= 0) & ~only[np.maximum(whole, 0)]
+    assert not np.array_equal(part[others], full[others])  # not coloured: padding
+
+
 def test_bake_keeps_layout_per_material(cube):
     def colour(points, normals, faces, bary):
         return np.tile(np.array([[0.0, 1.0, 0.0]], np.float32), (len(points), 1))

@@ -59,9 +59,10 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
 
 
 def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos, photo_result):
-    """photos.final auto (the default) on a capture of 10 photos makes the texture again from all of them once
-    scored; training writes the texture the held-out photo scored: the same score, another texture, the same
-    geometry. A capture of 50 photos or more keeps the texture scored."""
+    """photos.final auto (the default) on a capture of 10 photos writes the texture made from all of them and
+    scores the one made without the held-out photo, baked only where it sees the surface: the very scores of
+    the texture training writes (baked whole), another texture, the same geometry. A capture of 50 photos or
+    more writes the texture scored."""
     m = photo_result.metrics
     final = m["photos"]["final_texture"]
     assert final["mode"] == "all" and final["setting"] == "auto" and final["photos"] == 10
@@ -69,7 +70,9 @@ def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos
     scored = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="training"),
                      ground_truth=toy_demo.ground_truth, photos=toy_photos)
     assert scored.metrics["photos"]["final_texture"] == {"photos": 9, "mode": "training", "setting": "training"}
-    assert scored.metrics["held_out_photos"] == m["held_out_photos"]  # the same texture was scored
+    for name in ("input", "enhanced"):  # the same texture was scored (to an 8-bit level at a few texels)
+        for key, value in scored.metrics["held_out_photos"][name].items():
+            assert m["held_out_photos"][name][key] == pytest.approx(value, abs=0.01)
     written, kept = photo_result.scan.materials[0].image, scored.scan.materials[0].image
     assert written.shape == kept.shape and not np.array_equal(written, kept)
     assert final_texture_mode("auto", FINAL_ALL_BELOW - 1) == "all"
@@ -143,14 +146,14 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
            "--final-texture", "all", "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert "2 held-out photos" in run.stdout and "made again from all 10 photos" in run.stdout
+    assert "2 held-out photos" in run.stdout and "made from all 10 photos" in run.stdout
     assert "held out from the result only" in run.stdout  # the input's texture may have seen them
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
     tally = metrics["photos"]["texturing"]["clipped"]
     assert tally["samples"] > 0 and 0 <= tally["gave_way"] <= tally["clipped"] <= tally["samples"]
-    assert metrics["photos"]["final_texture"]["photos"] == 10 and "final" in metrics["timings_s"]
+    assert metrics["photos"]["final_texture"]["photos"] == 10
     corrections = metrics["photos"]["pose_corrections"]  # one per training photo, against its recorded pose
     assert [c["photo"] for c in corrections] == metrics["photos"]["train"]
     assert all(c["rotation_deg"] < 3 for c in corrections)
