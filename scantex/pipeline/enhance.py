@@ -672,7 +672,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     photo_fallback = colour
     refines_photos = config.refine.enabled and config.refine.with_photos
     final = final_texture_mode(config.photos.final, len(photo.photos)) if photo is not None else "training"
-    scored_colour = final_report = None  # photos.final all: the training photos' colour, for the held-out score
+    remakes = False  # photos.final all: the texture from every photo; the held-out photos score the training one
+    final_report = None
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x
     # faster than the photos of one chunk side by side; the refiner, when it wraps the colour, takes one chunk
     # at a time
@@ -682,16 +683,17 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         if not refines_photos:
             workers = min(8, config.threads or os.cpu_count() or 1)
         sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side
-        colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts, device,
-                                                  atlas_density, threads=sampling_threads)
-        if photo.held_out and final == "all" and fitted is None and not refines_photos:
-            # the texture written is made from every photo; the held-out photos score the one made without
-            # them, baked only where they see the surface
+        remakes = bool(photo.held_out) and final == "all" and fitted is None and not refines_photos
+        if remakes:
+            # the texture written is made from every photo; the held-out photos score the one made without them,
+            # baked after it (one set of photos in memory at a time) and only where they see the surface
             every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
-            scored_colour = colour
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
                                                  device, atlas_density, threads=sampling_threads)
-        photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
+        else:
+            colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts,
+                                                      device, atlas_density, threads=sampling_threads)
+            photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
     bake_seconds = time.perf_counter() - t
 
     refine_report = None
@@ -754,11 +756,18 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
             bake_report["safety"] = safety
+    timings["bake"] = time.perf_counter() - t
     scored = enhanced
-    if scored_colour is not None:
+    if remakes:
+        t_scored = time.perf_counter()
+        colour = None  # the texture from every photo is baked: its photos go
+        scored_colour, projective_report = photo_texture(scan, photo, None, photo_fallback, config.photos, caster,
+                                                         charts, device, atlas_density, threads=sampling_threads)
+        photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
         _, scored = bake_and_blend(scored_colour, "baking the texture the held-out photos score", workers,
                                    only=faces_in_view(scan, photo.held_out))
-    timings["bake"] = time.perf_counter() - t
+        del scored_colour
+        timings["scored"] = time.perf_counter() - t_scored
 
     t = time.perf_counter()
     comparisons: dict[str, np.ndarray] = {}
@@ -788,7 +797,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     if photo is not None and photo.held_out and projective_report is not None and fitted is None:
         metrics["photos"]["final_texture"] = {"photos": len(photo.train), "mode": "training",
                                               "setting": config.photos.final}
-        if scored_colour is not None:
+        if remakes:
             n = len(photo.train) + len(photo.held_out)
             metrics["photos"]["final_texture"].update(
                 photos=n, mode="all", texturing=final_report,
