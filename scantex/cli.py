@@ -344,8 +344,9 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
-        lines.append("  (held out from the result only: a capture app's input texture was most likely made from these "
-                     "photos too, which favours the input)")
+        if m.get("input", {}).get("textured", True):
+            lines.append("  (held out from the result only: a capture app's input texture was most likely made from "
+                         "these photos too, which favours the input)")
         final = m.get("photos", {}).get("final_texture", {})
         if final.get("mode") == "all":
             lines.append(f"texture written: made from all {final['photos']} photos, the held-out ones included (the "

@@ -847,8 +847,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     edges = seam_edges(scan)
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
-        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "charts": int(charts.max()) + 1,
-                  "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
+        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "textured": scan.is_textured,
+                  "charts": int(charts.max()) + 1, "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
         "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
                   "coverage": coverage.summary()},
         "field": {"trained": True, "train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run,

@@ -104,6 +104,10 @@ def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     assert s["enhanced"]["psnr_matched"] > s["input"]["psnr_matched"] + 3
     image = result.scan.materials[0].image
     assert image is not None and image.std() > 10  # a real texture, not one flat colour
+    # no texture to have seen the held-out photos: the summary does not warn that one may have
+    from scantex.cli import enhance_summary
+
+    assert m["input"]["textured"] is False and "held out from the result only" not in enhance_summary(m)
 
 
 def test_vertex_coloured_mesh_takes_its_colours_as_the_input_texture(toy_demo, toy_photos):
