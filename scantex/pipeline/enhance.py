@@ -416,11 +416,12 @@ def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
     return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
 
 
-def final_texture_mode(final: str, n_photos: int) -> str:
+def final_texture_mode(final: str, n_photos: int, refined_poses: bool = False) -> str:
     """``photos.final`` as a run applies it: ``training`` or ``all`` (``auto``: all below
-    ``FINAL_ALL_BELOW`` photos)."""
+    ``FINAL_ALL_BELOW`` photos, unless the training photos' poses are refined: the held-out ones keep their
+    recorded poses, and a texture from both would mix two frames)."""
     if final == "auto":
-        return "all" if n_photos < FINAL_ALL_BELOW else "training"
+        return "all" if n_photos < FINAL_ALL_BELOW and not refined_poses else "training"
     return final
 
 
@@ -671,7 +672,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         bake_report.update(density)
     photo_fallback = colour
     refines_photos = config.refine.enabled and config.refine.with_photos
-    final = final_texture_mode(config.photos.final, len(photo.photos)) if photo is not None else "training"
+    final = (final_texture_mode(config.photos.final, len(photo.photos), bool(photo.pose_corrections))
+             if photo is not None else "training")
     remakes = False  # photos.final all: the texture from every photo; the held-out photos score the training one
     final_report = None
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x

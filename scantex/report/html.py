@@ -109,9 +109,12 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
                  "metrics.json (computed at the views' resolution; the renders here are finer)."),
     ]
     if getattr(result, "comparisons", None):
+        remade = (metrics.get("photos", {}).get("final_texture") or {}).get("mode") == "all"
         sections.append(_section("Held-out photos", _comparisons(result.comparisons),
-                                 "Photos the field never trained on | the input rendered through their cameras "
-                                 "| the result."))
+                                 "Photos the result was made without | the input rendered through their cameras "
+                                 "| the result." + (" The texture written was then made again from every photo, "
+                                                    "these included (photos.final); these images and their scores "
+                                                    "are of the texture made without them." if remade else "")))
     if before is not None:
         sections.append(_section("Atlas", _atlases(before, after),
                                  "The texture images themselves: whole (scaled to fit), then one region of the UV "

@@ -78,6 +78,9 @@ def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos
     assert final_texture_mode("auto", FINAL_ALL_BELOW - 1) == "all"
     assert final_texture_mode("auto", FINAL_ALL_BELOW) == "training"
     assert final_texture_mode("training", 3) == "training" and final_texture_mode("all", 500) == "all"
+    # refined poses: the held-out photos keep their recorded ones, so auto does not mix them in
+    assert final_texture_mode("auto", 10, refined_poses=True) == "training"
+    assert final_texture_mode("all", 10, refined_poses=True) == "all"
 
 
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
