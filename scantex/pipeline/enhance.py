@@ -159,9 +159,9 @@ SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
 PHOTO_DENSITY_FOR_2X = 2.0
-#: ``photos.final`` auto: a capture of fewer photos than this writes the texture made again from all of them
-#: once scored (a held-out photo is a large share of so few; a second bake costs seconds); larger ones write
-#: the texture scored (:func:`final_texture_mode`)
+#: ``photos.final`` auto: a capture of fewer photos than this writes the texture made from all of them, its
+#: held-out photos scoring the one made without them (a held-out photo is a large share of so few; the second,
+#: partial bake costs seconds); larger ones write the texture scored (:func:`final_texture_mode`)
 FINAL_ALL_BELOW = 50
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
