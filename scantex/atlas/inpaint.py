@@ -16,13 +16,15 @@ from scantex.scan import Scan
 NEAREST_SEEDS = 8
 
 
-def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1) -> np.ndarray:
-    """``(F,) bool`` ``faces`` grown by ``rings`` rings of faces that share a vertex with them."""
+def grow_faces(scan: Scan, faces: np.ndarray, rings: int = 1, *, welded: bool = False) -> np.ndarray:
+    """``(F,) bool`` ``faces`` grown by ``rings`` rings of faces that share a vertex with them (``welded``: a
+    position, so that the rings cross the UV seams where a file repeats positions)."""
+    corners = scan.welded[scan.faces] if welded else scan.faces
     grown = faces.copy()
     for _ in range(rings):
-        touched = np.zeros(scan.n_vertices, bool)
-        touched[scan.faces[grown].ravel()] = True
-        grown |= touched[scan.faces].any(axis=1)
+        touched = np.zeros(int(corners.max()) + 1 if corners.size else 0, bool)
+        touched[corners[grown].ravel()] = True
+        grown |= touched[corners].any(axis=1)
     return grown
 
 

@@ -431,12 +431,7 @@ def faces_in_view(scan: Scan, views, rings: int = 2) -> np.ndarray:
     seen = np.zeros(scan.n_faces, bool)
     for view in views:
         seen[view.face_id[(view.face_id >= 0) & (view.face_id < scan.n_faces)]] = True
-    welded = scan.welded[scan.faces]
-    for _ in range(rings):
-        touched = np.zeros(int(welded.max()) + 1, bool)
-        touched[welded[seen].ravel()] = True
-        seen = touched[welded].any(axis=1)
-    return seen
+    return grow_faces(scan, seen, rings, welded=True)
 
 
 def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
