@@ -252,25 +252,18 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
         ``(photos, views, corrections)``: the refined photo set, its training G-buffers, and the corrections
         (each photo's last round, against its recorded pose).
     """
-    from scantex.photos.texturing import ProjectiveSettings, projective_colour
-    from scantex.views.raycast import interpolate
-
     recorded = {v.index: photos.cameras[v.index] for v in views}
-    corners = scan.positions[scan.faces]
     corrections: dict[int, PoseCorrection] = {}
     total, done = iterations * len(views), 0
     for _ in range(iterations):
         cameras = list(photos.cameras)
-        colour, _ = projective_colour(photos, views, range(len(views)), canonicalise, fallback,
-                                      ProjectiveSettings(temperature=temperature))
+        consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature)
         for k, view in enumerate(views):
-            def reference(fid, bary, k=k):
-                return colour(interpolate(fid, bary, corners), scan.face_normals[fid], fid, bary, without=k)
-
             # from the recorded pose every round (its prior stays the recorded pose): a photo that a first,
             # ghosted consensus pulled into a wrong minimum is not held there
             i = view.index
-            c = align_camera(scan, recorded[i], photos.load_image(i), reference, caster, settings, None, i)
+            c = align_camera(scan, recorded[i], photos.load_image(i), lambda f, b, k=k: consensus(f, b, without=k),
+                             caster, settings, None, i)
             cameras[i] = c.camera
             corrections[i] = c
             done += 1
@@ -283,6 +276,42 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
         log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (to the others' consensus)",
                  c.index, c.rotation_deg, 1000 * c.translation_m, c.focal_scale)
     return photos, views, [corrections[v.index] for v in views]
+
+
+def consensus_reference(scan: Scan, photos: PhotoSet, views: list, canonicalise, fallback,
+                        temperature: float = 5.0) -> Callable[..., np.ndarray]:
+    """``reference(face_ids, bary, without=None) -> (n, 3)``: the colour the photos of ``views`` give surface
+    points together (:func:`scantex.photos.texturing.projective_colour`; ``without``: leave that one of the
+    views out), a :data:`Reference` for :func:`align_camera`."""
+    from scantex.photos.texturing import ProjectiveSettings, projective_colour
+    from scantex.views.raycast import interpolate
+
+    corners = scan.positions[scan.faces]
+    colour, _ = projective_colour(photos, views, range(len(views)), canonicalise, fallback,
+                                  ProjectiveSettings(temperature=temperature))
+
+    def reference(face_ids, bary, without=None):
+        return colour(interpolate(face_ids, bary, corners), scan.face_normals[face_ids], face_ids, bary,
+                      without=without)
+    return reference
+
+
+def align_to_consensus(scan: Scan, photos: PhotoSet, indices, views: list, canonicalise, caster, fallback,
+                       temperature: float = 5.0, settings: PoseSettings = PoseSettings()
+                       ) -> tuple[PhotoSet, list[PoseCorrection]]:
+    """``photos`` with the cameras at ``indices`` (photos not among ``views``) aligned to the consensus of
+    ``views``' photos, and the corrections: how photos held out of a consensus refinement join its frame."""
+    consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature)
+    cameras = list(photos.cameras)
+    corrections = []
+    for i in indices:
+        c = align_camera(scan, photos.cameras[int(i)], photos.load_image(int(i)), consensus, caster, settings,
+                         None, int(i))
+        cameras[int(i)] = c.camera
+        corrections.append(c)
+        log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (to the refined photos' consensus)",
+                 c.index, c.rotation_deg, 1000 * c.translation_m, c.focal_scale)
+    return dataclasses.replace(photos, cameras=tuple(cameras)), corrections
 
 
 def reference_faces(scan: Scan) -> np.ndarray:

@@ -157,7 +157,8 @@ class PhotosConfig:
     held-out photos score the one made without them, baked again only where they see the surface; projective
     texturing without a trained field only) or auto (all for a capture of fewer than 50 photos, where each
     held-out photo is a large share of the evidence; training above, where a second bake costs more than it
-    gives, and where refine_poses moved the training photos: the held-out ones keep their recorded poses).
+    gives). Where refine_poses moved the training photos, all aligns the held-out photos to them too before
+    they join the texture written (they are scored through their recorded poses).
     Measured on the real captures, scored on photos neither texture saw, over several draws of the run's
     held-out photos: training 16.66-17.26 dB (mean 17.07) on the bolster, 21.77-22.35 (22.09) on the facade;
     all 17.12 and 22.12 whatever the draw, for 6-20 s more (bench/RESULTS.md, "real photos final")"""

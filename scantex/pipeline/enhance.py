@@ -221,6 +221,10 @@ class PhotoData:
     """the :class:`scantex.photos.alignment.AlignmentReport`, when checked"""
     pose_corrections: list = field(default_factory=list)
     """:class:`scantex.photos.poses.PoseCorrection` per training photo, when refined"""
+    final: tuple | None = None
+    """``(photos, views, corrections)``: where the training photos' poses were refined and ``photos.final``
+    all bakes the texture written from every photo, the photo set with the held-out photos aligned to the
+    training photos' frame too, their G-buffers there, and their corrections (they are scored as recorded)"""
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -232,6 +236,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None  # logs its summary
     train, held = split_photos(len(photos), pc.holdout, seed)
     corrections = []
+    canonicalise = fallback = None
     if pc.refine_poses == "input" and scan.is_textured:
         from scantex.photos.poses import refine_poses
 
@@ -257,7 +262,19 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             scan, photos, train_views, canonicalise, caster, fallback, pc.refine_iterations, pc.temperature,
             prepare=lambda refined: prepare_photos(scan, refined, train, caster, pc.max_side, settings),
             update=update)
-    return PhotoData(photos, train_views, held_views, report, corrections)
+    final = None
+    if corrections and len(held) and final_texture_mode(pc.final, len(photos)) == "all":
+        # the texture written from every photo: the held-out photos join the training photos' refined frame
+        # (a texture from both frames would be doubled); they are still scored through their recorded poses
+        if pc.refine_poses == "input":
+            aligned, moved = refine_poses(scan, photos, held, lambda f, b: shade_hits(scan, f, b), caster)
+        else:
+            from scantex.photos.poses import align_to_consensus
+
+            aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
+                                                pc.temperature)
+        final = aligned, prepare_photos(scan, aligned, held, caster, pc.max_side, settings), moved
+    return PhotoData(photos, train_views, held_views, report, corrections, final)
 
 
 def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
@@ -416,12 +433,11 @@ def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
     return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
 
 
-def final_texture_mode(final: str, n_photos: int, refined_poses: bool = False) -> str:
-    """``photos.final`` as a run applies it: ``training`` or ``all`` (``auto``: all below
-    ``FINAL_ALL_BELOW`` photos, unless the training photos' poses are refined: the held-out ones keep their
-    recorded poses, and a texture from both would mix two frames)."""
+def final_texture_mode(final: str, n_photos: int) -> str:
+    """``photos.final`` as a run applies it: ``training`` or ``all`` (``auto``: all below ``FINAL_ALL_BELOW``
+    photos)."""
     if final == "auto":
-        return "all" if n_photos < FINAL_ALL_BELOW and not refined_poses else "training"
+        return "all" if n_photos < FINAL_ALL_BELOW else "training"
     return final
 
 
@@ -667,8 +683,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         bake_report.update(density)
     photo_fallback = colour
     refines_photos = config.refine.enabled and config.refine.with_photos
-    final = (final_texture_mode(config.photos.final, len(photo.photos), bool(photo.pose_corrections))
-             if photo is not None else "training")
+    final = final_texture_mode(config.photos.final, len(photo.photos)) if photo is not None else "training"
     remakes = False  # photos.final all: the texture from every photo; the held-out photos score the training one
     final_report = None
     # the photos' colour is baked a chunk per thread (each chunk sampling its photos one after another): 1.3x
@@ -684,7 +699,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         if remakes:
             # the texture written is made from every photo; the held-out photos score the one made without them,
             # baked after it (one set of photos in memory at a time) and only where they see the surface
-            every = dataclasses.replace(photo, train=[*photo.train, *photo.held_out], held_out=[])
+            aligned, held, _ = photo.final or (photo.photos, photo.held_out, [])
+            every = dataclasses.replace(photo, photos=aligned, train=[*photo.train, *held], held_out=[])
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
                                                  device, atlas_density, threads=sampling_threads)
         else:
@@ -800,6 +816,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                 photos=n, mode="all", texturing=final_report,
                 note=f"the held-out scores are those of the texture made from the {len(photo.train)} training photos "
                      f"(baked where the held-out photos see the surface); the texture written was made from all {n}")
+            if photo.final is not None:
+                metrics["photos"]["final_texture"]["held_out_pose_corrections"] = [c.to_dict() for c in photo.final[2]]
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
     return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)

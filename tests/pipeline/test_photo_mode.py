@@ -78,9 +78,20 @@ def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos
     assert final_texture_mode("auto", FINAL_ALL_BELOW - 1) == "all"
     assert final_texture_mode("auto", FINAL_ALL_BELOW) == "training"
     assert final_texture_mode("training", 3) == "training" and final_texture_mode("all", 500) == "all"
-    # refined poses: the held-out photos keep their recorded ones, so auto does not mix them in
-    assert final_texture_mode("auto", 10, refined_poses=True) == "training"
-    assert final_texture_mode("all", 10, refined_poses=True) == "all"
+
+
+def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, toy_photos):
+    """With the training photos' poses refined, the held-out photos join the texture written in the same
+    frame (aligned to the input texture here, as the training photos were) and their corrections are
+    reported; the held-out scores are still taken through their recorded poses."""
+    result = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__refine_poses="input"),
+                     photos=toy_photos)
+    m = result.metrics["photos"]
+    final = m["final_texture"]
+    assert final["mode"] == "all" and final["photos"] == 10 and len(m["pose_corrections"]) == 9
+    moved = final["held_out_pose_corrections"]
+    assert [c["photo"] for c in moved] == m["held_out"]
+    assert result.metrics["held_out_photos"]["enhanced"]["photos"] == 1
 
 
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
