@@ -57,6 +57,8 @@ class PoseSettings:
     """the same for the translation, as a share of the median depth"""
     refine_focal: bool = True
     """also correct the focal length (a scale)"""
+    search_px: int = 16
+    """the widest whole-image shift (working pixels) searched for a start nearer than the recorded pose"""
 
 
 @dataclass(frozen=True)
@@ -184,6 +186,15 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     prior = 0.01 * np.sqrt(n)
     x = np.zeros(7)
     before = best = cost(x)
+    if settings.search_px > 0:
+        # a start from the best whole-image shift, where it agrees better: the photometric basin is a few
+        # pixels wide, a recorded pose can be further off
+        du, dv = image_shift(_rgb_to_grey_image(np.asarray(reference(fid, bary), np.float32), ys, xs, mask.shape),
+                             usable, photo.mean(axis=2), settings.search_px)
+        shifted = np.zeros(7)
+        shifted[:2] = -dv / cam.K[1, 1], du / cam.K[0, 0]
+        if (du or dv) and cost(shifted) < best:
+            x, best = shifted, cost(shifted)
     for sigma in (3.0, 1.0):
         def partial(y, sigma=sigma):
             full = x.copy()
@@ -347,6 +358,31 @@ def reprojection_error(scan: Scan, estimated: Camera, truth: Camera, caster, n: 
     a, _ = estimated.project(points)
     b, _ = truth.project(points)
     return float(np.linalg.norm(a - b, axis=1).mean())
+
+
+def image_shift(reference: np.ndarray, mask: np.ndarray, photo: np.ndarray, r: int) -> tuple[float, float]:
+    """``(du, dv)``: the whole-pixel shift within ``+-r`` that best matches ``photo`` (grey) at ``p + d`` to
+    ``reference`` (grey, known where ``mask``) at ``p``: the peak of their normalised cross-correlation
+    after a band-pass (the detail that carries position, not the exposure), all shifts at once by FFT."""
+    from scipy import fft, ndimage
+
+    def band(image):
+        return ndimage.gaussian_filter(image, 1.0) - ndimage.gaussian_filter(image, 4.0)
+
+    m = mask.astype(np.float32)
+    ref = band(np.where(mask, reference, np.float32(reference[mask].mean()) if mask.any() else 0)) * m
+    img = band(photo)
+    H, W = photo.shape
+    size = [fft.next_fast_len(n + r, real=True) for n in (H, W)]
+    spec = np.conj(fft.rfft2(ref, size))
+    corr = fft.irfft2(fft.rfft2(img, size) * spec, size)          # sum_p ref(p) img(p + d), d mod size
+    energy = fft.irfft2(fft.rfft2(img * img, size) * np.conj(fft.rfft2(m, size)), size)  # img's energy under the mask
+    shifts = np.arange(-r, r + 1)
+    corr = corr[np.ix_(shifts % size[0], shifts % size[1])]
+    energy = energy[np.ix_(shifts % size[0], shifts % size[1])]
+    score = corr / np.sqrt(np.maximum(energy, 1e-12))
+    k = np.unravel_index(np.argmax(score), score.shape)
+    return float(shifts[k[1]]), float(shifts[k[0]])
 
 
 def _rgb_to_grey_image(rgb: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scantex.photos import load_photos
-from scantex.photos.poses import perturbed_camera, refine_poses, reprojection_error
+from scantex.photos.poses import image_shift, perturbed_camera, refine_poses, reprojection_error
 from scantex.synth import make_wall
 from scantex.synth.photos import PhotoCapture, capture_photos
 from scantex.views.camera import Camera
@@ -38,8 +38,10 @@ def test_synthetic_pose_errors_are_realistic(capture):
 
 
 def test_refined_poses_cut_the_reprojection_error(capture):
-    """Measured: 4.03 -> 2.6 px here (two photos cut 3-4x, one made worse); 4.95 -> 0.96 px (5x) on the
-    default demo wall with 8 photos. The issue's 3x is not reached on every capture yet."""
+    """Measured: 4.03 -> 1.92 px here (photo 0 8.88 -> 1.0 px from a start the whole-image shift search
+    found, 4.28 px from the recorded pose; photo 2 made worse, 1.8 -> 4.85 px, by the degraded input texture:
+    against the ground truth's it reaches 0.57); 4.95 -> 0.96 px (5x) on the default demo wall with 8 photos.
+    The issue's 3x is not reached on every capture."""
     demo, photos, truth = capture
     scan = demo.scan
     caster = RayCaster(scan.positions, scan.faces)
@@ -47,11 +49,27 @@ def test_refined_poses_cut_the_reprojection_error(capture):
                                         caster)
     before = np.mean([reprojection_error(scan, c, t, caster) for c, t in zip(photos.cameras, truth)])
     after = np.mean([reprojection_error(scan, c, t, caster) for c, t in zip(refined.cameras, truth)])
-    assert after < 0.8 * before, (before, after)
+    assert after < 0.6 * before, (before, after)
     assert all(c.error_after <= c.error_before for c in corrections)
     d = corrections[0].to_dict()
     assert set(d) >= {"photo", "rotation_deg", "translation_mm", "focal_scale"}
     json.dumps(d)  # goes into metrics.json as it is
+
+
+def test_image_shift_finds_a_known_shift_whatever_the_exposure():
+    """The start the pose search takes when a photo is further off than the photometric basin: the shift of
+    a textured patch, recovered whole-pixel, with the photo twice as bright and offset."""
+    rng = np.random.default_rng(0)
+    from scipy import ndimage
+
+    scene = ndimage.gaussian_filter(rng.random((140, 180)), 1.5).astype(np.float32)
+    reference = scene[20:120, 20:160]  # what the recorded camera should see
+    mask = np.zeros(reference.shape, bool)
+    mask[10:90, 15:125] = True
+    for du, dv in ((0, 0), (7, -3), (-12, 9)):
+        # the photo shows the reference's pixel p at p + d
+        photo = 2.0 * scene[20 - dv:120 - dv, 20 - du:160 - du] + 0.1
+        assert image_shift(reference, mask, photo, 16) == (du, dv)
 
 
 def test_perturbed_camera_identity_and_focal():
@@ -72,7 +90,7 @@ def capture8(tmp_path_factory):
 def test_consensus_poses_cut_the_reprojection_error(capture8):
     """Each photo aligned to the texture the others make together (``photos.refine_poses`` consensus).
     Measured: 4.88 -> 0.80 px (6x) on the default demo wall with 8 photos at 640 px (against the input
-    texture: 0.78). Here 4.15 -> 1.4 px: six photos cut 3-40x, photo 2 pulled from 2.3 to 4.6 px (the
+    texture: 0.78). Here 4.15 -> 1.31 px: six photos cut 3-40x, photo 2 pulled from 2.3 to 4.6 px (the
     bricks repeat; a third round changes nothing), so the issue's 3x is not reached on every capture."""
     from scantex.atlas.seams import uv_shells
     from scantex.photos.poses import consensus_poses
