@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -126,8 +127,9 @@ DARK_RAMP = 24.0
 MAX_BLACK_SHARE = 0.9
 
 
-def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.ndarray | None = None
-                    ) -> SurfaceColour:
+def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.ndarray | None = None,
+                    offset: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                    reads_texels: bool = True) -> SurfaceColour:
     """``base`` outside the ``fill`` faces; inside, a harmonic interpolation over the mesh of ``base``'s
     colours at the vertices around them (read through a non-fill face each).
 
@@ -136,7 +138,14 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     part): there each point keeps ``base`` but where the input's texels are black, which take the fill
     (blending in over ``DARK_RAMP`` levels; see :func:`_dark_texels`).
     On a coarse mesh a ring face is a large part of the surface, whose own texture the fill would replace
-    by a smooth gradient (a patch the input does not have)."""
+    by a smooth gradient (a patch the input does not have).
+
+    ``offset(face_ids, bary) -> (n, 3)``: what ``base`` adds to every texel it looks up, black ones too (the
+    seam levelling's offsets). A seed is the colour of its non-black texels, the lookup less its black share,
+    renormalised; an offset left in the lookup would be renormalised with it, multiplied by ``1 / (1 - share)``
+    (a real apartment's glass rim, its lookups 85 % black, took a levelling offset of +0.1 as +0.7: cyan).
+    ``reads_texels``: False where ``base`` is not a lookup of the input's texels (the field's colour): its
+    seeds are taken as they are."""
     outside = np.flatnonzero(~fill)
     corner_face = np.full(scan.n_vertices, -1)
     corner_slot = np.zeros(scan.n_vertices, int)
@@ -150,15 +159,16 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     normals = scan.face_normals
     darkness = _dark_texels(scan)
     filling = bool(fill.any())
+    renormalise = filling and reads_texels
     for s in range(0, idx.size, CHUNK):
         v = idx[s:s + CHUNK]
         f, b = corner_face[v], corner_bary[corner_slot[v]]
         rgb = base(scan.positions[v], normals[f], f, b)
-        if filling:
+        if renormalise:
             # a vertex beside a hole reads its black texels too (the bilinear lookup at a chart's corner): the
             # colour of the others, or nothing where they are nearly all of it (a real apartment's fill of its
             # unseen upper walls had a dark drip below every such vertex)
-            share, dark = darkness(f, b)
+            share, dark = darkness(f, b, offset)
             rgb = (rgb - dark) / np.maximum(1.0 - share, 1e-6)
             known[v[share[:, 0] > MAX_BLACK_SHARE]] = False
         vertex_rgb[v] = rgb
@@ -181,7 +191,7 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
             own = np.flatnonzero(hole)[ring[face_ids[hole]]] if ring is not None else np.zeros(0, np.intp)
             if own.size:
                 f, b = face_ids[own], bary[own]
-                share, dark = darkness(f, b)
+                share, dark = darkness(f, b, offset)
                 rgb[own] = np.clip(base(points[own], normals[own], f, b) - dark + share * rgb[own], 0, 1)
         return rgb
 
@@ -215,7 +225,9 @@ def _dark_texels(scan: Scan):
             tables[m] = out
         return tables[m]
 
-    def darkness(face_ids: np.ndarray, bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def darkness(face_ids: np.ndarray, bary: np.ndarray, offset=None) -> tuple[np.ndarray, np.ndarray]:
+        """``offset(face_ids, bary)``, when given, is what a colour adds to every texel it looks up: ``dark``
+        then includes the black texels' share of it."""
         share = np.zeros((len(face_ids), 1), np.float32)
         dark = np.zeros((len(face_ids), 3), np.float32)
         uv = hit_uvs(scan, face_ids, bary)
@@ -227,6 +239,8 @@ def _dark_texels(scan: Scan):
             looked = sample_texture(table(m), uv[sel])  # 0-1
             share[sel] = looked[:, :1]
             dark[sel] = looked[:, 1:] * np.asarray(material.diffuse[:3], np.float32)
+        if offset is not None:
+            dark += share * np.asarray(offset(face_ids, bary), np.float32)
         return share, dark
 
     return darkness
@@ -260,7 +274,7 @@ def field_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, chart
             rgb[sel] = np.clip(rgb[sel] + weight[sel] * (canon.cpu().numpy() - rgb[sel]), 0, 1)
         return rgb
 
-    return _with_hole_fill(scan, base, fill)
+    return _with_hole_fill(scan, base, fill, reads_texels=False)
 
 
 def field_prediction(fitted, charts: np.ndarray, device):
@@ -346,4 +360,5 @@ def levelled_input_colour(scan: Scan, offsets: np.ndarray, fill: np.ndarray, *, 
     # faces black in part keep their own texels and take the fill where those are black, as a hole's ring does
     holes = untextured_faces(scan)
     partly = partly_untextured_faces(scan, holes) & ~fill
-    return _with_hole_fill(scan, base, fill | partly, ring=(fill & ~holes) | partly)
+    return _with_hole_fill(scan, base, fill | partly, ring=(fill & ~holes) | partly,
+                           offset=lambda face_ids, bary: interpolate(face_ids, bary, corner_offsets))

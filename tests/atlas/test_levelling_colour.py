@@ -342,6 +342,34 @@ def test_a_holes_fill_is_seeded_by_the_colours_around_it_not_by_their_black():
     np.testing.assert_allclose(got, np.broadcast_to([0.6, 0.5, 0.4], got.shape), atol=0.01)
 
 
+def test_a_holes_fill_takes_the_levelling_offset_once_where_its_seeds_read_black():
+    """The seam levelling's offset is added to every texel a seed's lookup reads, black ones too; the seed is
+    renormalised by its non-black share, and the offset must not be (a real apartment's glass rim, its
+    lookups 85 % black, took an offset of +0.1 as +0.7 and turned cyan). A hole in a wall whose seeds on
+    one side read half black texels, with a uniform offset: the fill is the wall's colour plus the offset,
+    as the wall's own texels are (before: up to 0.077 off, the offset doubled beside those seeds)."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.inpaint import grow_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import to_uint8
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=21, size=2.0)
+    image = np.zeros((160, 160, 3), np.uint8)
+    image[:] = to_uint8(np.array([0.6, 0.5, 0.4]))
+    image[40:120, 48:80] = 0  # a hole of whole faces
+    image[32:128, 39] = 0  # black texels beside the vertices left of its ring: their lookups half black
+    scan = wall.replace(materials=(Material("wall", image),))
+    holes = untextured_faces(scan)
+    fill = grow_faces(scan, holes, rings=1)
+    offset = np.array([-0.07, 0.1, 0.1])
+    colour = levelled_input_colour(scan, np.tile(offset, (len(scan.uvs), 1)), fill)
+    f = np.flatnonzero(holes)
+    centre = np.full((len(f), 2), 1 / 3, np.float32)
+    got = colour(interpolate(f, centre, scan.triangles), scan.face_normals[f], f, centre)
+    np.testing.assert_allclose(got, np.broadcast_to([0.53, 0.6, 0.5], got.shape), atol=0.02)
+
+
 def test_a_loose_fragments_fill_takes_the_colour_of_the_surface_it_floats_on():
     """A fused scan's loose fragments (a TSDF's floaters a centimetre off a cabinet) are seen by no photo
     cleanly, so the input is black on them and their fill has no seed of its own: they take the colour of
