@@ -154,8 +154,9 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         return identity
     fid, bary = g.face_id[ys, xs], g.bary[ys, xs]
     ref = np.asarray(reference(fid, bary), np.float32)
+    seen = _rgb_to_grey_image(ref, ys, xs, mask.shape)  # the reference through the recorded camera
     # favour textured pixels (they carry the pose), keep some flat ones (they carry the exposure)
-    grad = np.hypot(*np.gradient(ndimage.gaussian_filter(_rgb_to_grey_image(ref, ys, xs, mask.shape), 1.0)))
+    grad = np.hypot(*np.gradient(ndimage.gaussian_filter(seen, 1.0)))
     strength = grad[ys, xs] + 1e-3
     rng = np.random.default_rng(index)
     n = min(settings.n_points, ys.size)
@@ -189,8 +190,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     if settings.search_px > 0:
         # a start from the best whole-image shift, where it agrees better: the photometric basin is a few
         # pixels wide, a recorded pose can be further off
-        du, dv = image_shift(_rgb_to_grey_image(np.asarray(reference(fid, bary), np.float32), ys, xs, mask.shape),
-                             usable, photo.mean(axis=2), settings.search_px)
+        du, dv = image_shift(seen, usable, photo.mean(axis=2), settings.search_px)
         shifted = np.zeros(7)
         shifted[:2] = -dv / cam.K[1, 1], du / cam.K[0, 0]
         if (du or dv) and cost(shifted) < best:

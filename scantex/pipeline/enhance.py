@@ -263,7 +263,8 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             prepare=lambda refined: prepare_photos(scan, refined, train, caster, pc.max_side, settings),
             update=update)
     final = None
-    if corrections and len(held) and final_texture_mode(pc.final, len(photos)) == "all":
+    if (corrections and len(held) and pc.texturing == "projective"
+            and final_texture_mode(pc.final, len(photos)) == "all"):
         # the texture written from every photo: the held-out photos join the training photos' refined frame
         # (a texture from both frames would be doubled); they are still scored through their recorded poses
         if pc.refine_poses == "input":
