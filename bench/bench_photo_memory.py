@@ -7,10 +7,10 @@ The demo wall (``make_wall(seed=0)``) is photographed by ``scantex.synth.photos.
 ``--base-width`` (4:3; pose errors, exposure, blur, noise as in ``bench/bench_photos.py``), and every photo is
 written again ``--scale`` times larger (bicubic, JPEG quality 90) with its intrinsics scaled to match: the
 pixel counts of a phone's 12 MP photos, with the detail of far smaller ones (the bench measures memory and
-time, not what the extra pixels show; rendering the photos at full size would take most of an hour). Then ``scantex enhance scan.obj --photos cameras.json`` runs as a user would run it,
-in its own process: its wall time and peak resident memory, and from its ``metrics.json`` the size the photos
-were sampled at and the memory their samples held. Prints one Markdown row; the numbers go into
-bench/RESULTS.md by hand.
+time, not what the extra pixels show; rendering the photos at full size would take most of an hour).
+Then ``scantex enhance scan.obj --photos cameras.json`` runs as a user would run it, in its own process:
+its wall time and peak resident memory, and from its ``metrics.json`` the size the photos were sampled at
+and the memory their samples held. Prints one Markdown row; the numbers go into bench/RESULTS.md by hand.
 """
 
 from __future__ import annotations
