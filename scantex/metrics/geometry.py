@@ -296,5 +296,16 @@ def geometry_metrics(a: Scan, b: Scan, samples: int = 100_000, seed: int = 0) ->
     volume = volume_info(a)
     # the volume depends on positions and faces only: identical arrays have the same one
     out["volume"] = [volume, volume if out["arrays_identical"] else volume_info(b)]
-    out["distance"] = surface_distances(a, b, samples, seed)
+    # and the same surface: sampling distances between them would measure a surface against itself
+    out["distance"] = same_surface_distances(a) if out["arrays_identical"] else surface_distances(a, b, samples, seed)
     return out
+
+
+def same_surface_distances(a: Scan) -> dict:
+    """:func:`surface_distances`' keys for two scans with identical positions and faces arrays: every distance
+    is exactly 0, nothing sampled (``samples`` 0, and a ``note`` that says so)."""
+    lo, hi = a.bounds
+    zero = {key: 0.0 for key in ("hausdorff_a_to_b", "hausdorff_b_to_a", "mean_a_to_b", "mean_b_to_a", "hausdorff",
+                                 "mean", "hausdorff_rel", "mean_rel")}
+    return {**zero, "diagonal": float(np.linalg.norm(hi - lo)) or 1.0, "samples": 0,
+            "note": "identical positions and faces arrays: the same surface, every distance exactly 0 (not sampled)"}

@@ -407,8 +407,9 @@ def _metrics_tables(m: dict) -> str:
                       f"<td>{_num(d['hausdorff'])}</td></tr>"
                       f"<tr><th>mean point-to-mesh</th><td>{_num(d['mean_a_to_b'])}</td><td>{_num(d['mean_b_to_a'])}</td>"
                       f"<td>{_num(d['mean'])}</td></tr></table>"
-                      f"<p class='note'>Distances in the scan's units, from every vertex and {d['samples']:,} "
-                      "random surface points per direction.</p>")
+                      + (f"<p class='note'>Distances in the scan's units, from every vertex and {d['samples']:,} "
+                         "random surface points per direction.</p>" if d.get("samples") else
+                         f"<p class='note'>{html.escape(d.get('note', 'not sampled'))}.</p>"))
         tables.append(f"<h3>Geometry</h3><table><tr><th></th><th>input</th><th>output</th></tr>{body}</table>{extra}")
     for key, label in (("held_out_vs_ground_truth", "Held-out views vs ground truth"),
                        ("held_out_vs_input", "Held-out views vs input renders"),
