@@ -1,0 +1,95 @@
+"""Photo mode on a small RGB-D capture by the protocol of the hidden relief wall: 12 photos, 9 given, 3 held out.
+
+    python bench/bench_few_photos.py                          # five draws of the 3 held-out photos
+    python bench/bench_few_photos.py --held 1,5,9 --held 2,6,10
+
+The project is also scored on a real relief wall kept outside the repository (12 RGB-D photos, 9 given and
+3 held out, an app-style input). ``../shared/data/bolster_rgbd_posed`` (14 Kinect photos) stands in for it:
+for each draw, 12 of its photos make the capture, 3 of them are held out, and the app-style input is baked
+again from the other 9 alone (:func:`bench.baselines.app_style_bake`: per texel the photo that sees it best,
+on the bolster's own UV layout at 2048², as ``../shared/data``'s inputs were made). scantex gets those 9
+(``photos.holdout`` 0) and that input; input and result are scored through the 3 held-out photos' recorded
+cameras at 640 px, colour-matched (``scantex.photos.training.score_photos``). Prints a Markdown row a draw;
+the numbers go into bench/RESULTS.md by hand. Skips without ``../shared/data``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+CAPTURE = ROOT.parent / "shared" / "data" / "bolster_rgbd_posed"
+#: (held out, the capture's 12 photos): four draws from the 12 photos the bolster's protocol gives
+#: (all but 4 and 11), one from 12 that hold those two
+DRAWS = [((1, 5, 9), (0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13)), ((2, 6, 10), (0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13)),
+         ((3, 8, 12), (0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13)), ((0, 7, 13), (0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13)),
+         ((4, 8, 11), (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12))]
+
+
+def run_draw(held: tuple[int, ...], pool: tuple[int, ...]) -> dict:
+    from bench.baselines import app_style_bake
+    from scantex.io import load_scan
+    from scantex.photos import load_photos
+    from scantex.photos.training import VisibilitySettings, prepare_photos, score_photos
+    from scantex.pipeline.config import preset
+    from scantex.pipeline.enhance import enhance
+    from scantex.views.raycast import RayCaster
+
+    frames = json.loads((CAPTURE / "cameras.json").read_text())["frames"]
+    given = [i for i in pool if i not in held]
+    scan = load_scan(CAPTURE / "app_style_input" / "bolster_app_style.obj")  # its geometry and UV layout
+    caster = RayCaster(scan.positions, scan.faces)
+    with tempfile.TemporaryDirectory() as tmp:
+        subset = []
+        for i in given:
+            frame = dict(frames[i])
+            for key in ("image", "depth"):
+                if frame.get(key):
+                    frame[key] = str((CAPTURE / frame[key]).resolve())
+            subset.append(frame)
+        (Path(tmp) / "cameras.json").write_text(json.dumps({"frames": subset}))
+        photos = load_photos(Path(tmp) / "cameras.json")
+        app = app_style_bake(scan, photos, prepare_photos(scan, photos, range(len(photos)), caster, 640), size=2048)
+        t = time.perf_counter()
+        result = enhance(app, preset("default").override(photos__holdout=0), photos=photos)
+        seconds = time.perf_counter() - t
+    held_views = prepare_photos(app, load_photos(CAPTURE / "cameras.json"), list(held), caster, 640,
+                                VisibilitySettings(supersample=2))
+    scores = score_photos({"input": app, "output": result.scan}, held_views, caster)
+    return {"scores": scores, "seconds": seconds}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--held", action="append", default=None, metavar="I,J,K",
+                        help="three photos to hold out (repeat for more draws; the capture is the bolster's "
+                             "protocol photos, all but 4 and 11, unless a held-out photo is one of them)")
+    args = parser.parse_args()
+    if not CAPTURE.exists():
+        print(f"{CAPTURE}: not found; skipped")
+        return
+    draws = DRAWS
+    if args.held:
+        draws = []
+        for text in args.held:
+            held = tuple(int(x) for x in text.split(","))
+            pool = next((p for h, p in DRAWS if set(held) <= set(p)), DRAWS[-1][1])
+            draws.append((held, pool))
+    print("| held out | given | colour-matched PSNR (input -> output) | SSIM | enhance s |\n|---|---|---|---|---|")
+    for held, pool in draws:
+        r = run_draw(held, pool)
+        i, o = r["scores"]["input"], r["scores"]["output"]
+        given = ", ".join(str(p) for p in pool if p not in held)
+        print(f"| {', '.join(map(str, held))} | {given} | {i['psnr_matched']:.2f} -> **{o['psnr_matched']:.2f}** "
+              f"({o['psnr_matched'] - i['psnr_matched']:+.2f}) | {i['ssim_matched']:.3f} -> {o['ssim_matched']:.3f} | "
+              f"{r['seconds']:.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
