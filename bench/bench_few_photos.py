@@ -16,9 +16,7 @@ the numbers go into bench/RESULTS.md by hand. Skips without ``../shared/data``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -41,26 +39,15 @@ def run_draw(held: tuple[int, ...], pool: tuple[int, ...]) -> dict:
     from scantex.pipeline.enhance import enhance
     from scantex.views.raycast import RayCaster
 
-    frames = json.loads((CAPTURE / "cameras.json").read_text())["frames"]
-    given = [i for i in pool if i not in held]
+    everything = load_photos(CAPTURE / "cameras.json")
+    photos = everything.subset([i for i in pool if i not in held])
     scan = load_scan(CAPTURE / "app_style_input" / "bolster_app_style.obj")  # its geometry and UV layout
     caster = RayCaster(scan.positions, scan.faces)
-    with tempfile.TemporaryDirectory() as tmp:
-        subset = []
-        for i in given:
-            frame = dict(frames[i])
-            for key in ("image", "depth"):
-                if frame.get(key):
-                    frame[key] = str((CAPTURE / frame[key]).resolve())
-            subset.append(frame)
-        (Path(tmp) / "cameras.json").write_text(json.dumps({"frames": subset}))
-        photos = load_photos(Path(tmp) / "cameras.json")
-        app = app_style_bake(scan, photos, prepare_photos(scan, photos, range(len(photos)), caster, 640), size=2048)
-        t = time.perf_counter()
-        result = enhance(app, preset("default").override(photos__holdout=0), photos=photos)
-        seconds = time.perf_counter() - t
-    held_views = prepare_photos(app, load_photos(CAPTURE / "cameras.json"), list(held), caster, 640,
-                                VisibilitySettings(supersample=2))
+    app = app_style_bake(scan, photos, prepare_photos(scan, photos, range(len(photos)), caster, 640), size=2048)
+    t = time.perf_counter()
+    result = enhance(app, preset("default").override(photos__holdout=0), photos=photos)
+    seconds = time.perf_counter() - t
+    held_views = prepare_photos(app, everything, list(held), caster, 640, VisibilitySettings(supersample=2))
     scores = score_photos({"input": app, "output": result.scan}, held_views, caster)
     return {"scores": scores, "seconds": seconds}
 
