@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from scantex.photos import load_photos
-from scantex.photos.poses import image_shift, perturbed_camera, refine_poses, reprojection_error
+from scantex.photos.poses import align_camera, image_shift, perturbed_camera, refine_poses, reprojection_error
 from scantex.synth import make_wall
 from scantex.synth.photos import PhotoCapture, capture_photos
 from scantex.views.camera import Camera
@@ -150,3 +150,16 @@ def test_a_photo_held_out_of_a_consensus_joins_its_frame(capture8):
     after = reprojection_error(scan, joined.cameras[7], truth[7], caster)
     print("held-out photo 7, recorded -> aligned to the consensus:", round(before, 2), "->", round(after, 2))
     assert after < 0.5 * before, (before, after)
+
+
+def test_a_photo_at_its_true_pose_keeps_it(capture):
+    """Corrections under ``PoseSettings.min_shift_px`` (half a working pixel) are below the alignment's own
+    precision and are not applied: each photo, given at its true pose and aligned to the ground truth's
+    texture, keeps that pose exactly (without the threshold, photo 2 was moved 0.54 px off; on the real
+    facade, whose poses are good, such corrections cost 0.1 dB)."""
+    demo, photos, truth = capture
+    scan, gt = demo.scan, demo.ground_truth
+    caster = RayCaster(scan.positions, scan.faces)
+    for i, camera in enumerate(truth):
+        c = align_camera(scan, camera, photos.load_image(i), lambda f, b: shade_hits(gt, f, b), caster, index=i)
+        assert not c.applied and c.camera is camera and c.rotation_deg == 0.0
