@@ -91,7 +91,7 @@ RUNS = [
      {"train__always": True}),
     ("`fast` + photos, the field's colour (`photos.texturing=field`)", "fast", True, {"photos__texturing": "field"}),
     ("`fast` + photos, best view dominates (`photos.temperature=0.15`)", "fast", True, {"photos__temperature": 0.15}),
-    ("`fast` + photos, poses refined (`photos.refine_poses`)", "fast", True, {"photos__refine_poses": "input"}),
+    ("`fast` + photos, poses as recorded (`photos.refine_poses=off`)", "fast", True, {"photos__refine_poses": "off"}),
     ("`fast` + photos, colour balance of the photos (`photos.canonical=photos`; trains the field)", "fast", True,
      {"photos__canonical": "photos"}),
     ("`fast` + photos, loose visibility (no edge margin, any angle)", "fast", True,

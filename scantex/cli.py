@@ -526,10 +526,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame)")
-    p.add_argument("--refine-poses", choices=("off", "input", "consensus"), default=None,
+    p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
-                        "texture or the other photos' consensus (default off: sharper textures, but they score "
-                        "lower through held-out photos whose own poses are off)")
+                        "texture or the other photos' consensus (default auto: against the input texture for a "
+                        "textured scan of fewer than 50 photos, off otherwise)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views with a Vision Transformer trained self-supervised on the scan's own "
                         "views (masked completion, cross-view consistency, internal super-resolution) and fuse "

@@ -145,8 +145,8 @@ class PhotosConfig:
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame"""
-    refine_poses: str = "off"
-    """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), or consensus (against the texture the other training photos make together, repeated refine_iterations times). Off by default: refined textures are sharper, but score lower through held-out photos whose own recorded poses are off (bench/RESULTS.md, "real photos")"""
+    refine_poses: str = "auto"
+    """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), consensus (against the texture the other training photos make together, repeated refine_iterations times), or auto (input for a textured scan of fewer than 50 photos, off otherwise). A correction under half a working pixel is not applied. Refined textures are as sharp as the photos where blending through poses a few pixels off doubles and blurs every edge; through held-out photos whose own recorded poses are as far off they score about the same on average (bench/RESULTS.md, "real photos")"""
     refine_iterations: int = 1
     """refine_poses consensus: rounds of aligning every photo to the others"""
     texturing: str = "projective"
@@ -308,7 +308,7 @@ RANGES: dict[str, tuple] = {
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
-    "photos.texturing": ("projective", "field"), "photos.refine_poses": ("off", "input", "consensus"),
+    "photos.texturing": ("projective", "field"), "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
     "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),

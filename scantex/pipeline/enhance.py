@@ -163,6 +163,12 @@ PHOTO_DENSITY_FOR_2X = 2.0
 #: held-out photos scoring the one made without them (a held-out photo is a large share of so few; the second,
 #: partial bake costs seconds); larger ones write the texture scored (:func:`final_texture_mode`)
 FINAL_ALL_BELOW = 50
+#: ``photos.refine_poses`` auto: a textured scan's photos are aligned to its texture when they are fewer than this.
+#: A few photos blended through poses a few pixels off leave distinct ghost copies of every edge (a 9-photo
+#: RGB-D capture: its pattern doubled and blurred, visibly worse than the input); aligned, the texture is as
+#: sharp as the photos, at the same held-out scores on average. A room's hundred photos blur into one another
+#: instead, and their alignment cost a real apartment 0.16 dB and doubled its time (bench/RESULTS.md)
+REFINE_BELOW = 50
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
 #: 4.5 GB against 3.5 (bench/RESULTS.md); ``--texture-size`` asks for another
@@ -225,6 +231,8 @@ class PhotoData:
     """``(photos, views, corrections)``: where the training photos' poses were refined and ``photos.final``
     all bakes the texture written from every photo, the photo set with the held-out photos aligned to the
     training photos' frame too, their G-buffers there, and their corrections (they are scored as recorded)"""
+    pose_mode: str = "off"
+    """``photos.refine_poses`` as applied (:func:`pose_refinement_mode`): off, input or consensus"""
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -237,7 +245,8 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     train, held = split_photos(len(photos), pc.holdout, seed)
     corrections = []
     canonicalise = fallback = None
-    if pc.refine_poses == "input" and scan.is_textured:
+    mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
+    if mode == "input":
         from scantex.photos.poses import refine_poses
 
         # held-out photos keep their recorded poses: they are the score's reference, not training data
@@ -246,7 +255,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
     train_views, held_views = views[:len(train)], views[len(train):]
-    if pc.refine_poses == "consensus" and len(train) > 1:
+    if mode == "consensus" and len(train) > 1:
         from scantex.photos.poses import consensus_poses
 
         if scan.is_textured:
@@ -267,7 +276,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             and final_texture_mode(pc.final, len(photos)) == "all"):
         # the texture written from every photo: the held-out photos join the training photos' refined frame
         # (a texture from both frames would be doubled); they are still scored through their recorded poses
-        if pc.refine_poses == "input":
+        if mode == "input":
             aligned, moved = refine_poses(scan, photos, held, lambda f, b: shade_hits(scan, f, b), caster)
         else:
             from scantex.photos.poses import align_to_consensus
@@ -275,7 +284,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
                                                 pc.temperature)
         final = aligned, prepare_photos(scan, aligned, held, caster, pc.max_side, settings), moved
-    return PhotoData(photos, train_views, held_views, report, corrections, final)
+    return PhotoData(photos, train_views, held_views, report, corrections, final, mode)
 
 
 def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
@@ -432,6 +441,16 @@ def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
     :func:`photo_density`."""
     wanted = photos_px_per_cm * np.sqrt(float(scan.face_areas.sum()) * 1e4)  # texels a side
     return next((size for size in UNTEXTURED_ATLASES if size >= wanted), UNTEXTURED_ATLASES[-1])
+
+
+def pose_refinement_mode(refine_poses: str, scan: Scan, n_photos: int) -> str:
+    """``photos.refine_poses`` as a run applies it: ``off``, ``input`` or ``consensus`` (``auto``: input for a
+    textured scan of fewer than ``REFINE_BELOW`` photos, else off; input needs a texture to align to)."""
+    if refine_poses == "auto":
+        return "input" if scan.is_textured and n_photos < REFINE_BELOW else "off"
+    if refine_poses == "input" and not scan.is_textured:
+        return "off"
+    return refine_poses
 
 
 def final_texture_mode(final: str, n_photos: int) -> str:
@@ -840,6 +859,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "size": [photo.train[0].camera.width, photo.train[0].camera.height] if photo.train else None,
         "photo_rays": ray_counts[0], "synthetic_rays": ray_counts[1],
         "rejected_pixels": rejected,
+        "pose_refinement": photo.pose_mode,
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": None if photo.alignment is None else {
             "edge_distance_px": round(photo.alignment.edge_distance_px, 2),

@@ -13,7 +13,7 @@ import pytest
 from scantex.errors import ScanError
 from scantex.io import save_scan
 from scantex.photos import load_photos
-from scantex.pipeline.enhance import FINAL_ALL_BELOW, enhance, final_texture_mode
+from scantex.pipeline.enhance import FINAL_ALL_BELOW, REFINE_BELOW, enhance, final_texture_mode, pose_refinement_mode
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
 from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
@@ -55,6 +55,21 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
     photos = m["held_out_photos"]
     assert photos["enhanced"]["psnr_matched"] > photos["input"]["psnr_matched"]
+
+
+def test_a_small_capture_of_a_textured_scan_refines_its_poses_by_default(toy_demo, photo_result):
+    """photos.refine_poses auto: a textured scan's photos are aligned to its texture below REFINE_BELOW photos
+    (each reported in metrics.json); a larger capture, or an untextured scan (nothing to align to), keeps the
+    recorded poses; a mode asked for is applied as asked."""
+    m = photo_result.metrics["photos"]
+    assert m["pose_refinement"] == "input" and len(m["pose_corrections"]) == len(m["train"]) == 9
+    assert all({"photo", "rotation_deg", "applied"} <= set(c) for c in m["pose_corrections"])
+    scan, bare = toy_demo.scan, Scan(toy_demo.scan.positions, toy_demo.scan.faces)
+    assert pose_refinement_mode("auto", scan, REFINE_BELOW - 1) == "input"
+    assert pose_refinement_mode("auto", scan, REFINE_BELOW) == "off"
+    assert pose_refinement_mode("auto", bare, 5) == "off" and pose_refinement_mode("input", bare, 5) == "off"
+    assert pose_refinement_mode("consensus", bare, 500) == "consensus"
+    assert pose_refinement_mode("off", scan, 5) == "off"
 
 
 
