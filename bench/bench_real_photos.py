@@ -122,7 +122,7 @@ def main() -> None:
                  f"scantex `{args.preset}`, 10 % of the given photos held out, texture from {what} (`photos.final` {final})")
                 for final, what in (("training", "the others"), ("all", "all of them once scored"))]
     elif not override and not args.no_variants:
-        runs += [("scantex", {"photos__refine_poses": "input"}, "scantex, poses refined to the input (`photos.refine_poses` input)"),
+        runs += [("scantex", {"photos__refine_poses": "off"}, "scantex, poses as recorded (`photos.refine_poses` off)"),
                  ("scantex", {"photos__refine_poses": "consensus", "photos__refine_iterations": 2},
                   "scantex, poses refined to the other photos' consensus, 2 rounds (`photos.refine_poses` consensus)"),
                  ("scantex", {"photos__temperature": 0.15}, "scantex, best view dominates (`photos.temperature` 0.15)"),

@@ -167,7 +167,7 @@ FINAL_ALL_BELOW = 50
 #: A few photos blended through poses a few pixels off leave distinct ghost copies of every edge (a 9-photo
 #: RGB-D capture: its pattern doubled and blurred, visibly worse than the input); aligned, the texture is as
 #: sharp as the photos, at the same held-out scores on average. A room's hundred photos blur into one another
-#: instead, and their alignment cost a real apartment 0.16 dB and doubled its time (bench/RESULTS.md)
+#: instead, and their alignment cost a real apartment 0.16 dB and 1.6x its time (bench/RESULTS.md)
 REFINE_BELOW = 50
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
