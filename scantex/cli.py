@@ -325,6 +325,8 @@ def cmd_batch(args) -> int:
 
 
 def enhance_summary(m: dict) -> str:
+    from scantex.photos.poses import corrections_summary
+
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
              f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces; Hausdorff "
@@ -351,6 +353,10 @@ def enhance_summary(m: dict) -> str:
         if final.get("mode") == "all":
             lines.append(f"texture written: made from all {final['photos']} photos, the held-out ones included (the "
                          f"scores above are the texture made without them; photos.final {final.get('setting', 'all')})")
+    poses = corrections_summary(m.get("photos", {}).get("pose_refinement", "off"),
+                                m.get("photos", {}).get("pose_corrections", []))
+    if poses:
+        lines.append(f"poses: {poses}")
     if "held_out_photos_vs_ground_truth" in m:
         s = m["held_out_photos_vs_ground_truth"]
         lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "

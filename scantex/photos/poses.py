@@ -96,6 +96,23 @@ class PoseCorrection:
                 "applied": self.applied}
 
 
+def corrections_summary(mode: str, corrections: list[dict]) -> str | None:
+    """One line on a run's pose refinement (``mode``: ``photos.refine_poses`` as applied; ``corrections``: the
+    :meth:`PoseCorrection.to_dict` of each training photo, as in ``metrics.json``), or ``None`` when the poses
+    were not refined."""
+    if mode == "off" or not corrections:
+        return None
+    moved = [c for c in corrections if c["applied"]]
+    against = {"input": "the input texture", "consensus": "the other photos' consensus"}.get(mode, mode)
+    text = f"{len(moved)} of {len(corrections)} training photos aligned to {against}"
+    if moved:
+        rotation = float(np.median([c["rotation_deg"] for c in moved]))
+        text += f" (median {rotation:.2f} deg, {float(np.median([c['translation_mm'] for c in moved])):.0f} mm)"
+    if len(moved) < len(corrections):
+        text += f", {len(corrections) - len(moved)} kept as recorded"
+    return text + "; each correction in metrics.json (photos.refine_poses)"
+
+
 def perturbed_camera(camera: Camera, x: np.ndarray, depth_scale: float) -> Camera:
     """``camera`` with the correction ``x = (rotvec (3), translation / depth_scale (3), focal change)``
     applied: ``x_cam' = dR x_cam + dt``, ``f' = f (1 + df)`` (principal point kept)."""

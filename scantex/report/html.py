@@ -172,6 +172,12 @@ def _headline(m: dict) -> str:
                      "result only: a capture app's input texture was most likely made from these photos too, which "
                      "favours the input",
                      "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
+    from scantex.photos.poses import corrections_summary
+
+    poses = corrections_summary(m.get("photos", {}).get("pose_refinement", "off"),
+                                m.get("photos", {}).get("pose_corrections", []))
+    if poses:
+        rows.append(("Poses", poses, ""))
     sv = m.get("seam_visibility")
     if sv:
         rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
@@ -180,7 +186,9 @@ def _headline(m: dict) -> str:
     if patches and "enhanced_vs_input" in patches:
         share = patches["enhanced_vs_input"]
         rows.append(("Patches vs input", f"{100 * share:.2f} % of the held-out pixels have a hard-edged low-frequency "
-                     "change against the input (about 0: none; exposure steps removed at seams count too)",
+                     "change against the input (about 0: none; exposure steps removed at seams count too"
+                     + ("; in photo mode, so do the contrast and detail the photos show and the input lacks: compare "
+                        "the held-out photos below" if "photos" in m else "") + ")",
                      "good" if share < 0.01 else ""))
     field = m.get("field", {})
     if field.get("trained") is False:

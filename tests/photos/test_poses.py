@@ -163,3 +163,16 @@ def test_a_photo_at_its_true_pose_keeps_it(capture):
     for i, camera in enumerate(truth):
         c = align_camera(scan, camera, photos.load_image(i), lambda f, b: shade_hits(gt, f, b), caster, index=i)
         assert not c.applied and c.camera is camera and c.rotation_deg == 0.0
+
+
+def test_the_corrections_are_summed_up_in_one_line():
+    """The CLI's summary and the report say how many photos moved and by how much (metrics.json holds each)."""
+    from scantex.photos.poses import corrections_summary
+
+    moved = {"photo": 0, "rotation_deg": 0.8, "translation_mm": 12.0, "focal_scale": 1.0, "applied": True}
+    kept = {"photo": 1, "rotation_deg": 0.0, "translation_mm": 0.0, "focal_scale": 1.0, "applied": False}
+    text = corrections_summary("input", [moved, kept])
+    assert text.startswith("1 of 2 training photos aligned to the input texture (median 0.80 deg, 12 mm)")
+    assert "1 kept as recorded" in text
+    assert "consensus" in corrections_summary("consensus", [moved])
+    assert corrections_summary("off", [moved]) is None and corrections_summary("input", []) is None
