@@ -17,7 +17,8 @@ reference colour of the surface (the input texture, which is in the mesh's frame
 
 The correction is reported per photo (rotation in degrees, translation in metres, focal scale, the
 photometric error before and after), and photos whose correction is implausibly large (more than
-``max_rotation_deg`` or ``max_translation`` of the depth) keep their recorded pose.
+``max_rotation_deg`` or ``max_translation`` of the depth), or smaller than the alignment's precision (it moves
+the photo by less than ``min_shift_px`` working pixels on average), keep their recorded pose.
 """
 
 from __future__ import annotations
