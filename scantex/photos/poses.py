@@ -261,6 +261,12 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         r = residuals(x, levels[1.0]) / 0.05
         return float(np.mean(2 * (np.sqrt(1 + r * r) - 1)))
 
+    def plausible(x) -> bool:
+        """A correction within ``max_rotation_deg`` and ``max_translation`` of the depth."""
+        moved = np.linalg.norm(perturbed_camera(cam, x, depth_scale).center - cam.center)
+        return bool(np.degrees(np.linalg.norm(x[:3])) <= settings.max_rotation_deg
+                    and moved <= settings.max_translation * depth_scale)
+
     n_params = 7 if settings.refine_focal else 6
     prior = 0.01 * np.sqrt(n)
     x = np.zeros(7)
@@ -292,14 +298,17 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         trial[:n_params] = fit.x
         c = cost(trial)
         log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s)", index, sigma, best, c, np.round(trial, 5), fit.message)
-        if c < best:
+        # a level's fit is kept only when it is plausible: a fine level that slides along a near-degenerate
+        # direction (moving forward and zooming out alike, for a shallow subject) to an implausible pose
+        # leaves the coarse level's correction, not none (a bolster photo: cost 2.43 recorded, 1.75 coarse,
+        # 1.60 fine at 6.8 % of the depth forward and a 6.5 % wider lens)
+        if c < best and plausible(trial):
             x, best = trial, c
     rotation = float(np.degrees(np.linalg.norm(x[:3])))
     refined_small = perturbed_camera(cam, x, depth_scale)
     moved = float(np.linalg.norm(refined_small.center - cam.center))
-    plausible = rotation <= settings.max_rotation_deg and moved <= settings.max_translation * depth_scale
     shift = float(np.nanmean(np.linalg.norm(refined_small.project(points)[0] - cam.project(points)[0], axis=1)))
-    applied = plausible and best < before and shift >= settings.min_shift_px
+    applied = plausible(x) and best < before and shift >= settings.min_shift_px
     full = perturbed_camera(recorded, x, depth_scale) if applied else recorded
     return PoseCorrection(index, full, rotation if applied else 0.0, moved if applied else 0.0,
                           1 + x[6] if applied else 1.0, before, best if applied else before, applied)
