@@ -77,7 +77,10 @@ class PoseCorrection:
         focal_scale: refined focal / recorded focal.
         error_before, error_after: robust photometric error (mean soft-L1 of the residuals, [0, 1] colour
             units) at the recorded and the refined pose, on the sharp photo.
-        applied: False when the correction was rejected as implausible or not an improvement.
+        applied: False when the correction was rejected as implausible, not an improvement, or under
+            ``PoseSettings.min_shift_px``.
+        shift_px: how far the best correction found moves the photo's surface points, on average, in working
+            pixels (applied or not: a correction under half a pixel is kept out by it).
     """
 
     index: int
@@ -88,13 +91,14 @@ class PoseCorrection:
     error_before: float
     error_after: float
     applied: bool
+    shift_px: float = 0.0
 
     def to_dict(self) -> dict:
         return {"photo": self.index, "rotation_deg": round(float(self.rotation_deg), 3),
                 "translation_mm": round(1000 * float(self.translation_m), 2),
                 "focal_scale": round(float(self.focal_scale), 5),
                 "error_before": round(float(self.error_before), 5), "error_after": round(float(self.error_after), 5),
-                "applied": self.applied}
+                "applied": self.applied, "shift_px": round(float(self.shift_px), 3)}
 
 
 def corrections_summary(mode: str, corrections: list[dict]) -> str | None:
@@ -311,7 +315,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     applied = plausible(x) and best < before and shift >= settings.min_shift_px
     full = perturbed_camera(recorded, x, depth_scale) if applied else recorded
     return PoseCorrection(index, full, rotation if applied else 0.0, moved if applied else 0.0,
-                          1 + x[6] if applied else 1.0, before, best if applied else before, applied)
+                          1 + x[6] if applied else 1.0, before, best if applied else before, applied, shift)
 
 
 def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, caster,

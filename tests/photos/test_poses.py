@@ -52,7 +52,8 @@ def test_refined_poses_cut_the_reprojection_error(capture):
     assert after < 0.6 * before, (before, after)
     assert all(c.error_after <= c.error_before for c in corrections)
     d = corrections[0].to_dict()
-    assert set(d) >= {"photo", "rotation_deg", "translation_mm", "focal_scale"}
+    assert set(d) >= {"photo", "rotation_deg", "translation_mm", "focal_scale", "applied", "shift_px"}
+    assert all(c.shift_px >= 0.5 for c in corrections if c.applied)  # PoseSettings.min_shift_px
     json.dumps(d)  # goes into metrics.json as it is
 
 
@@ -163,6 +164,7 @@ def test_a_photo_at_its_true_pose_keeps_it(capture):
     for i, camera in enumerate(truth):
         c = align_camera(scan, camera, photos.load_image(i), lambda f, b: shade_hits(gt, f, b), caster, index=i)
         assert not c.applied and c.camera is camera and c.rotation_deg == 0.0
+        assert c.shift_px < 0.5  # why it was kept out
 
 
 def test_the_corrections_are_summed_up_in_one_line():
