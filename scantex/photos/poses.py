@@ -320,11 +320,15 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
 
 def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, caster,
                  settings: PoseSettings = PoseSettings(),
-                 update: Callable[[int, int], None] | None = None) -> tuple[PhotoSet, list[PoseCorrection]]:
-    """``photos`` with the cameras at ``indices`` refined (the others as recorded), and the corrections."""
+                 update: Callable[[int, int], None] | None = None,
+                 faces: np.ndarray | None = None) -> tuple[PhotoSet, list[PoseCorrection]]:
+    """``photos`` with the cameras at ``indices`` refined (the others as recorded), and the corrections.
+    ``faces``: :func:`reference_faces` of ``scan``, when the caller has them (computed here otherwise, for a
+    textured scan)."""
     cameras = list(photos.cameras)
     corrections = []
-    faces = reference_faces(scan) if scan.is_textured else None
+    if faces is None and scan.is_textured:
+        faces = reference_faces(scan)
     for k, i in enumerate(indices):
         c = refine_pose(scan, photos, int(i), reference, caster, settings, faces)
         cameras[int(i)] = c.camera

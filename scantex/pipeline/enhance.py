@@ -247,10 +247,14 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
     if mode == "input":
-        from scantex.photos.poses import refine_poses
+        from scantex.photos.poses import reference_faces, refine_poses
 
+        def texture(face_ids, bary):
+            return shade_hits(scan, face_ids, bary)
+
+        usable_faces = reference_faces(scan)  # once for the training photos and, below, the held-out ones
         # held-out photos keep their recorded poses: they are the score's reference, not training data
-        photos, corrections = refine_poses(scan, photos, train, lambda f, b: shade_hits(scan, f, b), caster)
+        photos, corrections = refine_poses(scan, photos, train, texture, caster, faces=usable_faces)
     settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
@@ -277,7 +281,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         # the texture written from every photo: the held-out photos join the training photos' refined frame
         # (a texture from both frames would be doubled); they are still scored through their recorded poses
         if mode == "input":
-            aligned, moved = refine_poses(scan, photos, held, lambda f, b: shade_hits(scan, f, b), caster)
+            aligned, moved = refine_poses(scan, photos, held, texture, caster, faces=usable_faces)
         else:
             from scantex.photos.poses import align_to_consensus
 
