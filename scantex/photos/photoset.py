@@ -28,6 +28,51 @@ from scantex.views.camera import Camera
 #: metres per depth-map unit in every format scantex reads: uint16 PNG in millimetres
 DEPTH_SCALE_MM = 0.001
 
+#: decoded photos kept in memory for the stages that read them again (the alignment check, pose refinement,
+#: the working views and the texture each read every photo: a 1920x1080 JPEG costs ~30 ms to decode)
+IMAGE_CACHE_MB = 256
+
+
+class ImageCache:
+    """The most recently decoded photos, up to ``budget_mb`` of pixels, shared by a :class:`PhotoSet` and
+    the sets made from it (:meth:`PhotoSet.subset`, refined cameras): keyed by file, its size and its time
+    of change (a file written again is read again), safe across threads. Its images are read-only."""
+
+    def __init__(self, budget_mb: float = IMAGE_CACHE_MB):
+        import threading
+        from collections import OrderedDict
+
+        self.budget = int(budget_mb * 2**20)
+        self._images: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def _key(path: Path) -> tuple | None:
+        try:
+            stat = path.stat()
+        except OSError:
+            return None
+        return path, stat.st_size, stat.st_mtime_ns
+
+    def get(self, path: Path) -> np.ndarray | None:
+        key = self._key(path)
+        with self._lock:
+            image = self._images.get(key)
+            if image is not None:
+                self._images.move_to_end(key)
+            return image
+
+    def put(self, path: Path, image: np.ndarray) -> None:
+        key = self._key(path)
+        if key is None or image.nbytes > self.budget:
+            return
+        image.flags.writeable = False
+        with self._lock:
+            self._images[key] = image
+            self._images.move_to_end(key)
+            while sum(a.nbytes for a in self._images.values()) > self.budget:
+                self._images.popitem(last=False)
+
 
 @dataclass(frozen=True)
 class Distortion:
@@ -94,6 +139,8 @@ class PhotoSet:
             ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``), or any label for sets made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
+        image_cache: the decoded photos :meth:`load_image` keeps (a new set makes its own; the sets made from
+            one by :func:`dataclasses.replace` share it).
     """
 
     cameras: tuple[Camera, ...]
@@ -103,6 +150,7 @@ class PhotoSet:
     source: Path
     format: str
     distortions: tuple[Distortion | None, ...] = ()
+    image_cache: ImageCache = dataclasses.field(default_factory=ImageCache, repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -133,19 +181,27 @@ class PhotoSet:
 
     def load_image(self, i: int) -> np.ndarray:
         """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras
-        describe the sensor's pixel grid).
+        describe the sensor's pixel grid); read-only (it may be :attr:`image_cache`'s copy).
 
         Raises:
             ScanError: the file is missing, not an image, or not of its camera's size.
         """
         path = self.images[i]
-        with open_image(path, "photo") as im:
-            size = im.size
-            cam = self.cameras[i]
-            if size != (cam.width, cam.height):
-                raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
-                                      f"{cam.width}x{cam.height}")
-            return np.asarray(im.convert("RGB"))
+        cam = self.cameras[i]
+        image = self.image_cache.get(path)
+        if image is None:
+            with open_image(path, "photo") as im:
+                size = im.size
+                if size != (cam.width, cam.height):
+                    raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
+                                          f"{cam.width}x{cam.height}")
+                image = np.asarray(im.convert("RGB"))
+            self.image_cache.put(path, image)
+        elif image.shape[:2] != (cam.height, cam.width):
+            raise ScanError(path, f"photo is {image.shape[1]}x{image.shape[0]} but its camera is "
+                                  f"{cam.width}x{cam.height}")
+        image.flags.writeable = False
+        return image
 
     def load_depth(self, i: int) -> np.ndarray | None:
         """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,

@@ -151,7 +151,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     from scipy import ndimage
     from scipy.optimize import least_squares
 
-    from scantex.photos.alignment import _lookup, _lookup_gradient, contour_map
+    from scantex.photos.alignment import contour_map
     from scantex.photos.training import working_camera
     from scantex.views.raycast import cast_gbuffer
 
@@ -192,18 +192,22 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     levels = {s: np.stack([ndimage.gaussian_filter(photo[..., c], s) for c in range(3)], -1) for s in (3.0, 1.0)}
     design = np.concatenate([ref, np.ones((n, 1), np.float32)], axis=1)  # [n, 4]
 
-    def observe(x, image, gradient=False):
+    last: dict = {}
+
+    def observe(x, image):
         """The photo at the points through the camera ``x``: ``(camera-frame points (n, 3) of the perturbed
-        camera, pixels (n, 2), colours (n, 3) NaN off the image)``, and with ``gradient`` the colours'
-        image gradients ``(n, 3, 2)`` there."""
-        c = perturbed_camera(cam, x, depth_scale)
-        local = points @ c.R.T + c.t
-        pix, z = c.project(points)
-        pix[z <= 0] = np.nan
-        observed = np.stack([_lookup(image[..., k], pix, outside=np.nan) for k in range(3)], axis=1)
-        if not gradient:
-            return local, pix, observed
-        return local, pix, observed, np.stack([_lookup_gradient(image[..., k], pix) for k in range(3)], axis=1)
+        camera, pixels (n, 2), colours (n, 3) NaN off the image, the colours' image gradients (n, 3, 2))``.
+        The last call's answer is kept: the fit asks for the residuals and then the Jacobian at one ``x``."""
+        key = (x.tobytes(), id(image))
+        if last.get("key") != key:
+            c = perturbed_camera(cam, x, depth_scale)
+            local = points @ c.R.T + c.t
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pix = (local @ c.K.T)
+                pix = pix[:, :2] / pix[:, 2:3]
+            pix[local[:, 2] <= 0] = np.nan
+            last.update(key=key, value=(local, pix, *_bilinear_rgb(image, pix)))
+        return last["value"]
 
     def exposure_fit(ok, values):
         """The least-squares coefficients of ``design`` for ``values (n, m)`` on the ``ok`` rows (the normal
@@ -216,7 +220,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
             return np.linalg.lstsq(d, values[ok], rcond=None)[0]
 
     def residuals(x, image):
-        _, _, observed = observe(x, image)
+        _, _, observed, _ = observe(x, image)
         ok = np.isfinite(observed).all(axis=1)
         # exposure: the best affine map of the reference colours onto the observed ones, per channel
         r = observed - design @ exposure_fit(ok, observed)
@@ -231,30 +235,30 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         observed colours' derivative, ``grad I . d pixel / d x``. The rotation is differentiated at the
         current rotation (``d(dR p) = w x (dR p)``: exact at 0, a few per cent off at the 3-degree limit; the
         fit's steps are kept by the actual cost)."""
-        local, pix, observed, grad = observe(x, image, gradient=True)
+        local, pix, observed, grad = observe(x, image)
         ok = np.isfinite(observed).all(axis=1) & np.isfinite(pix).all(axis=1)
         K = cam.K * np.array([[1 + x[6], 1 + x[6], 1], [1, 1 + x[6], 1], [1, 1, 1]])
         X, Y, Z = local[:, 0], local[:, 1], np.where(ok, local[:, 2], 1.0)
-        # d pixel / d camera-frame point
-        dp = np.zeros((n, 2, 3))
-        dp[:, 0, 0] = K[0, 0] / Z
-        dp[:, 0, 1] = K[0, 1] / Z
-        dp[:, 0, 2] = -(K[0, 0] * X + K[0, 1] * Y) / Z ** 2
-        dp[:, 1, 1] = K[1, 1] / Z
-        dp[:, 1, 2] = -K[1, 1] * Y / Z ** 2
-        # d camera-frame point / d (rotation vector, translation); the translation is in units of depth_scale
-        rotated = local - x[3:6] * depth_scale
-        dP = np.zeros((n, 3, 6))
-        zero = np.zeros(n)
-        dP[:, :, 0] = np.stack([zero, -rotated[:, 2], rotated[:, 1]], axis=1)  # e_x cross p
-        dP[:, :, 1] = np.stack([rotated[:, 2], zero, -rotated[:, 0]], axis=1)  # e_y cross p
-        dP[:, :, 2] = np.stack([-rotated[:, 1], rotated[:, 0], zero], axis=1)  # e_z cross p
-        dP[:, :, 3:6] = depth_scale * np.eye(3)
-        dpix = np.zeros((n, 2, 7))
-        dpix[:, :, :6] = dp @ dP
+        # d pixel / d camera-frame point: u's row (a, b, c), v's (0, e, g)
+        a, b, c = K[0, 0] / Z, K[0, 1] / Z, -(K[0, 0] * X + K[0, 1] * Y) / Z ** 2
+        e, g = K[1, 1] / Z, -K[1, 1] * Y / Z ** 2
+        # d camera-frame point / d (rotation vector, translation): e_k x p for the rotation (p the rotated
+        # point before the translation), depth_scale e_k for the translation (in units of depth_scale)
+        px, py, pz = (local - x[3:6] * depth_scale).T
+        dpix = np.empty((n, 2, 7))
+        dpix[:, 0, 0] = -b * pz + c * py
+        dpix[:, 0, 1] = a * pz - c * px
+        dpix[:, 0, 2] = -a * py + b * px
+        dpix[:, 1, 0] = -e * pz + g * py
+        dpix[:, 1, 1] = -g * px
+        dpix[:, 1, 2] = e * px
+        dpix[:, 0, 3:6] = depth_scale * np.stack([a, b, c], axis=1)
+        dpix[:, 1, 3] = 0
+        dpix[:, 1, 4:6] = depth_scale * np.stack([e, g], axis=1)
         centred = np.nan_to_num(pix) - cam.K[:2, 2]
         dpix[:, :, 6] = centred / (1 + x[6])  # the focal scales the pixel's offset from the principal point
-        dobs = np.einsum("nck,nkp->ncp", grad, dpix).reshape(n, 21)  # (n, 3 channels x 7 parameters)
+        # (n, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
+        dobs = (grad[:, :, :1] * dpix[:, None, 0, :] + grad[:, :, 1:] * dpix[:, None, 1, :]).reshape(n, 21)
         dobs[~ok] = 0
         # (I - H): the part the exposure fit cannot absorb (each channel's fit is the same projection)
         out = dobs - design @ exposure_fit(ok, dobs)
@@ -484,6 +488,27 @@ def image_shift(reference: np.ndarray, mask: np.ndarray, photo: np.ndarray, r: i
     score = corr / np.sqrt(np.maximum(energy, 1e-12))
     k = np.unravel_index(np.argmax(score), score.shape)
     return float(shifts[k[1]]), float(shifts[k[0]])
+
+
+def _bilinear_rgb(image: np.ndarray, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(colours (n, 3), gradients (n, 3, 2))``: bilinear samples of ``image (H, W, 3)`` at pixels ``pix (n, 2)``
+    and their gradients (d/dx, d/dy); off the image (or NaN) the colours are NaN and the gradients 0. The
+    three channels share one cell lookup (a third of the work of looking each channel up alone)."""
+    H, W = image.shape[:2]
+    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
+    off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
+    x = np.clip(p[:, 0], 0, W - 1.001)
+    y = np.clip(p[:, 1], 0, H - 1.001)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    a, b = image[y0, x0], image[y0, x0 + 1]
+    c, d = image[y0 + 1, x0], image[y0 + 1, x0 + 1]
+    top, bottom = a + fx * (b - a), c + fx * (d - c)
+    colours = top + fy * (bottom - top)
+    gradients = np.stack([(1 - fy) * (b - a) + fy * (d - c), bottom - top], axis=2)
+    colours[off] = np.nan
+    gradients[off] = 0
+    return colours, gradients
 
 
 def _rgb_to_grey_image(rgb: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape) -> np.ndarray:
