@@ -52,6 +52,8 @@ class PoseSettings:
     """longer image side the alignment runs at"""
     n_points: int = 3000
     """surface points per photo"""
+    coarse_points: int = 1000
+    """of which the coarse level (the photo blurred) fits the first (a random sample of them all)"""
     max_rotation_deg: float = 3.0
     """a larger correction is implausible: the recorded pose is kept"""
     max_translation: float = 0.05
@@ -194,14 +196,15 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
 
     last: dict = {}
 
-    def observe(x, image):
-        """The photo at the points through the camera ``x``: ``(camera-frame points (n, 3) of the perturbed
-        camera, pixels (n, 2), colours (n, 3) NaN off the image, the colours' image gradients (n, 3, 2))``.
-        The last call's answer is kept: the fit asks for the residuals and then the Jacobian at one ``x``."""
-        key = (x.tobytes(), id(image))
+    def observe(x, image, m):
+        """The photo at the first ``m`` points through the camera ``x``: ``(camera-frame points (m, 3) of the
+        perturbed camera, pixels (m, 2), colours (m, 3) NaN off the image, the colours' image gradients
+        (m, 3, 2))``. The last call's answer is kept: the fit asks for the residuals and then the Jacobian
+        at one ``x``."""
+        key = (x.tobytes(), id(image), m)
         if last.get("key") != key:
             c = perturbed_camera(cam, x, depth_scale)
-            local = points @ c.R.T + c.t
+            local = points[:m] @ c.R.T + c.t
             with np.errstate(divide="ignore", invalid="ignore"):
                 pix = (local @ c.K.T)
                 pix = pix[:, :2] / pix[:, 2:3]
@@ -210,32 +213,32 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         return last["value"]
 
     def exposure_fit(ok, values):
-        """The least-squares coefficients of ``design`` for ``values (n, m)`` on the ``ok`` rows (the normal
-        equations of a 4-column design: several times faster than an SVD for each of the fit's hundreds of
-        evaluations; ``lstsq`` where they are singular)."""
-        d = design[ok]
+        """The least-squares coefficients of ``design``'s first rows for ``values (m, k)`` on the ``ok (m,)``
+        rows (the normal equations of a 4-column design: several times faster than an SVD for each of the
+        fit's hundreds of evaluations; ``lstsq`` where they are singular)."""
+        d = design[:len(ok)][ok]
         try:
             return np.linalg.solve(d.T @ d, d.T @ values[ok])
         except np.linalg.LinAlgError:
             return np.linalg.lstsq(d, values[ok], rcond=None)[0]
 
-    def residuals(x, image):
-        _, _, observed, _ = observe(x, image)
+    def residuals(x, image, m=n):
+        _, _, observed, _ = observe(x, image, m)
         ok = np.isfinite(observed).all(axis=1)
         # exposure: the best affine map of the reference colours onto the observed ones, per channel
-        r = observed - design @ exposure_fit(ok, observed)
+        r = observed - design[:m] @ exposure_fit(ok, observed)
         r[~ok] = 0.25  # a point leaving the image costs a fixed amount, no gradient
         return r.reshape(-1)
 
-    def jacobian(x, image):
-        """``(3n, 7)``: d residuals / d x, analytic (the finite differences took 8 evaluations a step).
+    def jacobian(x, image, m=n):
+        """``(3m, 7)``: d residuals / d x, analytic (the finite differences took 8 evaluations a step).
 
         A residual is ``(I - H) observed`` with ``H`` the exposure fit's projection (variable projection:
         the exposure is solved for, not a parameter), so its derivative is ``(I - H)`` applied to the
         observed colours' derivative, ``grad I . d pixel / d x``. The rotation is differentiated at the
         current rotation (``d(dR p) = w x (dR p)``: exact at 0, a few per cent off at the 3-degree limit; the
         fit's steps are kept by the actual cost)."""
-        local, pix, observed, grad = observe(x, image)
+        local, pix, observed, grad = observe(x, image, m)
         ok = np.isfinite(observed).all(axis=1) & np.isfinite(pix).all(axis=1)
         K = cam.K * np.array([[1 + x[6], 1 + x[6], 1], [1, 1 + x[6], 1], [1, 1, 1]])
         X, Y, Z = local[:, 0], local[:, 1], np.where(ok, local[:, 2], 1.0)
@@ -245,7 +248,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         # d camera-frame point / d (rotation vector, translation): e_k x p for the rotation (p the rotated
         # point before the translation), depth_scale e_k for the translation (in units of depth_scale)
         px, py, pz = (local - x[3:6] * depth_scale).T
-        dpix = np.empty((n, 2, 7))
+        dpix = np.empty((m, 2, 7))
         dpix[:, 0, 0] = -b * pz + c * py
         dpix[:, 0, 1] = a * pz - c * px
         dpix[:, 0, 2] = -a * py + b * px
@@ -258,12 +261,12 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         centred = np.nan_to_num(pix) - cam.K[:2, 2]
         dpix[:, :, 6] = centred / (1 + x[6])  # the focal scales the pixel's offset from the principal point
         # (n, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
-        dobs = (grad[:, :, :1] * dpix[:, None, 0, :] + grad[:, :, 1:] * dpix[:, None, 1, :]).reshape(n, 21)
+        dobs = (grad[:, :, :1] * dpix[:, None, 0, :] + grad[:, :, 1:] * dpix[:, None, 1, :]).reshape(m, 21)
         dobs[~ok] = 0
         # (I - H): the part the exposure fit cannot absorb (each channel's fit is the same projection)
-        out = dobs - design @ exposure_fit(ok, dobs)
+        out = dobs - design[:m] @ exposure_fit(ok, dobs)
         out[~ok] = 0
-        return out.reshape(3 * n, 7)
+        return out.reshape(3 * m, 7)
 
     def cost(x):
         r = residuals(x, levels[1.0]) / 0.05
@@ -276,7 +279,6 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
                     and moved <= settings.max_translation * depth_scale)
 
     n_params = 7 if settings.refine_focal else 6
-    prior = 0.01 * np.sqrt(n)
     x = np.zeros(7)
     before = best = cost(x)
     if settings.search_px > 0:
@@ -287,25 +289,29 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         shifted[:2] = -dv / cam.K[1, 1], du / cam.K[0, 0]
         if (du or dv) and cost(shifted) < best:
             x, best = shifted, cost(shifted)
-    for sigma in (3.0, 1.0):
-        def partial(y, sigma=sigma):
-            full = x.copy()
-            full[:n_params] = y
-            # a weak prior towards the recorded pose: a rotation and a sideways move look alike through
-            # a narrow lens, and the prior picks the smaller of the two
-            return np.concatenate([residuals(full, levels[sigma]), prior * y / PRIOR_SCALE[:n_params]])
+    # the coarse level (the photo blurred, its detail gone) needs fewer points than the fine one
+    for sigma, m in ((3.0, min(n, settings.coarse_points)), (1.0, n)):
+        # a weak prior towards the recorded pose: a rotation and a sideways move look alike through a narrow
+        # lens, and the prior picks the smaller of the two (as strong against any number of points)
+        prior = 0.01 * np.sqrt(m)
 
-        def partial_jacobian(y, sigma=sigma):
+        def partial(y, sigma=sigma, m=m, prior=prior):
             full = x.copy()
             full[:n_params] = y
-            return np.vstack([jacobian(full, levels[sigma])[:, :n_params], np.diag(prior / PRIOR_SCALE[:n_params])])
+            return np.concatenate([residuals(full, levels[sigma], m), prior * y / PRIOR_SCALE[:n_params]])
+
+        def partial_jacobian(y, sigma=sigma, m=m, prior=prior):
+            full = x.copy()
+            full[:n_params] = y
+            return np.vstack([jacobian(full, levels[sigma], m)[:, :n_params],
+                              np.diag(prior / PRIOR_SCALE[:n_params])])
 
         fit = least_squares(partial, x[:n_params], jac=partial_jacobian, loss="soft_l1", f_scale=0.05,
                             x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20)
         trial = x.copy()
         trial[:n_params] = fit.x
         c = cost(trial)
-        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s)", index, sigma, best, c, np.round(trial, 5), fit.message)
+        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s) nfev %d njev %d", index, sigma, best, c, np.round(trial, 5), fit.message, fit.nfev, fit.njev)
         # a level's fit is kept only when it is plausible: a fine level that slides along a near-degenerate
         # direction (moving forward and zooming out alike, for a shallow subject) to an implausible pose
         # leaves the coarse level's correction, not none (a bolster photo: cost 2.43 recorded, 1.75 coarse,
