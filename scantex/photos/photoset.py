@@ -29,7 +29,8 @@ from scantex.views.camera import Camera
 DEPTH_SCALE_MM = 0.001
 
 #: decoded photos kept in memory for the stages that read them again (the alignment check, pose refinement,
-#: the working views and the texture each read every photo: a 1920x1080 JPEG costs ~30 ms to decode)
+#: the working views and the texture each read every photo: a 1920x1080 JPEG costs ~30 ms to decode), when
+#: all of a set's photos fit (the stages read them in turn: a cache holding a few of many would never be hit)
 IMAGE_CACHE_MB = 256
 
 
@@ -139,8 +140,8 @@ class PhotoSet:
             ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``), or any label for sets made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
-        image_cache: the decoded photos :meth:`load_image` keeps (a new set makes its own; the sets made from
-            one by :func:`dataclasses.replace` share it).
+        image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new
+            set makes its own; the sets made from one by :func:`dataclasses.replace` share it).
     """
 
     cameras: tuple[Camera, ...]
@@ -188,7 +189,8 @@ class PhotoSet:
         """
         path = self.images[i]
         cam = self.cameras[i]
-        image = self.image_cache.get(path)
+        cached = sum(c.width * c.height * 3 for c in self.cameras) <= self.image_cache.budget
+        image = self.image_cache.get(path) if cached else None
         if image is None:
             with open_image(path, "photo") as im:
                 size = im.size
@@ -196,7 +198,8 @@ class PhotoSet:
                     raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
                                           f"{cam.width}x{cam.height}")
                 image = np.asarray(im.convert("RGB"))
-            self.image_cache.put(path, image)
+            if cached:
+                self.image_cache.put(path, image)
         elif image.shape[:2] != (cam.height, cam.width):
             raise ScanError(path, f"photo is {image.shape[1]}x{image.shape[0]} but its camera is "
                                   f"{cam.width}x{cam.height}")

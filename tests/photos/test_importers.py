@@ -375,6 +375,23 @@ def test_load_image_checks_the_file(tmp_path):
         photos.load_image(0)
 
 
+def test_photos_are_decoded_once_when_they_all_fit(tmp_path):
+    from scantex.photos.photoset import ImageCache
+
+    blank_png(tmp_path / "a.png")
+    photos = PhotoSet(cameras=(reference_camera(),), images=(tmp_path / "a.png",), source=tmp_path,
+                      format="test")
+    first = photos.load_image(0)
+    assert not first.flags.writeable  # shared with the later readers: no one may change it
+    refined = dataclasses.replace(photos, cameras=(reference_camera(),))
+    assert refined.load_image(0) is first and photos.load_image(0) is first
+    # a set whose photos do not all fit is read from the files each time (the stages read the photos in
+    # turn: a cache holding the last few would never be hit)
+    small = dataclasses.replace(photos, image_cache=ImageCache(budget_mb=W * H * 3 / 2**20 / 2))
+    assert small.load_image(0) is not small.load_image(0)
+    np.testing.assert_array_equal(small.load_image(0), first)
+
+
 # ---- the real bolster capture (skipped without ../shared/data) ---------------------------------
 
 def test_bolster_cameras_json():

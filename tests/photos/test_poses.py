@@ -73,6 +73,29 @@ def test_image_shift_finds_a_known_shift_whatever_the_exposure():
         assert image_shift(reference, mask, photo, 16) == (du, dv)
 
 
+def test_the_photo_sampler_and_its_gradient():
+    """The fit's one lookup of a photo's three channels: bilinear values, gradients that match finite
+    differences away from pixel centres, NaN colour and zero gradient off the image."""
+    from scantex.photos.poses import _bilinear_rgb
+
+    rng = np.random.default_rng(1)
+    image = rng.random((30, 40, 3)).astype(np.float32)
+    pix = np.array([[3.3, 4.6], [20.25, 11.7], [38.4, 27.9], [-2.0, 5.0], [np.nan, 3.0]])
+    colours, gradients = _bilinear_rgb(image, pix)
+    x0, y0, fx, fy = 3, 4, 0.3, 0.6
+    expected = ((1 - fy) * ((1 - fx) * image[y0, x0] + fx * image[y0, x0 + 1])
+                + fy * ((1 - fx) * image[y0 + 1, x0] + fx * image[y0 + 1, x0 + 1]))
+    np.testing.assert_allclose(colours[0], expected, rtol=1e-5)
+    h = 1e-3
+    for axis in (0, 1):
+        step = np.zeros(2)
+        step[axis] = h
+        ahead, _ = _bilinear_rgb(image, pix[:3] + step)
+        behind, _ = _bilinear_rgb(image, pix[:3] - step)
+        np.testing.assert_allclose(gradients[:3, :, axis], (ahead - behind) / (2 * h), rtol=1e-2, atol=1e-3)
+    assert np.isnan(colours[3:]).all() and not gradients[3:].any()
+
+
 def test_perturbed_camera_identity_and_focal():
     cam = Camera.look_at((0, -3, 0), (0, 0, 0), width=64, height=48)
     same = perturbed_camera(cam, np.zeros(7), 3.0)
