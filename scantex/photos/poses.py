@@ -204,9 +204,9 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         key = (x.tobytes(), id(image), m)
         if last.get("key") != key:
             c = perturbed_camera(cam, x, depth_scale)
-            local = points[:m] @ c.R.T + c.t
+            local = points[:m] @ np.ascontiguousarray(c.R.T) + c.t  # contiguous: see Camera.project
             with np.errstate(divide="ignore", invalid="ignore"):
-                pix = (local @ c.K.T)
+                pix = local @ np.ascontiguousarray(c.K.T)
                 pix = pix[:, :2] / pix[:, 2:3]
             pix[local[:, 2] <= 0] = np.nan
             last.update(key=key, value=(local, pix, *_bilinear_rgb(image, pix)))

@@ -113,9 +113,13 @@ class _Source:
     group: int
     faces: np.ndarray | None  # (F,) bool: faces whose points this photo may see (None: not culled)
     # the pose in float32, about the capture's origin (see ``projective_colour``): a camera-frame point is
-    # ``rotation @ (X - origin) + translation``
-    rotation: np.ndarray
+    # ``(X - origin) @ rotation_t + translation``; its pixel ``(x_cam @ intrinsics_t)`` over its z, and that
+    # pixel at the working resolution ``pixel @ to_view_t + to_view[:2, 2]``. The matrices are transposed
+    # into contiguous arrays: numpy multiplies by a transposed view several times slower
+    rotation_t: np.ndarray
     translation: np.ndarray
+    intrinsics_t: np.ndarray
+    to_view_t: np.ndarray
 
 
 def photo_sharpness(image: np.ndarray) -> float:
@@ -201,9 +205,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen = np.zeros(len(faces), np.float32)
             seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
             seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
-        return _Source(cam, _packed(image), to_view.astype(np.float32), view.camera.center, view.valid, view.depth,
-                       feather, sharpness, int(group),
-                       seen, cam.R.astype(np.float32), (cam.R @ origin + cam.t).astype(np.float32))
+        to_view = to_view.astype(np.float32)
+        return _Source(cam, _packed(image), to_view, view.camera.center, view.valid, view.depth,
+                       feather, sharpness, int(group), seen,
+                       np.ascontiguousarray(cam.R.T, np.float32), (cam.R @ origin + cam.t).astype(np.float32),
+                       np.ascontiguousarray(cam.K.T, np.float32), np.ascontiguousarray(to_view[:2, :2].T))
 
     # the photos read and prepared side by side (decoding and numpy release the interpreter lock)
     with ThreadPoolExecutor(max(1, min(_WORKERS, len(views)))) as pool:
@@ -235,29 +241,30 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         def project(s: _Source, at: np.ndarray):
             """Points ``at`` (about the origin) in the photo's camera frame, at its sampling resolution's pixels
             and at its working resolution's."""
-            cam = at @ s.rotation.T + s.translation
+            cam = at @ s.rotation_t + s.translation
             with np.errstate(divide="ignore", invalid="ignore"):
-                full = (cam @ s.camera.K.T.astype(np.float32))
+                full = cam @ s.intrinsics_t
                 full = full[:, :2] / full[:, 2:]  # a point in the camera's plane (z = 0) is not finite
-                pix = full @ s.to_view[:2, :2].T + s.to_view[:2, 2]  # the same projection at the working size
+                pix = full @ s.to_view_t + s.to_view[:2, 2]  # the same projection at the working size
             return cam, full, pix
 
         def sample(s: _Source):
             sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
             if sub is not None and sub.size == 0:
                 return None
-            cam, full, pix = project(s, local if sub is None else local[sub])
+            # np.take: numpy's fancy indexing of rows is several times slower
+            cam, full, pix = project(s, local if sub is None else np.take(local, sub, axis=0))
             z = cam[:, 2]
             idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
             if idx.size == 0:
                 return None
-            seen = cam[idx]
+            seen = np.take(cam, idx, axis=0)
             distance = np.sqrt(np.einsum("ij,ij->i", seen, seen))  # |X - C|
-            z, full = z[idx], full[idx]
+            z, full = z[idx], np.take(full, idx, axis=0)
             if sub is not None:
                 idx = sub[idx]
             centre = (s.centre - origin).astype(np.float32)
-            cos = np.abs(facing[idx] - unit[idx] @ centre) / distance
+            cos = np.abs(facing[idx] - np.take(unit, idx, axis=0) @ centre) / distance
             quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
                 + np.float32(s.log_sharpness)
             rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full)
@@ -433,15 +440,17 @@ def _seen_in(valid: np.ndarray | None, depth: np.ndarray, pix: np.ndarray, z: np
     agrees within ``depth_tolerance`` (relative), and their nearest pixel. ``valid`` ``None``: the points
     with no surface in front of them closer than that (any pixel, usable or not)."""
     h, w = depth.shape
-    with np.errstate(invalid="ignore"):
-        x = np.round(np.nan_to_num(pix[:, 0], nan=-1, posinf=-1, neginf=-1))
-        y = np.round(np.nan_to_num(pix[:, 1], nan=-1, posinf=-1, neginf=-1))
+    rounded = np.round(pix)
+    x, y = rounded[:, 0], rounded[:, 1]
+    # a NaN or infinite pixel fails these comparisons: it is not seen
     idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
     z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
+    at = yi * w + xi
+    there = np.take(depth.reshape(-1), at)
     if valid is None:
-        seen = depth[yi, xi] > (1 - depth_tolerance) * z
+        seen = there > (1 - depth_tolerance) * z
     else:
-        seen = valid[yi, xi] & (np.abs(depth[yi, xi] - z) < depth_tolerance * z)
+        seen = np.take(valid.reshape(-1), at) & (np.abs(there - z) < depth_tolerance * z)
     return idx[seen], xi[seen], yi[seen]
 
 
@@ -559,12 +568,21 @@ def _bilinear(pixels: np.ndarray, W: int, H: int, pix: np.ndarray) -> np.ndarray
     i = y0 * W + x0
 
     def corner(k: np.ndarray) -> np.ndarray:
-        return pixels[k].view(np.uint8).reshape(-1, 4)[:, :3].astype(np.float32)
+        # all four bytes converted (contiguous), the unused fourth dropped at the end
+        return pixels[k].view(np.uint8).reshape(-1, 4).astype(np.float32)
 
     a, b, c, d = corner(i), corner(i + 1), corner(i + W), corner(i + W + 1)
-    top = a + fx * (b - a)
-    bottom = c + fx * (d - c)
-    return (top + fy * (bottom - top)) * np.float32(1 / 255)
+    # in place, the same sums as top = a + fx (b - a), bottom = c + fx (d - c), top + fy (bottom - top)
+    b -= a
+    b *= fx
+    b += a
+    d -= c
+    d *= fx
+    d += c
+    d -= b
+    d *= fy
+    d += b
+    return d[:, :3] * np.float32(1 / 255)
 
 
 def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence[PhotoView],
