@@ -219,7 +219,9 @@ def _dark_texels(scan: Scan):
             out = np.empty((*image.shape[:2], 4), np.uint8)
             for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
                 levels = image[r:r + 512, :, :3].astype(np.float32) * (1.0 if image.dtype == np.uint8 else 255.0)
-                w = np.clip((BLACK_LEVEL + DARK_RAMP - levels.max(axis=2, keepdims=True)) / DARK_RAMP, 0, 1)
+                # the channels' maximum pairwise: numpy's max over a row of three is many times slower
+                brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])[..., None]
+                w = np.clip((BLACK_LEVEL + DARK_RAMP - brightest) / DARK_RAMP, 0, 1)
                 # in 8-bit levels: w * 255, and w times the texel (at most BLACK_LEVEL + DARK_RAMP levels)
                 out[r:r + 512] = np.concatenate([np.rint(w * 255), np.rint(w * levels)], axis=2)
             tables[m] = out

@@ -48,13 +48,28 @@ def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = Tru
 def write_outputs(result, out_dir: str | Path) -> None:
     """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
     ``comparisons/`` (photo mode: held-out photo | input | result), ``report.html``."""
-    from scantex.report import write_report
-    from scantex.report.html import json_default
+    from concurrent.futures import ThreadPoolExecutor
+
+    from scantex.io.images import png_bytes
 
     out_dir = Path(out_dir)
     png_cache: dict = {}  # the OBJ's PNG and the GLB's embedded one are the same bytes: encode once
+    # the atlases are encoded on a second core while the metrics and the report are made (zlib releases the
+    # interpreter lock), then the OBJ and the GLB are written from those bytes
+    with ThreadPoolExecutor(1) as pool:
+        encoding = [pool.submit(png_bytes, m.image, png_cache) for m in result.scan.materials if m.image is not None]
+        _write_the_rest(result, out_dir)
+        for done in encoding:
+            done.result()
     save_scan(result.scan, out_dir / "enhanced.obj", png_cache=png_cache)
     save_scan(result.scan, out_dir / "enhanced.glb", png_cache=png_cache)
+
+
+def _write_the_rest(result, out_dir: Path) -> None:
+    """What :func:`write_outputs` writes besides the scan: metrics, config, renders, comparisons, report."""
+    from scantex.report import write_report
+    from scantex.report.html import json_default
+
     metrics = completed_metrics(result)
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
     save_config(result.config, out_dir / "config.json")
