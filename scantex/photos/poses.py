@@ -307,7 +307,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
                               np.diag(prior / PRIOR_SCALE[:n_params])])
 
         fit = least_squares(partial, x[:n_params], jac=partial_jacobian, loss="soft_l1", f_scale=0.05,
-                            x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20)
+                            x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20, xtol=1e-3)
         trial = x.copy()
         trial[:n_params] = fit.x
         c = cost(trial)
