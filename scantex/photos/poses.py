@@ -260,7 +260,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         dpix[:, 1, 4:6] = depth_scale * np.stack([e, g], axis=1)
         centred = np.nan_to_num(pix) - cam.K[:2, 2]
         dpix[:, :, 6] = centred / (1 + x[6])  # the focal scales the pixel's offset from the principal point
-        # (n, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
+        # (m, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
         dobs = (grad[:, :, :1] * dpix[:, None, 0, :] + grad[:, :, 1:] * dpix[:, None, 1, :]).reshape(m, 21)
         dobs[~ok] = 0
         # (I - H): the part the exposure fit cannot absorb (each channel's fit is the same projection)
@@ -311,7 +311,8 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         trial = x.copy()
         trial[:n_params] = fit.x
         c = cost(trial)
-        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s) nfev %d njev %d", index, sigma, best, c, np.round(trial, 5), fit.message, fit.nfev, fit.njev)
+        log.debug("photo %d sigma %.0f: cost %.4f -> %.4f x=%s (%s; %d evaluations)", index, sigma, best, c,
+                  np.round(trial, 5), fit.message, fit.nfev)
         # a level's fit is kept only when it is plausible: a fine level that slides along a near-degenerate
         # direction (moving forward and zooming out alike, for a shallow subject) to an implausible pose
         # leaves the coarse level's correction, not none (a bolster photo: cost 2.43 recorded, 1.75 coarse,
