@@ -246,6 +246,9 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     corrections = []
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
+    # the stage's progress counts the training photos refined (input mode), then every photo prepared
+    refined = len(train) if mode == "input" else 0
+    prepared = len(train) + len(held)
     if mode == "input":
         from scantex.photos.poses import reference_faces, refine_poses
 
@@ -254,10 +257,12 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
 
         usable_faces = reference_faces(scan)  # once for the training photos and, below, the held-out ones
         # held-out photos keep their recorded poses: they are the score's reference, not training data
-        photos, corrections = refine_poses(scan, photos, train, texture, caster, faces=usable_faces)
+        photos, corrections = refine_poses(scan, photos, train, texture, caster, faces=usable_faces,
+                                           update=lambda done, total: update(done, refined + prepared))
     settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
                                   max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
-    views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings, update)
+    views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings,
+                           lambda done, total: update(refined + done, refined + total))
     train_views, held_views = views[:len(train)], views[len(train):]
     if mode == "consensus" and len(train) > 1:
         from scantex.photos.poses import consensus_poses
