@@ -155,7 +155,7 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
 
     _, directions = cam.pixel_rays()
     d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    n = scan.face_normals[np.where(centre >= 0, centre, 0).reshape(-1)]
+    n = np.take(scan.face_normals, np.where(centre >= 0, centre, 0).reshape(-1), axis=0)  # take: faster than [rows]
     cos = np.abs(np.einsum("ij,ij->i", d, n)).reshape(H, W)
     grazing = any_hit & (cos < np.cos(np.radians(settings.max_angle_deg)))
 
