@@ -85,7 +85,8 @@ def bake(scan: Scan, colour: SurfaceColour, *, size: int = 0, scale: int = 2, ch
     images, done = [], 0
 
     def coloured(f: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return to_uint8(np.asarray(colour(interpolate(f, b, corners), np.take(normals, f, axis=0), f, b), dtype=np.float32))
+        rgb = colour(interpolate(f, b, corners), np.take(normals, f, axis=0), f, b)
+        return to_uint8(np.asarray(rgb, dtype=np.float32))
 
     with ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
         for plan in plans:

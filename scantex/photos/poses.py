@@ -501,13 +501,10 @@ def _bilinear_rgb(image: np.ndarray, pix: np.ndarray) -> tuple[np.ndarray, np.nd
     """``(colours (n, 3), gradients (n, 3, 2))``: bilinear samples of ``image (H, W, 3)`` at pixels ``pix (n, 2)``
     and their gradients (d/dx, d/dy); off the image (or NaN) the colours are NaN and the gradients 0. The
     three channels share one cell lookup (a third of the work of looking each channel up alone)."""
-    H, W = image.shape[:2]
-    p = np.nan_to_num(pix, nan=-1e9, posinf=-1e9, neginf=-1e9)
-    off = (p[:, 0] < 0) | (p[:, 0] > W - 1) | (p[:, 1] < 0) | (p[:, 1] > H - 1)
-    x = np.clip(p[:, 0], 0, W - 1.001)
-    y = np.clip(p[:, 1], 0, H - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    from scantex.photos.alignment import _bilinear_cells
+
+    off, x0, y0, fx, fy = _bilinear_cells(image.shape[:2], pix)
+    fx, fy = fx[:, None], fy[:, None]
     a, b = image[y0, x0], image[y0, x0 + 1]
     c, d = image[y0 + 1, x0], image[y0 + 1, x0 + 1]
     top, bottom = a + fx * (b - a), c + fx * (d - c)

@@ -95,12 +95,11 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray
 def hit_uvs(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """``(N, 2)``: the texture coordinates of the surface points ``face_id (N,)``, ``bary (N, 2)`` (0 where
     ``face_id`` is -1, a miss)."""
+    # the corners of the faces asked about only (a room's every face corner, gathered at each call, cost more
+    # than the lookup): point k reads corners k, and a miss stays a miss
     fid = np.asarray(face_id)
-    if fid.size and fid.min() >= 0:
-        # the corners of the faces asked about only (a room's every face corner, gathered at each call, cost
-        # more than the lookup)
-        return interpolate(np.arange(fid.size).reshape(fid.shape), bary, scan.uvs[scan.face_uvs[fid.reshape(-1)]])
-    return interpolate(fid, bary, scan.uvs[scan.face_uvs])
+    corners = scan.uvs[scan.face_uvs[np.maximum(fid, 0).reshape(-1)]]
+    return interpolate(np.where(fid >= 0, np.arange(fid.size).reshape(fid.shape), -1), bary, corners)
 
 
 def render_gbuffer(scan: Scan, gbuffer: GBuffer, background=(0.0, 0.0, 0.0)) -> np.ndarray:
