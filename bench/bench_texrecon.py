@@ -33,11 +33,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-DATA = ROOT.parent / "shared" / "data"
-CAPTURES = {
-    "bolster": ("bolster_rgbd_posed/cameras.json", "bolster_rgbd_posed/app_style_input/bolster_app_style.obj", [4, 11]),
-    "facade": ("facade_openmvs/cameras.json", "facade_openmvs/app_style_input/scene_mesh_baked.obj", [2, 7]),
-}
+from bench.bench_real_photos import CAPTURES as REAL, DATA, UNTEXTURED  # noqa: E402
+
+#: the captures with an app-style input: (cameras, input mesh, held-out photos)
+CAPTURES = {name: capture for name, capture in REAL.items() if name not in UNTEXTURED}
 
 
 def mve_scene(frames: list[dict], base: Path, folder: Path) -> None:
