@@ -131,7 +131,8 @@ def run_capture(name: str, texrecon: str, pairs: int, work: Path) -> str:
         s = scores[key]
         seconds = (f"{statistics.median(t for t, _ in runs[key]):.2f} | {max(m for _, m in runs[key]):.0f}"
                    if key in runs else "- | -")
-        rows.append(f"| {name} | {label if key == 'texrecon' else key} | {s['psnr_matched']:.2f} | {s['ssim_matched']:.3f} | {seconds} |")
+        shown = label if key == "texrecon" else key
+        rows.append(f"| {name} | {shown} | {s['psnr_matched']:.2f} | {s['ssim_matched']:.3f} | {seconds} |")
     rows.append(f"| {name} | scantex / texrecon, pair by pair | | | **{statistics.median(ratios):.2f}x** "
                 f"({min(ratios):.2f}-{max(ratios):.2f}) | |")
     return "\n".join(rows)

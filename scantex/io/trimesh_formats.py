@@ -268,7 +268,8 @@ def _encoded_png(image: np.ndarray, cache: dict | None):
     # trimesh hashes a material's image as an array: the pixels it was encoded from, not the PNG decoded again
     # (0.17 s for a 2048² atlas)
     pixels = np.ascontiguousarray(image)
-    pil.__class__ = type("EncodedPng", (type(pil),), {"__array_interface__": property(lambda _: pixels.__array_interface__)})
+    pil.__class__ = type("EncodedPng", (type(pil),),
+                         {"__array_interface__": property(lambda _: pixels.__array_interface__)})
     return pil
 
 
