@@ -9,8 +9,10 @@ their ``elibs`` dependencies, offline from source snapshots) and pass its binary
 
 For each capture of ``../shared/data`` (its held-out protocol): both programs get ONLY the training photos,
 texrecon as an MVE scene (the photos linked, one ``.cam`` per photo written from ``cameras.json``) and the
-app-style input's geometry as a PLY (texrecon makes its own UV layout; ``--keep_unseen_faces`` so that it
-returns every face), scantex as a filtered ``cameras.json`` and the app-style input (``photos.holdout`` 0),
+input mesh's geometry as a PLY (texrecon makes its own UV layout; ``--keep_unseen_faces`` so that it
+returns every face), scantex as a filtered ``cameras.json`` and the input mesh (``photos.holdout`` 0): the
+app-style input, or for ``bolster_bare`` the untextured Kinect mesh (texrecon's own case; its input scores a
+flat grey),
 from the command line as a user runs it. The two commands run in turn, pair by pair, each a whole process
 to its outputs written (wall seconds and peak memory of the process from the operating system). Then input,
 scantex and texrecon are rendered through the held-out photos' recorded cameras at 640 px and scored on the
@@ -33,10 +35,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.bench_real_photos import CAPTURES as REAL, DATA, UNTEXTURED  # noqa: E402
-
-#: the captures with an app-style input: (cameras, input mesh, held-out photos)
-CAPTURES = {name: capture for name, capture in REAL.items() if name not in UNTEXTURED}
+from bench.bench_real_photos import CAPTURES, DATA  # noqa: E402
 
 
 def mve_scene(frames: list[dict], base: Path, folder: Path) -> None:
