@@ -25,6 +25,11 @@ from scantex.errors import ScanError
 #: largest coordinate magnitude accepted: squares of differences of coordinates stay far inside float32
 MAX_COORDINATE = 1e12
 
+#: the cached properties computed from the positions and faces alone, which :meth:`Scan.replace` keeps
+_GEOMETRY_CACHE = ("welded", "face_normals", "face_areas", "_normals_and_areas")
+#: where :meth:`Scan.layout_memo` keeps its results, in the scan's ``__dict__``
+_LAYOUT_MEMO = "_layout_memo"
+
 
 @dataclass(frozen=True, eq=False)
 class Material:
@@ -222,16 +227,38 @@ class Scan:
         return normals, areas
 
     def replace(self, **changes) -> Scan:
-        """A copy with some fields changed; geometry fields may not change."""
+        """A copy with some fields changed; geometry fields may not change. The copy keeps what was computed
+        from the geometry (:attr:`welded`, the normals and areas) and, where its UV layout is the same arrays
+        (texture coordinates, their indices, the face materials, as many materials), the layout's analyses
+        (:meth:`layout_memo`): a texture baked onto a scan's own layout is measured without redoing them."""
         for key in ("positions", "faces"):
             if key in changes and changes[key] is not getattr(self, key):
                 raise ValueError(f"scantex never changes a scan's {key}")
-        return dataclasses.replace(self, **changes)
+        out = dataclasses.replace(self, **changes)
+        for name in _GEOMETRY_CACHE:
+            if name in self.__dict__:
+                out.__dict__[name] = self.__dict__[name]
+        same_layout = (all(getattr(out, k) is getattr(self, k) for k in ("uvs", "face_uvs", "face_materials"))
+                       and len(out.materials) == len(self.materials))
+        if same_layout and _LAYOUT_MEMO in self.__dict__:
+            out.__dict__[_LAYOUT_MEMO] = self.__dict__[_LAYOUT_MEMO]  # one dict: either copy's analyses serve both
+        return out
+
+    def layout_memo(self, name: str, compute):
+        """``compute()``, an analysis of the UV layout alone (charts, seam edges: what depends on the positions,
+        faces, texture coordinates, face materials and the number of materials, never on the images), computed
+        once for this scan and the copies :meth:`replace` makes of it on the same layout. The result is shared:
+        its arrays should be read-only. On an 800,000-face scan the same charts and seams were found ten times
+        a run, 20 s in all."""
+        memo = self.__dict__.setdefault(_LAYOUT_MEMO, {})
+        if name not in memo:
+            memo[name] = compute()
+        return memo[name]
 
     def with_texture(self, uvs: np.ndarray, face_uvs: np.ndarray, materials, face_materials=None) -> Scan:
         """The same geometry with a new UV layout and materials."""
-        return dataclasses.replace(
-            self, uvs=uvs, face_uvs=face_uvs, materials=tuple(materials),
+        return self.replace(
+            uvs=uvs, face_uvs=face_uvs, materials=tuple(materials),
             face_materials=self.face_materials if face_materials is None else face_materials,
         )
 

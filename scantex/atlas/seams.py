@@ -23,7 +23,12 @@ def texture_vertices(scan: Scan) -> np.ndarray:
 
     The faces of one chart meet at such shared corners. Their indices need not say so: a glTF file repeats a
     position at every UV seam, and some OBJ writers (OpenMVS: the façade's app-style input, 44,127 texture
-    coordinates for 14,709 faces) give every face corner a texture coordinate of its own. Requires UVs."""
+    coordinates for 14,709 faces) give every face corner a texture coordinate of its own. Requires UVs.
+    Computed once per layout (:meth:`Scan.layout_memo`); read-only."""
+    return scan.layout_memo("texture_vertices", lambda: _read_only(_texture_vertices(scan)))
+
+
+def _texture_vertices(scan: Scan) -> np.ndarray:
     # the texture coordinates by value (+ 0.0: -0.0 and 0.0 are one), then (position, coordinate, material)
     # as two small integers a corner: unique_rows's fast path
     _, uv_id = unique_rows(scan.uvs + 0.0, return_inverse=True)
@@ -37,8 +42,13 @@ def uv_shells(scan: Scan) -> np.ndarray:
     """``(F,) int`` shell id of every face: faces joined through shared :func:`texture_vertices` (so faces in
     different materials never share a shell).
 
-    Untextured scans get one shell per material.
+    Untextured scans get one shell per material. Computed once per layout (:meth:`Scan.layout_memo`);
+    read-only.
     """
+    return scan.layout_memo("uv_shells", lambda: _read_only(_uv_shells(scan)))
+
+
+def _uv_shells(scan: Scan) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -79,7 +89,21 @@ class SeamEdges:
 
 
 def seam_edges(scan: Scan) -> SeamEdges:
-    """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped)."""
+    """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped). Computed
+    once per layout (:meth:`Scan.layout_memo`); read-only."""
+    def find() -> SeamEdges:
+        edges = _seam_edges(scan)
+        return SeamEdges(_read_only(edges.faces), _read_only(edges.corners))
+
+    return scan.layout_memo("seam_edges", find)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array
+
+
+def _seam_edges(scan: Scan) -> SeamEdges:
     if scan.face_uvs is None:
         return SeamEdges(np.zeros((0, 2), np.int64), np.zeros((0, 2, 2), np.int64))
     # edges are matched by position *value*: glTF-style meshes repeat a position along every UV seam,
