@@ -26,9 +26,9 @@ from scantex.errors import ScanError
 MAX_COORDINATE = 1e12
 
 #: the cached properties computed from the positions and faces alone, which :meth:`Scan.replace` keeps
-_GEOMETRY_CACHE = ("welded", "face_normals", "face_areas", "_normals_and_areas")
-#: where :meth:`Scan.layout_memo` keeps its results, in the scan's ``__dict__``
-_LAYOUT_MEMO = "_layout_memo"
+_GEOMETRY_CACHE = ("welded", "face_normals", "face_areas", "_normals_and_areas", "bounds")
+#: where :meth:`Scan.layout_memo` and :meth:`Scan.texture_memo` keep their results, in the scan's ``__dict__``
+_LAYOUT_MEMO, _TEXTURE_MEMO = "_layout_memo", "_texture_memo"
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,11 +172,14 @@ class Scan:
             raise ValueError("this scan has no texture coordinates")
         return self.uvs[self.face_uvs]
 
-    @property
+    @functools.cached_property
     def bounds(self) -> np.ndarray:
-        """``(2, 3)`` min and max corner of the referenced vertices."""
-        used = self.positions[np.unique(self.faces)]
-        return np.stack([used.min(axis=0), used.max(axis=0)])
+        """``(2, 3)`` min and max corner of the referenced vertices, read-only, computed once per scan."""
+        used = np.zeros(len(self.positions), bool)
+        used[self.faces.reshape(-1)] = True
+        corners = np.stack([self.positions[used].min(axis=0), self.positions[used].max(axis=0)])
+        corners.setflags(write=False)
+        return corners
 
     @functools.cached_property
     def welded(self) -> np.ndarray:
@@ -251,6 +254,15 @@ class Scan:
         its arrays should be read-only. On an 800,000-face scan the same charts and seams were found ten times
         a run, 20 s in all."""
         memo = self.__dict__.setdefault(_LAYOUT_MEMO, {})
+        if name not in memo:
+            memo[name] = compute()
+        return memo[name]
+
+    def texture_memo(self, name: str, compute):
+        """``compute()``, an analysis of this scan's texture (its images as well as its layout: the faces it
+        leaves black), computed once for this scan; a copy, whatever it changes, computes its own. The result is
+        shared: its arrays should be read-only."""
+        memo = self.__dict__.setdefault(_TEXTURE_MEMO, {})
         if name not in memo:
             memo[name] = compute()
         return memo[name]

@@ -17,7 +17,17 @@ BLACK_LEVEL = 6
 
 def untextured_faces(scan: Scan) -> np.ndarray:
     """``(F,) bool``: faces whose texture is black at their centre and near their corners, whose UVs lie
-    entirely outside the atlas, or whose UV triangle has no area. All False for untextured scans."""
+    entirely outside the atlas, or whose UV triangle has no area. All False for untextured scans. Computed
+    once per scan (:meth:`Scan.texture_memo`); read-only."""
+    def find() -> np.ndarray:
+        holes = _untextured_faces(scan)
+        holes.setflags(write=False)
+        return holes
+
+    return scan.texture_memo("untextured_faces", find)
+
+
+def _untextured_faces(scan: Scan) -> np.ndarray:
     F = scan.n_faces
     holes = np.zeros(F, bool)
     if not scan.is_textured:

@@ -28,6 +28,27 @@ def test_cube_has_six_shells_and_twelve_seam_edges(cube):
     assert (shells[edges.faces[:, 0]] != shells[edges.faces[:, 1]]).all()
 
 
+def test_a_layouts_charts_and_seams_are_found_once_and_kept_by_copies_on_that_layout(cube):
+    """A texture baked onto the scan's own layout (``Scan.replace(materials=...)``) shares its charts and seam
+    edges; new texture coordinates find their own. The shared arrays are read-only."""
+    shells, edges = uv_shells(cube), seam_edges(cube)
+    assert uv_shells(cube) is shells and seam_edges(cube) is edges
+    with pytest.raises(ValueError):
+        shells[0] = 99
+    with pytest.raises(ValueError):
+        edges.faces[0, 0] = 0
+    bounds = cube.bounds
+    black = tuple(dataclasses.replace(m, image=np.zeros_like(m.image)) for m in cube.materials)  # all holes
+    repainted = cube.replace(materials=black)
+    assert uv_shells(repainted) is shells and seam_edges(repainted) is edges
+    assert repainted.welded is cube.welded and repainted.bounds is bounds
+    # the faces left black depend on the images: each copy finds its own
+    assert not untextured_faces(cube).any() and untextured_faces(repainted).all()
+    moved = cube.replace(uvs=cube.uvs * 0.5)
+    assert uv_shells(moved) is not shells
+    np.testing.assert_array_equal(uv_shells(moved), shells)
+
+
 def cylinder_with_one_seam(sections: int = 12) -> Scan:
     """An open cylinder unrolled into one chart: a single seam where u = 0 meets u = 1."""
     ring = np.linspace(0, 2 * np.pi, sections, endpoint=False)
