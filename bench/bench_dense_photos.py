@@ -1,0 +1,93 @@
+"""Photo mode on a dense mesh: the bolster's app-style input subdivided, the same photos, time and memory.
+
+    python bench/bench_dense_photos.py                 # subdivided 0 and 3 times (12,712 and 813,568 faces)
+    python bench/bench_dense_photos.py --levels 0 1 2 3
+
+A fused scan of a wall or a room has hundreds of thousands of faces where the bolster has 12,712. Each level
+splits every face of ``../shared/data``'s bolster app-style input into four at its edges' midpoints, with the
+texture coordinates split alike: the same surface, the same atlas and the same photos, four times the faces.
+The scan is written to a temporary folder outside the repository; ``scantex enhance`` then runs on it from
+the command line as a user runs it (the training photos only, ``--holdout 0``), a whole process to its outputs
+written: wall seconds and peak resident memory from the operating system, the stages' seconds from
+``metrics.json``. Prints Markdown; the numbers go into bench/RESULTS.md by hand. Skips without
+``../shared/data``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bench.bench_real_photos import CAPTURES, DATA  # noqa: E402
+from bench.bench_texrecon import timed  # noqa: E402
+
+
+def _midpoints(corners: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` with one midpoint appended per distinct edge of ``corners (F, 3)``, and each face's three
+    midpoint indices ``(F, 3)`` (edges 01, 12, 20)."""
+    edges = np.concatenate([corners[:, [0, 1]], corners[:, [1, 2]], corners[:, [2, 0]]])
+    unique, inverse = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True)
+    middle = (values[unique[:, 0]] + values[unique[:, 1]]) / 2
+    return np.concatenate([values, middle]), inverse.reshape(3, -1).T + len(values)
+
+
+def subdivided(scan, levels: int):
+    """``scan`` with every face split into four, ``levels`` times (positions and texture coordinates alike)."""
+    for _ in range(levels):
+        positions, m = _midpoints(scan.faces, scan.positions)
+        uvs, mu = _midpoints(scan.face_uvs, scan.uvs)
+
+        def split(c, mid):
+            return np.concatenate([np.stack([c[:, 0], mid[:, 0], mid[:, 2]], 1),
+                                   np.stack([mid[:, 0], c[:, 1], mid[:, 1]], 1),
+                                   np.stack([mid[:, 2], mid[:, 1], c[:, 2]], 1), mid])
+
+        scan = type(scan)(positions, split(scan.faces, m), uvs, split(scan.face_uvs, mu),
+                          np.tile(scan.face_materials, 4), scan.materials)
+    return scan
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--levels", type=int, nargs="+", default=[0, 3], help="subdivisions (each: 4x the faces)")
+    args = parser.parse_args()
+    cams, mesh, held = CAPTURES["bolster"]
+    cameras = DATA / cams
+    if not cameras.exists():
+        print(f"skipped: {cameras} not found")
+        return
+    from scantex.io import load_scan, save_scan
+
+    frames = json.loads(cameras.read_text())["frames"]
+    train = [dict(f) for i, f in enumerate(frames) if i not in held]
+    for f in train:
+        for key in ("image", "depth"):
+            if f.get(key):
+                f[key] = str((cameras.parent / f[key]).resolve())
+    base = load_scan(DATA / mesh)
+    print("| faces | wall s | peak MiB | stages s (metrics.json) |")
+    print("|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        (work / "cameras.json").write_text(json.dumps({"frames": train}))
+        for level in args.levels:
+            scan = subdivided(base, level)
+            path = work / f"bolster_{level}" / "scan.obj"
+            save_scan(scan, path)
+            out = work / f"out_{level}"
+            seconds, peak = timed([sys.executable, "-m", "scantex", "enhance", str(path), "--photos",
+                                   str(work / "cameras.json"), "--holdout", "0", "-o", str(out), "--quiet"])
+            stages = json.loads((out / "metrics.json").read_text())["timings_s"]
+            shown = ", ".join(f"{k} {v:.1f}" for k, v in stages.items() if v >= 0.05)
+            print(f"| {scan.n_faces:,} | {seconds:.1f} | {peak:.0f} | {shown} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
