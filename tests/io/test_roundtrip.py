@@ -205,3 +205,23 @@ def test_obj_bulk_face_parser_agrees_with_the_line_by_line_one(tmp_path, corner,
         assert (a is None) == (b is None), name
         if a is not None:
             assert np.array_equal(a, b), name
+
+
+def test_obj_bulk_face_parser_reads_objects_written_one_after_another(tmp_path, monkeypatch):
+    """A file of several objects, each its vertices then its faces: indices past the first object's vertices
+    are checked face by face against the vertices read so far, still in bulk; one pointing past them is left
+    to the line parser."""
+    from scantex.io import obj
+
+    square = "v 0 0 {z}\nv 1 0 {z}\nv 1 1 {z}\nv 0 1 {z}\nf {a} {b} {c}\nf {a} {c} {d}\n"
+    text = square.format(z=0, a=1, b=2, c=3, d=4) + square.format(z=1, a=5, b=6, c=7, d=8)
+    (tmp_path / "two.obj").write_text(text)
+    parsed = []
+    real = obj._triangles_fast
+    monkeypatch.setattr(obj, "_triangles_fast", lambda face_lines: parsed.append(real(face_lines)) or parsed[-1])
+    scan = load_scan(tmp_path / "two.obj")
+    assert parsed[-1] is not None
+    assert scan.faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    (tmp_path / "ahead.obj").write_text(text.replace("f 1 3 4", "f 1 3 5"))  # vertex 5 is not read yet there
+    load_scan(tmp_path / "ahead.obj")
+    assert parsed[-1] is None
