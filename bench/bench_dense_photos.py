@@ -25,7 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.bench_real_photos import CAPTURES, DATA  # noqa: E402
+from bench.bench_real_photos import CAPTURES, DATA, training_frames  # noqa: E402
 from bench.bench_texrecon import timed  # noqa: E402
 
 
@@ -65,12 +65,7 @@ def main() -> None:
         return
     from scantex.io import load_scan, save_scan
 
-    frames = json.loads(cameras.read_text())["frames"]
-    train = [dict(f) for i, f in enumerate(frames) if i not in held]
-    for f in train:
-        for key in ("image", "depth"):
-            if f.get(key):
-                f[key] = str((cameras.parent / f[key]).resolve())
+    train = training_frames(cameras, held)
     base = load_scan(DATA / mesh)
     print("| faces | wall s | peak MiB | stages s (metrics.json) |")
     print("|---|---|---|---|")

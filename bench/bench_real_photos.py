@@ -35,6 +35,18 @@ CAPTURES = {
     "bolster_bare": ("bolster_rgbd_posed/cameras.json", "bolster_rgbd_posed/bloster.ply", [4, 11]),
 }
 UNTEXTURED = {"bolster_bare"}
+
+
+def training_frames(cameras: Path, held) -> list[dict]:
+    """The frames of ``cameras`` (a ``cameras.json``) but those at ``held``, their image and depth paths made
+    absolute: a ``cameras.json`` of the training photos alone, to write anywhere."""
+    frames = json.loads(cameras.read_text())["frames"]
+    train = [dict(f) for i, f in enumerate(frames) if i not in held]
+    for f in train:
+        for key in ("image", "depth"):
+            if f.get(key):
+                f[key] = str((cameras.parent / f[key]).resolve())
+    return train
 OUT = Path("/tmp/scantex_real_photos")
 
 WORKER = r"""

@@ -35,7 +35,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.bench_real_photos import CAPTURES, DATA  # noqa: E402
+from bench.bench_real_photos import CAPTURES, DATA, training_frames  # noqa: E402
 
 
 def mve_scene(frames: list[dict], base: Path, folder: Path) -> None:
@@ -84,12 +84,7 @@ def run_capture(name: str, texrecon: str, pairs: int, work: Path) -> str:
 
     cams, mesh, held = CAPTURES[name]
     cameras = DATA / cams
-    frames = json.loads(cameras.read_text())["frames"]
-    train = [dict(f) for i, f in enumerate(frames) if i not in held]
-    for f in train:
-        for key in ("image", "depth"):
-            if f.get(key):
-                f[key] = str((cameras.parent / f[key]).resolve())
+    train = training_frames(cameras, held)
     (work / "cameras.json").write_text(json.dumps({"frames": train}))
     mve_scene(train, cameras.parent, work / "scene")
     scan = load_scan(DATA / mesh)
