@@ -293,6 +293,7 @@ def _triangles_fast(face_lines: list) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 #: what bulk-parsed face lines may hold: digits, slashes and white space
 _DIGITS_AND_SEPARATORS = re.compile(r"[0-9/\s]*")
+#: a number of 19 digits or more: past int64's range, which ``np.fromstring`` would clip to its maximum
 _LONG_NUMBER = re.compile(r"[0-9]{19}")
 
 
