@@ -39,3 +39,9 @@ def unique_rows(a: np.ndarray, *, return_inverse: bool = False, return_counts: b
     if return_counts:
         out += (counts,)
     return out if len(out) > 1 else unique
+
+
+def read_only(array: np.ndarray) -> np.ndarray:
+    """``array``, made read-only in place: for results a cache hands to several callers."""
+    array.setflags(write=False)
+    return array

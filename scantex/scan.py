@@ -253,16 +253,16 @@ class Scan:
         once for this scan and the copies :meth:`replace` makes of it on the same layout. The result is shared:
         its arrays should be read-only. On an 800,000-face scan the same charts and seams were found ten times
         a run, 20 s in all."""
-        memo = self.__dict__.setdefault(_LAYOUT_MEMO, {})
-        if name not in memo:
-            memo[name] = compute()
-        return memo[name]
+        return self._memo(_LAYOUT_MEMO, name, compute)
 
     def texture_memo(self, name: str, compute):
         """``compute()``, an analysis of this scan's texture (its images as well as its layout: the faces it
         leaves black), computed once for this scan; a copy, whatever it changes, computes its own. The result is
         shared: its arrays should be read-only."""
-        memo = self.__dict__.setdefault(_TEXTURE_MEMO, {})
+        return self._memo(_TEXTURE_MEMO, name, compute)
+
+    def _memo(self, key: str, name: str, compute):
+        memo = self.__dict__.setdefault(key, {})
         if name not in memo:
             memo[name] = compute()
         return memo[name]

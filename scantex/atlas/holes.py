@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scantex.arrays import read_only
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
 
@@ -19,12 +20,7 @@ def untextured_faces(scan: Scan) -> np.ndarray:
     """``(F,) bool``: faces whose texture is black at their centre and near their corners, whose UVs lie
     entirely outside the atlas, or whose UV triangle has no area. All False for untextured scans. Computed
     once per scan (:meth:`Scan.texture_memo`); read-only."""
-    def find() -> np.ndarray:
-        holes = _untextured_faces(scan)
-        holes.setflags(write=False)
-        return holes
-
-    return scan.texture_memo("untextured_faces", find)
+    return scan.texture_memo("untextured_faces", lambda: read_only(_untextured_faces(scan)))
 
 
 def _untextured_faces(scan: Scan) -> np.ndarray:

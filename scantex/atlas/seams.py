@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scantex.arrays import unique_rows
+from scantex.arrays import read_only, unique_rows
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
 
@@ -25,7 +25,7 @@ def texture_vertices(scan: Scan) -> np.ndarray:
     position at every UV seam, and some OBJ writers (OpenMVS: the façade's app-style input, 44,127 texture
     coordinates for 14,709 faces) give every face corner a texture coordinate of its own. Requires UVs.
     Computed once per layout (:meth:`Scan.layout_memo`); read-only."""
-    return scan.layout_memo("texture_vertices", lambda: _read_only(_texture_vertices(scan)))
+    return scan.layout_memo("texture_vertices", lambda: read_only(_texture_vertices(scan)))
 
 
 def _texture_vertices(scan: Scan) -> np.ndarray:
@@ -45,7 +45,7 @@ def uv_shells(scan: Scan) -> np.ndarray:
     Untextured scans get one shell per material. Computed once per layout (:meth:`Scan.layout_memo`);
     read-only.
     """
-    return scan.layout_memo("uv_shells", lambda: _read_only(_uv_shells(scan)))
+    return scan.layout_memo("uv_shells", lambda: read_only(_uv_shells(scan)))
 
 
 def _uv_shells(scan: Scan) -> np.ndarray:
@@ -93,14 +93,9 @@ def seam_edges(scan: Scan) -> SeamEdges:
     once per layout (:meth:`Scan.layout_memo`); read-only."""
     def find() -> SeamEdges:
         edges = _seam_edges(scan)
-        return SeamEdges(_read_only(edges.faces), _read_only(edges.corners))
+        return SeamEdges(read_only(edges.faces), read_only(edges.corners))
 
     return scan.layout_memo("seam_edges", find)
-
-
-def _read_only(array: np.ndarray) -> np.ndarray:
-    array.setflags(write=False)
-    return array
 
 
 def _seam_edges(scan: Scan) -> SeamEdges:
