@@ -261,7 +261,7 @@ def _enhance_capture(args, config, capture) -> int:
 
             _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
             result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap),
-                                   ground_truth=truth, runner=executor(args.ray, args.workers),
+                                   ground_truth=truth, photos=photos, runner=executor(args.ray, args.workers),
                                    reporter=BarReporter(args.quiet))
         else:
             if args.ray or args.workers:
@@ -284,14 +284,14 @@ def _enhance_capture(args, config, capture) -> int:
 
 def tile_count(args, scan, photos) -> int:
     """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans
-    in the kept UV layout, without photos; others run whole)."""
+    in the kept UV layout, with photos or without; others run whole)."""
     from scantex.scale.tiles import TilingConfig
 
     auto = args.tiles == "auto"
     n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
     if n <= 1:
         return 1
-    why = ("photo mode" if photos is not None else "an untextured scan" if not scan.is_textured
+    why = ("an untextured scan" if not scan.is_textured
            else f"--uv {args.uv}" if args.uv not in (None, "keep") else None)
     if why is None:
         return n

@@ -55,6 +55,14 @@ class ImageCache:
             return None
         return path, stat.st_size, stat.st_mtime_ns
 
+    def __getstate__(self) -> dict:
+        # pickled (a photo set sent to another process) as an empty cache of the same budget: a lock does not
+        # pickle, and the other process reads the photos it needs itself
+        return {"budget": self.budget}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["budget"] / 2**20)
+
     def get(self, path: Path) -> np.ndarray | None:
         key = self._key(path)
         with self._lock:
@@ -142,6 +150,13 @@ class PhotoSet:
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
         image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new
             set makes its own; the sets made from one by :func:`dataclasses.replace` share it).
+        hidden: ``(N,)`` per photo, ``None`` or an ``(h, w) bool`` mask of the pixels where a surface that is
+            not in the scan being textured hides it (a tile's neighbours, :mod:`scantex.scale.tiles`): the
+            visibility test rejects them, whatever the scan's own ray cast says. Any size: it is resized
+            (nearest) to the photo's working size.
+        depth_factors: ``(N,)`` per photo, ``None`` (its depth map is judged against the scan when it is
+            read: :func:`scantex.photos.training.depth_factor`) or the factor that judgement gave on the whole
+            scan, applied as it is (a tile sees too little of a photo's view to judge its map).
     """
 
     cameras: tuple[Camera, ...]
@@ -152,6 +167,8 @@ class PhotoSet:
     format: str
     distortions: tuple[Distortion | None, ...] = ()
     image_cache: ImageCache = dataclasses.field(default_factory=ImageCache, repr=False)
+    hidden: tuple[np.ndarray | None, ...] = dataclasses.field(default=(), repr=False)
+    depth_factors: tuple[float | None, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -160,8 +177,10 @@ class PhotoSet:
         set_(self, "images", tuple(Path(p) for p in self.images))
         set_(self, "depths", tuple(None if p is None else Path(p) for p in self.depths) or (None,) * n)
         set_(self, "distortions", tuple(self.distortions) or (None,) * n)
+        set_(self, "hidden", tuple(self.hidden) or (None,) * n)
+        set_(self, "depth_factors", tuple(self.depth_factors) or (None,) * n)
         set_(self, "source", Path(self.source))
-        for name in ("images", "depths", "distortions"):
+        for name in ("images", "depths", "distortions", "hidden", "depth_factors"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
 
@@ -178,7 +197,9 @@ class PhotoSet:
         return dataclasses.replace(self, cameras=tuple(self.cameras[i] for i in idx),
                                    images=tuple(self.images[i] for i in idx),
                                    depths=tuple(self.depths[i] for i in idx),
-                                   distortions=tuple(self.distortions[i] for i in idx))
+                                   distortions=tuple(self.distortions[i] for i in idx),
+                                   hidden=tuple(self.hidden[i] for i in idx),
+                                   depth_factors=tuple(self.depth_factors[i] for i in idx))
 
     def load_image(self, i: int) -> np.ndarray:
         """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras

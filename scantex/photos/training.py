@@ -100,23 +100,24 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
     return depth[ys[:, None], xs[None, :]]
 
 
-def consistent_depth(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, tolerance: float,
-                     source=None) -> np.ndarray | None:
-    """``measured`` (a photo's depth map at the working size, metres) in the mesh's scale, or ``None``.
+def depth_factor(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, tolerance: float,
+                 source=None) -> float | None:
+    """The factor that brings ``measured`` (a photo's depth map at the working size, metres) to the mesh's
+    scale, or ``None``: the map is not of this photo's view.
 
-    Where at least half of the pixels both see agree within ``tolerance``, the map is returned as it is (its
+    Where at least half of the pixels both see agree within ``tolerance``, the map is right as it is (1; its
     disagreeing pixels are then rejected: an object moved after the scan). When most disagree and one factor
     brings at least 80 % of them within it, the map's unit is off (millimetres read as another unit, a
-    tenth-millimetre sensor) and it is rescaled, with a warning. When no factor does, the map is not of this
+    tenth-millimetre sensor): that factor, with a warning. When no factor does, the map is not of this
     photo's view (a depth camera not registered to the colour camera, another frame's map): ``None``, with a
     warning, so that the photo is used without it rather than losing most of its pixels. ``hit``: the pixels
     that see the mesh cleanly."""
     both = hit & np.isfinite(measured) & (measured > 0)
     if both.sum() < 100:
-        return measured
+        return 1.0
     m, d = measured[both], mesh_depth[both]
     if (np.abs(m - d) <= tolerance * d).mean() >= 0.5:
-        return measured
+        return 1.0
     factor = float(np.median(d / m))
     if (np.abs(m * factor - d) <= tolerance * d).mean() < 0.8:
         log.warning("%s: the depth map disagrees with the mesh on %.0f %% of the pixels both see, in any unit: "
@@ -125,7 +126,7 @@ def consistent_depth(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarr
         return None
     log.warning("%s: the depth map is %.4g times the mesh's depth where both see the surface; read in the mesh's "
                 "scale", source or "depth map", 1 / factor)
-    return measured * np.float32(factor)
+    return factor
 
 
 def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_side: int,
@@ -159,19 +160,35 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     cos = np.abs(np.einsum("ij,ij->i", d, n)).reshape(H, W)
     grazing = any_hit & (cos < np.cos(np.radians(settings.max_angle_deg)))
 
+    hidden = photos.hidden[i]
+    if hidden is not None:
+        # another part of the scene in front (a tile's neighbours), with the edge margin a contour gets
+        hidden = resize_depth(np.asarray(hidden, bool), W, H)
+        hidden = any_hit & (ndimage.binary_dilation(hidden, iterations=settings.edge_margin_px)
+                            if settings.edge_margin_px > 0 else hidden)
+    else:
+        hidden = np.zeros_like(any_hit)
+
     measured = photos.load_depth(i)
     if measured is not None:
-        measured = consistent_depth(resize_depth(measured, W, H), mean_depth, clean, settings.depth_tolerance,
-                                    photos.depths[i])
+        measured = resize_depth(measured, W, H)
+        factor = photos.depth_factors[i]  # judged on a whole scan when this one is a part of it
+        if factor is None:
+            factor = depth_factor(measured, mean_depth, clean, settings.depth_tolerance, photos.depths[i])
+        measured = None if factor is None else measured if factor == 1 else measured * np.float32(factor)
     if measured is not None:
         disagree = any_hit & np.isfinite(measured) & (
             np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
     else:
         disagree = np.zeros_like(any_hit)
 
-    valid = clean & ~near_edge & ~grazing & ~disagree & (centre >= 0)
+    valid = clean & ~near_edge & ~grazing & ~disagree & ~hidden & (centre >= 0)
     rejected = {"edge": int((any_hit & near_edge).sum()), "grazing": int((grazing & ~near_edge).sum()),
-                "depth_map": int((disagree & ~near_edge & ~grazing).sum())}
+                "depth_map": int((disagree & ~near_edge & ~grazing).sum()),
+                "hidden": int((hidden & ~disagree & ~near_edge & ~grazing).sum())}
+    if hidden.any():
+        # no depth where another surface is in front: nothing of this scan is seen there, not even through it
+        mean_depth = np.where(hidden, np.float32(0), mean_depth)
     return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected,
                      np.ascontiguousarray(bary, dtype=np.float32))
 

@@ -239,7 +239,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
                 update: Update) -> PhotoData:
     """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
     from scantex.photos.alignment import require_alignment
-    from scantex.photos.training import VisibilitySettings, prepare_photos, split_photos
+    from scantex.photos.training import prepare_photos, split_photos
 
     report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None  # logs its summary
     train, held = split_photos(len(photos), pc.holdout, seed)
@@ -259,8 +259,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         # held-out photos keep their recorded poses: they are the score's reference, not training data
         photos, corrections = refine_poses(scan, photos, train, texture, caster, faces=usable_faces,
                                            update=lambda done, total: update(done, refined + prepared))
-    settings = VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px,
-                                  max_angle_deg=pc.max_angle_deg, depth_tolerance=pc.depth_tolerance)
+    settings = visibility_settings(pc)
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings,
                            lambda done, total: update(refined + done, refined + total))
     train_views, held_views = views[:len(train)], views[len(train):]
@@ -294,6 +293,14 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
                                                 pc.temperature)
         final = aligned, prepare_photos(scan, aligned, held, caster, pc.max_side, settings), moved
     return PhotoData(photos, train_views, held_views, report, corrections, final, mode)
+
+
+def visibility_settings(pc: PhotosConfig):
+    """The photo-pixel visibility test ``pc`` asks for (the training and the held-out photos alike)."""
+    from scantex.photos.training import VisibilitySettings
+
+    return VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px, max_angle_deg=pc.max_angle_deg,
+                              depth_tolerance=pc.depth_tolerance)
 
 
 def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
@@ -861,7 +868,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
     ``images`` receives a photo | input | result image per held-out photo."""
     from scantex.photos.training import score_photos
 
-    rejected = {k: sum(v.rejected[k] for v in photo.train) for k in ("edge", "grazing", "depth_map")}
+    rejected = {k: sum(v.rejected.get(k, 0) for v in photo.train) for k in ("edge", "grazing", "depth_map", "hidden")}
     out: dict = {"photos": {
         "source": str(photo.photos.source), "format": photo.photos.format, "total": len(photo.photos),
         "train": [int(v.index) for v in photo.train], "held_out": [int(v.index) for v in photo.held_out],
@@ -870,11 +877,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "rejected_pixels": rejected,
         "pose_refinement": photo.pose_mode,
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
-        "alignment": None if photo.alignment is None else {
-            "edge_distance_px": round(photo.alignment.edge_distance_px, 2),
-            "ratio": round(photo.alignment.ratio, 3), "offset_m": round(photo.alignment.offset_m, 4),
-            "turn_deg": round(photo.alignment.turn_deg, 2), "displacement": round(photo.alignment.displacement, 5),
-            "summary": photo.alignment.summary()},
+        "alignment": alignment_metrics(photo.alignment),
     }}
     if photo.held_out:
         out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,
@@ -883,6 +886,15 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
             out["held_out_photos_vs_ground_truth"] = score_views(
                 ground_truth, {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)
     return out
+
+
+def alignment_metrics(report) -> dict | None:
+    """The alignment check's report for metrics.json (``None``: the check was skipped)."""
+    if report is None:
+        return None
+    return {"edge_distance_px": round(report.edge_distance_px, 2), "ratio": round(report.ratio, 3),
+            "offset_m": round(report.offset_m, 4), "turn_deg": round(report.turn_deg, 2),
+            "displacement": round(report.displacement, 5), "summary": report.summary()}
 
 
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,

@@ -23,6 +23,10 @@ BASE_BYTES = int(0.6 * GiB)
 BYTES_PER_FACE = 3000
 #: per output texel: texel map (face id, barycentrics), points, float colours, the uint8 atlas, seam blending
 BYTES_PER_TEXEL = 60
+#: photo mode, per pixel of a photo's working view: its image, depth, face ids, barycentrics, masks
+PHOTO_BYTES_PER_WORKING_PIXEL = 30
+#: photo mode, per full-size pixel: a photo's samples, packed, held at most at its own size
+PHOTO_BYTES_PER_PIXEL = 4
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,17 @@ def peak_memory() -> int:
 def estimate_memory(n_faces: int, output_texels: int) -> int:
     """Bytes one enhance run needs for a scan of ``n_faces`` faces baked into ``output_texels`` texels."""
     return int(BASE_BYTES + BYTES_PER_FACE * n_faces + BYTES_PER_TEXEL * output_texels)
+
+
+def photo_memory(photos, max_side: int) -> int:
+    """Bytes photo mode holds for ``photos`` (a :class:`scantex.photos.PhotoSet`) at working size ``max_side``:
+    ``PHOTO_BYTES_PER_WORKING_PIXEL`` a working pixel and, at most, ``PHOTO_BYTES_PER_PIXEL`` a full-size one."""
+    total = 0.0
+    for cam in photos.cameras:
+        pixels = cam.width * cam.height
+        scale = min(1.0, max_side / max(cam.width, cam.height))
+        total += PHOTO_BYTES_PER_WORKING_PIXEL * pixels * scale * scale + PHOTO_BYTES_PER_PIXEL * pixels
+    return int(total)
 
 
 @dataclass(frozen=True)

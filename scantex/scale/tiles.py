@@ -11,6 +11,16 @@ line where one tile ends. Before fusing, each tile's overall colour can be level
 fitted on the overlaps: each tile's field chose its own canonical exposure, the mean over its charts); off by
 default, as it measured no better.
 
+With photos (photo mode), what concerns the whole capture is done once, before the tiles: the alignment
+check, the split into training and held-out photos, and (``photos.refine_poses`` ``input``) each training
+photo's pose refinement against the input texture, so that a photo seen by two tiles has one pose in both.
+Each tile then textures itself from the training photos that see it (a ray cast of each photo against the
+whole scan, at its working size, says which) and holds nothing out; in each of those photos, the pixels where
+another tile's surface is in front are masked (``PhotoSet.hidden``), so that a tile, which does not have its
+neighbours' geometry, never takes their colours for its own; the held-out photos score the fused result, input against
+output, as ``enhance`` scores its own. Each tile's photos are levelled onto the input texture's appearance,
+which all tiles share, so their colours agree across the overlaps.
+
 The output is the input's geometry, bit for bit, and its UV layout, with the fused atlas.
 """
 
@@ -27,12 +37,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from scantex.errors import ScanError
+from scantex.photos.photoset import PhotoSet
 from scantex.pipeline.config import EnhanceConfig
 from scantex.scale.executors import Job, LocalPool, WorkerLost
-from scantex.scale.resources import GiB, estimate_memory, machine, peak_memory
+from scantex.scale.resources import GiB, estimate_memory, machine, peak_memory, photo_memory
 from scantex.scan import Scan
 
 log = logging.getLogger(__name__)
+
 
 
 @dataclass(frozen=True)
@@ -172,8 +184,118 @@ def tile_scan(scan: Scan, faces: np.ndarray) -> Scan:
     return Scan(**sub)
 
 
-def enhance_tile(index: int, sub: Scan, config: dict, threads: int) -> dict:
-    """Enhance one tile (a worker's job; never raises): its atlas images and what it cost."""
+@dataclass(frozen=True, eq=False)
+class TilePhotos:
+    """Photo mode over tiles: what is done once for the whole capture (see the module docstring).
+
+    Attributes:
+        photos: the capture, its training photos' poses refined when the run refines them.
+        train: the training photos' indices (into ``photos``).
+        held_out: the held-out photos' indices: they score the fused result.
+        per_tile: per tile, the training photos that see it.
+        hidden: per tile, ``{photo: packed (h, w) mask}`` of the pixels another tile's surface takes
+            (:func:`numpy.packbits` of the rows; photos without any are left out).
+        depth_factors: ``{photo: factor}``, each training photo's depth map judged against the whole scan
+            (:func:`scantex.photos.training.depth_factor`; ``None``: not of its view, set aside).
+        pose_mode: the pose refinement applied (``off``, ``input``; ``consensus`` is left to each tile).
+        corrections: the training photos' pose corrections (``input`` mode).
+        alignment: the alignment check's report (``None`` when it was skipped).
+    """
+
+    photos: PhotoSet
+    train: np.ndarray
+    held_out: np.ndarray
+    per_tile: list[np.ndarray]
+    hidden: list[dict]
+    depth_factors: dict
+    pose_mode: str
+    corrections: list
+    alignment: object | None
+
+    def for_tile(self, tile: int) -> PhotoSet | None:
+        """Tile ``tile``'s training photos, their pixels that other tiles hide masked (``None``: no photo sees
+        it, the tile keeps the input's texels)."""
+        if not len(self.per_tile[tile]):
+            return None
+        masks = []
+        for i in self.per_tile[tile]:
+            packed = self.hidden[tile].get(int(i))
+            masks.append(None if packed is None else
+                         np.unpackbits(packed[0], axis=1, count=packed[1]).astype(bool))
+        subset = self.photos.subset(self.per_tile[tile])
+        factors = [self.depth_factors.get(int(i)) for i in self.per_tile[tile]]
+        depths = tuple(None if f is None else d for f, d in zip(factors, subset.depths))
+        return dataclasses.replace(subset, hidden=tuple(masks), depths=depths,
+                                   depth_factors=tuple(f if d is not None else None for f, d in zip(factors, depths)))
+
+    def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
+        """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here."""
+        return config.override(photos__holdout=0, photos__check_alignment=False, photos__final="training",
+                               photos__refine_poses="consensus" if self.pose_mode == "consensus" else "off")
+
+
+def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: EnhanceConfig, caster,
+                     update=None) -> TilePhotos:
+    """The whole capture's part of tiled photo mode (see the module docstring): the alignment check (refuses
+    a mesh out of the cameras' frame), the held-out split, the input-texture pose refinement, and which
+    training photos see each tile."""
+    from functools import partial
+
+    from scantex.photos.alignment import require_alignment
+    from scantex.photos.poses import refine_poses
+    from scantex.photos.training import split_photos
+    from scantex.pipeline.enhance import pose_refinement_mode
+    from scantex.views.render import shade_hits
+
+    pc = config.photos
+    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
+    train, held = split_photos(len(photos), pc.holdout, config.seed)
+    mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
+    corrections: list = []
+    if mode == "input":
+        photos, corrections = refine_poses(scan, photos, train, partial(shade_hits, scan), caster, update=update)
+    per_tile, hidden, factors = tiles_seen(scan, plan, photos, train, caster, pc.max_side, pc.depth_tolerance)
+    log.info("photos per tile: %s", [len(p) for p in per_tile])
+    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report)
+
+
+def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, max_side: int,
+               depth_tolerance: float = 0.05) -> tuple[list[np.ndarray], list[dict], dict]:
+    """Per tile, the photos of ``indices`` that see any of its faces; in each, the pixels another tile's
+    surface takes (``{photo: (packed rows, width)}``); and each photo's depth map judged against the whole
+    scan (see :class:`TilePhotos`): each photo ray-cast against the whole scan at its working size
+    (``max_side``), the nearest surface at each pixel's centre."""
+    from scipy import ndimage
+
+    from scantex.photos.training import depth_factor, resize_depth, working_camera
+    from scantex.views.raycast import cast_gbuffer
+
+    holds = np.zeros((len(plan), scan.n_faces), bool)
+    for t, faces in enumerate(plan.faces):
+        holds[t, faces] = True
+    seen: list[list[int]] = [[] for _ in range(len(plan))]
+    hidden: list[dict] = [{} for _ in range(len(plan))]
+    factors: dict = {}
+    for i in indices:
+        g = cast_gbuffer(caster, working_camera(photos.cameras[int(i)], max_side))
+        face_id = g.face_id
+        hit = face_id >= 0
+        measured = photos.load_depth(int(i))
+        if measured is not None:  # judged where the whole scan's surface is smooth, as prepare_photo judges it
+            clean = ndimage.binary_erosion(hit, iterations=2) & np.isfinite(g.depth)
+            factors[int(i)] = depth_factor(resize_depth(measured, *face_id.shape[::-1]), g.depth, clean,
+                                           depth_tolerance, photos.depths[int(i)])
+        for t in np.flatnonzero(holds[:, np.unique(face_id[hit])].any(axis=1)):
+            seen[t].append(int(i))
+            other = hit & ~holds[t, np.where(hit, face_id, 0)]
+            if other.any():
+                hidden[t][int(i)] = (np.packbits(other, axis=1), other.shape[1])
+    return [np.array(s, np.int64) for s in seen], hidden, factors
+
+
+def enhance_tile(index: int, sub: Scan, config: dict, threads: int, photos: PhotoSet | None = None) -> dict:
+    """Enhance one tile (a worker's job; never raises): its atlas images and what it cost. ``photos``: the
+    training photos that see it (photo mode; ``config`` as :meth:`TilePhotos.tile_config` makes it)."""
     t0 = time.perf_counter()
     try:
         import torch
@@ -181,14 +303,15 @@ def enhance_tile(index: int, sub: Scan, config: dict, threads: int) -> dict:
         from scantex.pipeline.enhance import enhance
 
         torch.set_num_threads(threads)
-        result = enhance(sub, EnhanceConfig.from_dict(config).override(threads=threads))
+        result = enhance(sub, EnhanceConfig.from_dict(config).override(threads=threads), photos=photos)
         m = result.metrics
         return {"index": index, "images": tuple(mat.image for mat in result.scan.materials),
                 "uv_identical": bool(np.array_equal(result.scan.uvs, sub.uvs)
                                      and np.array_equal(result.scan.face_uvs, sub.face_uvs)),
                 "faces": sub.n_faces, "seconds": round(time.perf_counter() - t0, 2), "host": socket.gethostname(),
                 "peak_memory_gib": round(peak_memory() / GiB, 3),
-                "held_out_vs_input": m.get("held_out_vs_input", {}).get("enhanced")}
+                "held_out_vs_input": m.get("held_out_vs_input", {}).get("enhanced"),
+                "photos": len(photos) if photos is not None else 0}
     except ScanError as e:
         return {"index": index, "error": str(e)}
     except Exception as e:
@@ -304,7 +427,7 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
 
 
 def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: TilingConfig = TilingConfig(tiles=4),
-                  *, ground_truth: Scan | None = None, runner=None, reporter=None):
+                  *, ground_truth: Scan | None = None, photos: PhotoSet | None = None, runner=None, reporter=None):
     """Enhance ``scan`` as overlapping tiles (one job each on ``runner``) and fuse them.
 
     Args:
@@ -312,6 +435,8 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
         config: the enhance settings of every tile (``uv.mode`` must be ``keep``).
         tiling: how many tiles, their overlap, colour levelling.
         ground_truth: the true texture on the same geometry, if known: the whole result is scored on it.
+        photos: the capture's posed photos (photo mode): each tile textures itself from the training photos that
+            see it, and the held-out photos score the fused result (see the module docstring).
         runner: where the tiles run (:class:`scantex.scale.executors.LocalPool` by default, or
             :class:`scantex.scale.executors.RayCluster`).
         reporter: progress (see :class:`scantex.pipeline.enhance.Reporter`).
@@ -339,27 +464,40 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
     subs = [tile_scan(scan, f) for f in plan.faces]
     timings["tiling"] = time.perf_counter() - t
     log.info("%d tiles (%d x %d), faces per tile %s", n, *plan.grid, [len(f) for f in plan.faces])
+    caster, shared = None, None
+    if photos is not None:
+        from scantex.views.raycast import RayCaster
+
+        t = time.perf_counter()
+        caster = RayCaster(scan.positions, scan.faces)
+        with reporter.stage("reading photos (the whole capture)") as update:
+            shared = photos_for_tiles(scan, plan, photos, config, caster, update)
+        timings["photos"] = time.perf_counter() - t
 
     t = time.perf_counter()
     with reporter.stage(f"enhancing {n} tiles ({runner.name})") as update:
-        outputs = run_tiles(scan, plan, subs, config, runner, update)
+        outputs = run_tiles(scan, plan, subs, config, runner, update, shared)
     timings["tiles"] = time.perf_counter() - t
     return assemble_tiles(scan, plan, outputs, config, tiling, runner.name, timings,
-                          ground_truth=ground_truth, reporter=reporter)
+                          ground_truth=ground_truth, reporter=reporter, photos=shared, caster=caster)
 
 
-def run_tiles(scan: Scan, plan: TilePlan, subs: list[Scan], config: EnhanceConfig, runner, update=None
-              ) -> list[dict]:
-    """Enhance every tile ``subs[k]`` as a job on ``runner``; their outputs (see :func:`enhance_tile`) in
-    tile order. Raises :class:`ScanError` naming the first tile that failed."""
+def run_tiles(scan: Scan, plan: TilePlan, subs: list[Scan], config: EnhanceConfig, runner, update=None,
+              photos: TilePhotos | None = None) -> list[dict]:
+    """Enhance every tile ``subs[k]`` as a job on ``runner`` (with the training photos that see it, in photo
+    mode); their outputs (see :func:`enhance_tile`) in tile order. Raises :class:`ScanError` naming the first
+    tile that failed."""
     n = len(subs)
     cores = machine().cores
     workers = getattr(runner, "workers", None) or cores
     threads = max(1, cores // min(workers, n)) if isinstance(runner, LocalPool) else max(1, config.threads or 1)
-    cfg = config.to_dict()
+    cfg = (photos.tile_config(config) if photos is not None else config).to_dict()
     texels = sum(int(np.prod(m.image.shape[:2])) for m in scan.materials if m.image is not None)
     out_texels = (config.bake.texture_size ** 2) if config.bake.texture_size else min(4 * texels, 8192 ** 2)
-    jobs = [Job(f"tile {k}", enhance_tile, (k, sub, cfg, threads), memory=estimate_memory(sub.n_faces, out_texels),
+    tile_photos = [photos.for_tile(k) if photos is not None else None for k in range(n)]
+    jobs = [Job(f"tile {k}", enhance_tile, (k, sub, cfg, threads, tile_photos[k]),
+                memory=estimate_memory(sub.n_faces, out_texels)
+                + (photo_memory(tile_photos[k], config.photos.max_side) if tile_photos[k] is not None else 0),
                 cpus=threads, gpus=1.0 if config.device == "cuda" else 0.0) for k, sub in enumerate(subs)]
     outputs: list[dict | None] = [None] * n
     if update:
@@ -376,9 +514,12 @@ def run_tiles(scan: Scan, plan: TilePlan, subs: list[Scan], config: EnhanceConfi
 
 
 def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: EnhanceConfig, tiling: TilingConfig,
-                   executor: str, timings: dict, *, ground_truth: Scan | None = None, reporter=None):
-    """Fuse the tiles' outputs into the whole scan's result and measure it (see :func:`enhance_tiled`)."""
+                   executor: str, timings: dict, *, ground_truth: Scan | None = None, reporter=None,
+                   photos: TilePhotos | None = None, caster=None):
+    """Fuse the tiles' outputs into the whole scan's result and measure it (see :func:`enhance_tiled`;
+    ``photos``: photo mode's shared part, whose held-out photos score the result)."""
     from scantex.pipeline.enhance import EnhanceResult, Reporter
+    from scantex.views.raycast import RayCaster
 
     reporter = reporter or Reporter()
     timings = dict(timings)
@@ -401,21 +542,56 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
     timings["fuse"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    caster = caster or RayCaster(scan.positions, scan.faces)
+    comparisons: dict = {}
     with reporter.stage("measuring") as update:
-        views, metrics = measure_whole(scan, fused, ground_truth, config)
+        views, metrics = measure_whole(scan, fused, ground_truth, config, caster)
+        if photos is not None:
+            metrics.update(tiled_photo_metrics(scan, fused, ground_truth, photos, config, caster, comparisons))
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["tiles"] = {
         "count": n, "grid": list(plan.grid), "overlap": tiling.overlap, "harmonize": tiling.harmonize,
         "executor": executor, "threads_per_tile": outputs[0]["threads"], **fuse_report,
-        "per_tile": [{k: o[k] for k in ("faces", "seconds", "peak_memory_gib", "host", "held_out_vs_input")}
+        "per_tile": [{k: o.get(k) for k in ("faces", "photos", "seconds", "peak_memory_gib", "host",
+                                            "held_out_vs_input")}
                      for o in outputs]}
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
-    return EnhanceResult(fused, metrics, config, views, input_scan=scan, ground_truth=ground_truth)
+    comparisons = {f"held_out_photo_{i:03d}": im for i, im in comparisons.items()}
+    return EnhanceResult(fused, metrics, config, views, comparisons, input_scan=scan, ground_truth=ground_truth)
 
 
-def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config: EnhanceConfig):
+def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,
+                        config: EnhanceConfig, caster, images: dict | None = None) -> dict:
+    """Photo mode's metrics of a tiled run, in ``enhance``'s shape: what the photos gave, and the input and the
+    fused result scored on the held-out photos (``images`` receives a photo | input | result image each)."""
+    from scantex.atlas.holes import untextured_faces
+    from scantex.metrics.views import score_views
+    from scantex.photos.training import prepare_photos, score_photos
+    from scantex.pipeline.enhance import alignment_metrics, visibility_settings
+
+    pc = config.photos
+    out: dict = {"photos": {
+        "source": str(photos.photos.source), "format": photos.photos.format, "total": len(photos.photos),
+        "train": photos.train.tolist(), "held_out": photos.held_out.tolist(),
+        "per_tile": [len(p) for p in photos.per_tile],
+        "pose_refinement": photos.pose_mode, "pose_corrections": [c.to_dict() for c in photos.corrections],
+        "alignment": alignment_metrics(photos.alignment),
+        "final_texture": {"photos": len(photos.train), "mode": "training", "setting": pc.final,
+                          "note": "tiles write the texture the held-out photos score: the training photos'"},
+    }}
+    if len(photos.held_out):
+        held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side, visibility_settings(pc))
+        both = {"input": scan, "enhanced": enhanced}
+        out["held_out_photos"] = score_photos(both, held, caster, images=images)
+        if ground_truth is not None:
+            out["held_out_photos_vs_ground_truth"] = score_views(ground_truth, both, [v.camera for v in held], caster,
+                                                                 untextured_faces(scan))
+    return out
+
+
+def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config: EnhanceConfig, caster=None):
     """Views of the whole scan planned as ``enhance`` plans them (same seed, so the same held-out
     cameras), and the result's metrics on them: geometry identity, seam visibility, held-out scores."""
     from scantex.atlas.holes import untextured_faces
@@ -428,7 +604,7 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     from scantex.views.render import render
 
     vc = config.views
-    caster = RayCaster(scan.positions, scan.faces)
+    caster = caster or RayCaster(scan.positions, scan.faces)
     up = up_axis(scan, vc.up)
     cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height, fov_deg=vc.fov_deg,
                          seed=config.seed, up=up, caster=caster)

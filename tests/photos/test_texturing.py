@@ -128,6 +128,22 @@ def test_weights_are_smooth_between_photos(tmp_path):
     assert (green > 0.7 * 0.5 - 0.02).all() and (green < 0.5 + 0.02).all()  # between the two exposures
 
 
+def test_a_photo_nothing_ties_down_takes_the_others_median_gain(tmp_path):
+    """A photo with too few usable pixels to fit (a sliver of a tile) is not left at gain 1 among photos whose
+    gains are far from it: it takes the fitted photos' median."""
+    import dataclasses
+
+    scan = smooth_wall()
+    _, views = wall_photos(tmp_path, scan, gains=(1.4, 1.5))
+    caster = RayCaster(scan.positions, scan.faces)
+    references = [render(scan, v.camera, caster)[0] for v in views]
+    blind = dataclasses.replace(views[1], valid=np.zeros_like(views[1].valid))
+    fitted = fit_photo_transforms(references, views)
+    alone = fit_photo_transforms(references, [views[0], blind])
+    assert abs(fitted[0, 1, 1] - 1.4) < 0.1 and abs(fitted[1, 1, 1] - 1.5) < 0.1
+    np.testing.assert_allclose(np.diagonal(alone[1, :3]), np.diagonal(alone[0, :3]))  # not 1
+
+
 def test_sharpness_measure_prefers_sharp_images():
     rng = np.random.default_rng(0)
     sharp = rng.uniform(0, 1, (64, 64, 3)).astype(np.float32)

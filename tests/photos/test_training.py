@@ -185,6 +185,24 @@ def test_depth_maps_that_disagree_in_places_reject_those_pixels(tmp_path):
     assert view.valid[36:, 48:].sum() >= 0.95 * plain.valid[36:, 48:].sum()
 
 
+def test_pixels_a_surface_outside_the_scan_hides_are_rejected(tmp_path):
+    """A tile of a bigger scan does not have its neighbours' geometry: the pixels where one of them is in front
+    (``PhotoSet.hidden``, at any size) are never usable, with the margin a contour gets."""
+    scan, photos = cube_set(tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    plain = prepare_photo(scan, photos, 0, caster, 96)
+    mask = np.zeros((144, 192), bool)  # twice the working size: resized, nearest
+    mask[:72, :96] = True  # the top-left quarter
+    view = prepare_photo(scan, dataclasses.replace(photos, hidden=(mask, None, None, None)), 0, caster, 96)
+    assert view.rejected["hidden"] > 0 and plain.rejected["hidden"] == 0
+    assert not view.valid[:38, :48].any() and not view.valid[:36, :50].any()  # the quarter, two pixels around
+    assert np.array_equal(view.valid[40:, 52:], plain.valid[40:, 52:])
+    assert np.array_equal(view.face_id, plain.face_id)
+    # no depth there either: a loose fragment's colour is not taken through the surface in front
+    gone = (view.depth == 0) & (plain.depth > 0)
+    assert gone[:36, :48].sum() == ((plain.depth > 0)[:36, :48]).sum() and not gone[40:, 52:].any()
+
+
 def test_a_depth_map_of_another_view_is_set_aside_not_used_to_reject_the_photo(tmp_path, caplog):
     """A depth map that disagrees with the mesh almost everywhere, in any unit (another frame's map, a depth
     camera not registered to the colour camera), says nothing about what this photo sees: the photo is used

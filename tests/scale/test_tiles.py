@@ -10,6 +10,8 @@ from scantex.scale.executors import LocalPool
 from scantex.scale.tiles import (TilingConfig, enhance_tiled, fuse_tiles, grid_shape, plan_tiles, smoothstep,
                                  tile_gains, tile_scan)
 
+from tests.pipeline.test_enhance import toy_demo  # noqa: F401  (a fixture)
+from tests.pipeline.test_photo_mode import toy_photos  # noqa: F401  (a fixture)
 from tests.scale.conftest import TINY, tiny_wall
 
 
@@ -139,3 +141,97 @@ def test_cli_refuses_tiles_it_cannot_fuse(tmp_path, wall):
     assert proc.stderr.strip().endswith("scan.obj: --tiles is not supported with --uv unwrap (tiles share the input's "
                                         "UV layout)")
     assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+
+
+def test_each_tile_gets_the_photos_that_see_it(tmp_path):
+    import dataclasses
+
+    from scantex.photos.photoset import PhotoSet
+    from scantex.scale.tiles import tiles_seen
+    from scantex.views.camera import Camera
+    from scantex.views.raycast import RayCaster
+    from tests.conftest import grid_wall
+
+    square = grid_wall(24)
+    scan = dataclasses.replace(square, positions=square.positions * [2.0, 1.0, 1.0])  # 4 m x 2 m, facing -y
+    plan = plan_tiles(scan, 2)  # cut across x, at 2 m
+    corner = Camera.look_at((0.2, -0.4, 0.2), (0.2, 0.0, 0.2), fov_deg=20, width=64, height=48)
+    whole = Camera.look_at((2.0, -6.0, 1.0), (2.0, 0.0, 1.0), fov_deg=45, width=64, height=48)
+    behind = Camera.look_at((2.0, -6.0, 1.0), (2.0, -12.0, 1.0), fov_deg=45, width=64, height=48)  # looks away
+    photos = PhotoSet(cameras=(corner, whole, behind), images=[tmp_path / f"{i}.png" for i in range(3)], source=tmp_path,
+                      format="test")
+    seen, hidden, factors = tiles_seen(scan, plan, photos, [0, 1, 2], RayCaster(scan.positions, scan.faces), 64)
+    assert factors == {}  # no depth maps
+    home = plan.home[np.argmin(np.linalg.norm(scan.triangles.mean(axis=1) - [0.2, 0.0, 0.2], axis=1))]
+    assert [list(s) for s in seen] == [[0, 1] if t == home else [1] for t in range(2)]
+    # the whole wall's photo: in each tile, the pixels of the other tile's cell (beyond the overlap) are masked
+    for t in range(2):
+        assert list(hidden[t]) == [1]
+        packed, width = hidden[t][1]
+        mask = np.unpackbits(packed, axis=1, count=width).astype(bool)
+        assert mask.shape == (48, 64) and 0.15 < mask.mean() < 0.5
+
+
+def test_a_photo_set_sent_to_another_process_reads_its_photos_there(tmp_path):
+    import pickle
+
+    from PIL import Image
+
+    from scantex.photos.photoset import PhotoSet
+    from scantex.views.camera import Camera
+
+    Image.fromarray(np.full((4, 6, 3), 7, np.uint8)).save(tmp_path / "a.png")
+    photos = PhotoSet(cameras=(Camera.look_at((0, -1, 0), (0, 0, 0), width=6, height=4),), images=[tmp_path / "a.png"],
+                      source=tmp_path, format="test")
+    photos.load_image(0)  # decoded and cached here
+    again = pickle.loads(pickle.dumps(photos))
+    assert again.image_cache is not photos.image_cache and again.image_cache.get(tmp_path / "a.png") is None
+    assert again.image_cache.budget == photos.image_cache.budget
+    assert np.array_equal(again.load_image(0), photos.load_image(0))
+
+
+def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, toy_demo, toy_photos):
+    import json
+    import subprocess
+    import sys
+
+    from scantex.io import save_scan
+    from scantex.pipeline.enhance import enhance
+    from scantex.pipeline.outputs import write_outputs
+    from tests.pipeline.test_enhance import TOY
+
+    config = TOY.override(photos__check_alignment=False)  # a toy wall: see tests/pipeline/test_photo_mode.py
+    whole = enhance(toy_demo.scan, config, ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    tiled = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), ground_truth=toy_demo.ground_truth,
+                          photos=toy_photos, runner=LocalPool(workers=2))
+    out, m = tiled.scan, tiled.metrics
+    assert out.positions is toy_demo.scan.positions and out.faces is toy_demo.scan.faces
+    assert np.array_equal(out.face_uvs, toy_demo.scan.face_uvs) and m["geometry"]["arrays_identical"]
+    # the same photos held out as an untiled run; each tile textured from the training photos that see it
+    assert m["photos"]["held_out"] == whole.metrics["photos"]["held_out"] and len(m["photos"]["held_out"]) == 1
+    assert [t["photos"] for t in m["tiles"]["per_tile"]] == m["photos"]["per_tile"]
+    assert all(0 < n <= len(m["photos"]["train"]) for n in m["photos"]["per_tile"])
+    # one pose per training photo, refined once for the whole capture (fewer than REFINE_BELOW photos)
+    assert m["photos"]["pose_refinement"] == "input"
+    assert [c["photo"] for c in m["photos"]["pose_corrections"]] == m["photos"]["train"]
+    # the held-out photos score the fused result: better than the input, about as good as the untiled run
+    photos = m["held_out_photos"]
+    assert photos["enhanced"]["psnr_matched"] > photos["input"]["psnr_matched"]
+    truth, untiled = m["held_out_photos_vs_ground_truth"], whole.metrics["held_out_photos_vs_ground_truth"]
+    assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
+    assert abs(truth["enhanced"]["psnr"] - untiled["enhanced"]["psnr"]) < 0.5
+    assert list(tiled.comparisons) == [f"held_out_photo_{i:03d}" for i in m["photos"]["held_out"]]
+    (tmp_path / "api").mkdir()
+    write_outputs(tiled, tmp_path / "api")
+    assert "Held-out photos" in (tmp_path / "api" / "report.html").read_text()
+
+    # the command line tiles photo mode too
+    save_scan(toy_demo.scan, tmp_path / "scan.obj")
+    (tmp_path / "config.json").write_text(json.dumps(config.to_dict()))
+    run = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
+                          str(tmp_path / "config.json"), "--photos", str(toy_photos.source), "--tiles", "2",
+                          "--workers", "2", "-o", str(tmp_path / "cli")], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "enhancing in 2 overlapping tiles" in run.stdout and "1 held-out photos" in run.stdout
+    metrics = json.loads((tmp_path / "cli" / "metrics.json").read_text())
+    assert metrics["tiles"]["count"] == 2 and metrics["photos"]["final_texture"]["mode"] == "training"
