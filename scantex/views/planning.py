@@ -132,15 +132,19 @@ def plan_views(scan: Scan, n: int, *, mode: str = "auto", width: int = 512, heig
 
 
 def is_closed_object(scan: Scan) -> bool:
-    """True when the mesh is watertight (after welding equal positions) and encloses positive volume.
+    """True when the mesh is watertight (every edge shared by exactly two faces, after welding equal positions)
+    and encloses positive volume.
 
-    The weld is on a trimesh copy: formats like glTF split vertices at UV seams, which would otherwise
-    make every textured mesh look open. A watertight mesh with negative volume has inward normals: the
-    inside of a room, which must be seen from inside.
+    The weld is the scan's own (:attr:`Scan.welded`): formats like glTF split vertices at UV seams, which would
+    otherwise make every textured mesh look open. A watertight mesh with negative volume has inward normals:
+    the inside of a room, which must be seen from inside.
     """
-    mesh = scan.to_trimesh()
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    if not mesh.is_watertight:
+    faces = scan.welded[scan.faces]
+    if not len(faces):
+        return False
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1], return_counts=True)
+    if not (counts == 2).all():
         return False
     t = scan.triangles - scan.triangles.reshape(-1, 3).mean(axis=0)  # centred: less cancellation
     signed_volume = np.einsum("ij,ij->", t[:, 0], np.cross(t[:, 1], t[:, 2])) / 6.0

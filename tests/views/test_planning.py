@@ -204,6 +204,13 @@ def test_plan_views_auto_picks_orbit_for_objects_and_surface_otherwise(wall):
     assert is_closed_object(sphere)
     assert not is_closed_object(room())
     assert not is_closed_object(wall)
+    # split at every face corner (as glTF splits at UV seams, or OpenMVS writes): welded, still closed
+    assert is_closed_object(Scan(sphere.triangles.reshape(-1, 3), np.arange(3 * sphere.n_faces).reshape(-1, 3)))
+    assert not is_closed_object(Scan(sphere.positions, sphere.faces[1:]))  # a face missing: a hole
+    # two faces more on one edge (a fin): an edge of four faces is not a closed surface's
+    fin = np.vstack([sphere.positions, [[3.0, 0.0, 0.0]]])
+    a, b = sphere.faces[0, :2]
+    assert not is_closed_object(Scan(fin, np.vstack([sphere.faces, [[a, b, len(fin) - 1], [b, a, len(fin) - 1]]])))
     orbit = plan_views(sphere, 8)
     np.testing.assert_allclose([np.linalg.norm(c.center) for c in orbit],
                                [np.linalg.norm(c.center) for c in plan_views(sphere, 8, mode="orbit")])
