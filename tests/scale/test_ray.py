@@ -12,6 +12,8 @@ from scantex.errors import ScanError
 from scantex.scale import batch
 from scantex.scale.executors import RAY_HINT, RayCluster
 
+from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
+from tests.pipeline.test_photo_mode import toy_photos  # noqa: F401  (a fixture)
 from tests.scale.conftest import TINY, tiny_wall
 from tests.scale.test_batch import check_batch
 
@@ -52,3 +54,15 @@ def test_ray_tiles(ray_instance):
     assert np.array_equal(result.scan.face_uvs, wall.scan.face_uvs)
     assert result.metrics["tiles"]["executor"] == "Ray" and result.metrics["tiles"]["count"] == 2
     assert "held_out_vs_input" in result.metrics
+
+
+def test_ray_tiles_with_photos(ray_instance, toy_demo, toy_photos):
+    """Photo mode's tiles as Ray tasks: each takes its photos (paths, poses, masks) to its worker."""
+    from scantex.scale.tiles import TilingConfig, enhance_tiled
+
+    config = TOY.override(photos__check_alignment=False)  # a toy wall: see tests/pipeline/test_photo_mode.py
+    result = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), photos=toy_photos, runner=RayCluster())
+    m = result.metrics
+    assert m["tiles"]["executor"] == "Ray" and [t["photos"] for t in m["tiles"]["per_tile"]] == m["photos"]["per_tile"]
+    assert all(n > 0 for n in m["photos"]["per_tile"]) and m["geometry"]["arrays_identical"]
+    assert m["held_out_photos"]["enhanced"]["psnr_matched"] > m["held_out_photos"]["input"]["psnr_matched"]
