@@ -195,6 +195,13 @@ def photos_need_no_field(scan: Scan, config: EnhanceConfig, photos) -> bool:
             and (pc.canonical == "input" or not scan.is_textured))
 
 
+def views_teach(scan: Scan, config: EnhanceConfig, photos) -> bool:
+    """Whether anything trains on the synthetic views (the field, or the refiner over the photos' colour): if
+    not, only the held-out views are rendered, for the report's fidelity score, and none are added for
+    coverage."""
+    return not photos_need_no_field(scan, config, photos) or (config.refine.enabled and config.refine.with_photos)
+
+
 def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device,
                      config: BakeConfig, noise: float | None = None) -> tuple[SurfaceColour, dict]:
     """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report.
@@ -578,8 +585,7 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     up = up_axis(scan, vc.up)
     # photo mode without a field (and without the refiner) trains nothing on the synthetic views: only the
     # held-out ones are rendered, for the report's fidelity score, and no views are added for coverage
-    trains_on_views = not photos_need_no_field(scan, config, photos) or (
-        config.refine.enabled and config.refine.with_photos)
+    trains_on_views = views_teach(scan, config, photos)
     with reporter.stage("planning views") as update:
         cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height,
                              fov_deg=vc.fov_deg, seed=rng_seed, up=up, caster=caster)

@@ -545,7 +545,8 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
     caster = caster or RayCaster(scan.positions, scan.faces)
     comparisons: dict = {}
     with reporter.stage("measuring") as update:
-        views, metrics = measure_whole(scan, fused, ground_truth, config, caster)
+        views, metrics = measure_whole(scan, fused, ground_truth, config, caster,
+                                       photos=photos.photos if photos is not None else None)
         if photos is not None:
             metrics.update(tiled_photo_metrics(scan, fused, ground_truth, photos, config, caster, comparisons))
         update(1, 1)
@@ -591,14 +592,17 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
     return out
 
 
-def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config: EnhanceConfig, caster=None):
+def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config: EnhanceConfig, caster=None,
+                  photos: PhotoSet | None = None):
     """Views of the whole scan planned as ``enhance`` plans them (same seed, so the same held-out
-    cameras), and the result's metrics on them: geometry identity, seam visibility, held-out scores."""
+    cameras), and the result's metrics on them: geometry identity, seam visibility, held-out scores. With
+    ``photos`` (photo mode) as an untiled photo-mode run plans and renders them: no views added for coverage,
+    and only the held-out ones rendered (nothing trains on the others)."""
     from scantex.atlas.holes import untextured_faces
     from scantex.atlas.seams import seam_visibility
     from scantex.metrics.geometry import geometry_metrics
     from scantex.metrics.views import score_views
-    from scantex.pipeline.enhance import render_training_views, up_axis
+    from scantex.pipeline.enhance import render_training_views, up_axis, views_teach
     from scantex.views.planning import add_views_for_coverage, plan_views
     from scantex.views.raycast import RayCaster
     from scantex.views.render import render
@@ -608,12 +612,14 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     up = up_axis(scan, vc.up)
     cameras = plan_views(scan, vc.n_views, mode=vc.mode, width=vc.width, height=vc.height, fov_deg=vc.fov_deg,
                          seed=config.seed, up=up, caster=caster)
-    if vc.adaptive:
+    trains_on_views = views_teach(scan, config, photos)
+    if vc.adaptive and trains_on_views:
         cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4), up=up,
                                          seed=config.seed, caster=caster)
     holes = untextured_faces(scan)
     views = render_training_views(scan, cameras, np.ones(scan.n_faces, bool), vc.supersample, caster,
-                                  vc.test_fraction, config.seed, lambda done, total: None)
+                                  vc.test_fraction, config.seed, lambda done, total: None,
+                                  render_train=trains_on_views)
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "hole_faces": int(holes.sum())},

@@ -221,6 +221,9 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
     assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
     assert abs(truth["enhanced"]["psnr"] - untiled["enhanced"]["psnr"]) < 0.5
     assert list(tiled.comparisons) == [f"held_out_photo_{i:03d}" for i in m["photos"]["held_out"]]
+    # the synthetic views planned as the untiled run plans them, only the held-out ones rendered
+    assert m["views"]["total"] == whole.metrics["views"]["total"] and m["views"]["test"] == whole.metrics["views"]["test"]
+    assert not tiled.views.valid[tiled.views.views.train].any()
     (tmp_path / "api").mkdir()
     write_outputs(tiled, tmp_path / "api")
     assert "Held-out photos" in (tmp_path / "api" / "report.html").read_text()
