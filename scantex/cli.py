@@ -552,8 +552,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "other settings)")
     p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
                    help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
-                        "or Ray tasks with --ray) and fuse them with smooth weights; auto: one tile per "
-                        "--tile-faces faces (default: auto)")
+                        "or Ray tasks with --ray) and fuse them with smooth weights; with --photos, each tile is "
+                        "textured from the photos that see it and the held-out photos score the fused result; "
+                        "auto: one tile per --tile-faces faces (default: auto)")
     p.add_argument("--tile-faces", type=int, default=1_000_000, metavar="F",
                    help="--tiles auto: the most faces one tile holds (default: 1000000)")
     p.add_argument("--tile-overlap", type=float, default=0.15, metavar="X",
