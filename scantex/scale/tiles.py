@@ -394,21 +394,32 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
         covered = tmap.mask
         face_of = tmap.face_id[covered]
         st = plan.coords(tmap.points(corners))  # [N, 2]
-        colours, weights, holds = [], [], []
-        for t in range(T):
+        ys, xs = np.nonzero(covered)  # the covered texels in the order of image[covered]
+
+        def colour(t: int, sel=slice(None)) -> np.ndarray:
+            """Tile ``t``'s colours at the covered texels ``sel`` (0 where it baked no image)."""
             image = tile_images[t][m]
-            hold = holds_face[t, face_of]
-            w = np.where(hold, plan.weights(t, st), 0.0) if image is not None else np.zeros(len(st))
-            colours.append(image[covered].astype(np.float32) / 255.0 if image is not None
-                           else np.zeros((len(st), 3), np.float32))
-            weights.append(w)
-            holds.append(hold & (image is not None))
-        gains = tile_gains(plan, colours, weights, holds) if harmonize and T > 1 else np.ones((T, 3))
+            if image is None:
+                return np.zeros((len(ys[sel]), 3), np.float32)
+            return image[ys[sel], xs[sel]].astype(np.float32) / 255.0
+
+        def weight(t: int) -> np.ndarray:
+            if tile_images[t][m] is None:
+                return np.zeros(len(st))
+            return np.where(holds_face[t, face_of], plan.weights(t, st), 0.0)
+
+        gains = np.ones((T, 3))
+        if harmonize and T > 1:  # the gains need every tile's colours at once
+            colours, weights = [colour(t) for t in range(T)], [weight(t) for t in range(T)]
+            holds = [holds_face[t, face_of] & (tile_images[t][m] is not None) for t in range(T)]
+            gains = tile_gains(plan, colours, weights, holds)
         total = np.zeros(len(st))
         acc = np.zeros((len(st), 3), np.float32)
-        for t in range(T):
-            acc += (weights[t][:, None] * np.clip(colours[t] * gains[t].astype(np.float32), 0, 1)).astype(np.float32)
-            total += weights[t]
+        for t in range(T):  # else one tile's colours at a time: an 8192² atlas's texels are 0.5 GB a tile
+            c, w = (colours[t], weights[t]) if harmonize and T > 1 else (colour(t), weight(t))
+            acc += (w[:, None] * np.clip(c * gains[t].astype(np.float32), 0, 1)).astype(np.float32)
+            total += w
+            del c, w
         # texels whose point no tile's weight reaches (a face larger than the overlap): its home tile's colour
         orphan = total <= 1e-9
         if orphan.any():
@@ -416,7 +427,7 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
             idx = np.flatnonzero(orphan)
             for t in np.unique(home):
                 sel = idx[home == t]
-                acc[sel] = np.clip(colours[t][sel] * gains[t].astype(np.float32), 0, 1)
+                acc[sel] = np.clip(colour(t, sel) * gains[t].astype(np.float32), 0, 1)
                 total[sel] = 1.0
         image = np.zeros((H, W, 3), np.float32)
         image[covered] = acc / total[:, None].astype(np.float32)
