@@ -11,15 +11,15 @@ line where one tile ends. Before fusing, each tile's overall colour can be level
 fitted on the overlaps: each tile's field chose its own canonical exposure, the mean over its charts); off by
 default, as it measured no better.
 
-With photos (photo mode), what concerns the whole capture is done once, before the tiles: the alignment
-check, the split into training and held-out photos, and (``photos.refine_poses`` ``input``) each training
-photo's pose refinement against the input texture, so that a photo seen by two tiles has one pose in both.
-Each tile then textures itself from the training photos that see it (a ray cast of each photo against the
-whole scan, at its working size, says which) and holds nothing out; in each of those photos, the pixels where
-another tile's surface is in front are masked (``PhotoSet.hidden``), so that a tile, which does not have its
-neighbours' geometry, never takes their colours for its own; the held-out photos score the fused result, input against
-output, as ``enhance`` scores its own. Each tile's photos are levelled onto the input texture's appearance,
-which all tiles share, so their colours agree across the overlaps.
+With photos (photo mode), what concerns the whole capture is done once, before the tiles, on the whole scan:
+the alignment check, the split into training and held-out photos, each training photo's pose refinement
+against the input texture (``photos.refine_poses`` ``input``: a photo seen by two tiles has one pose in both),
+and for each training photo one ray cast at its working size, which says the tiles it sees, the pixels where
+another tile's surface is in front (``PhotoSet.hidden``: a tile does not have its neighbours' geometry, and
+would take their colours for its own) and whether its depth map is of its view (``PhotoSet.depth_factors``: a
+tile sees too little of a photo to judge it). Each tile is textured from the training photos that see it and
+holds nothing out; its photos are levelled onto the input texture's appearance, which all tiles share. The
+held-out photos score the fused result, input against output, as ``enhance`` scores its own.
 
 The output is the input's geometry, bit for bit, and its UV layout, with the fused atlas.
 """

@@ -158,8 +158,8 @@ def test_each_tile_gets_the_photos_that_see_it(tmp_path):
     corner = Camera.look_at((0.2, -0.4, 0.2), (0.2, 0.0, 0.2), fov_deg=20, width=64, height=48)
     whole = Camera.look_at((2.0, -6.0, 1.0), (2.0, 0.0, 1.0), fov_deg=45, width=64, height=48)
     behind = Camera.look_at((2.0, -6.0, 1.0), (2.0, -12.0, 1.0), fov_deg=45, width=64, height=48)  # looks away
-    photos = PhotoSet(cameras=(corner, whole, behind), images=[tmp_path / f"{i}.png" for i in range(3)], source=tmp_path,
-                      format="test")
+    photos = PhotoSet(cameras=(corner, whole, behind), images=[tmp_path / f"{i}.png" for i in range(3)],
+                      source=tmp_path, format="test")
     seen, hidden, factors = tiles_seen(scan, plan, photos, [0, 1, 2], RayCaster(scan.positions, scan.faces), 64)
     assert factors == {}  # no depth maps
     home = plan.home[np.argmin(np.linalg.norm(scan.triangles.mean(axis=1) - [0.2, 0.0, 0.2], axis=1))]
@@ -222,7 +222,8 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
     assert abs(truth["enhanced"]["psnr"] - untiled["enhanced"]["psnr"]) < 0.5
     assert list(tiled.comparisons) == [f"held_out_photo_{i:03d}" for i in m["photos"]["held_out"]]
     # the synthetic views planned as the untiled run plans them, only the held-out ones rendered
-    assert m["views"]["total"] == whole.metrics["views"]["total"] and m["views"]["test"] == whole.metrics["views"]["test"]
+    assert m["views"]["total"] == whole.metrics["views"]["total"]
+    assert m["views"]["test"] == whole.metrics["views"]["test"]
     assert not tiled.views.valid[tiled.views.views.train].any()
     (tmp_path / "api").mkdir()
     write_outputs(tiled, tmp_path / "api")
