@@ -370,9 +370,15 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
     Returns:
         ``(images, report)``: one fused ``(H, W, 3) uint8`` image per material (``None`` for materials
         no tile baked), gutters padded; the report holds the gains per tile.
+
+    The atlas is fused a strip of texel rows at a time (:func:`scantex.atlas.texelmap.texel_strips`), one tile's
+    colours at a time, into an 8-bit image: the whole atlas's texel map, points, every tile's colours and a float
+    image at once were 4 GB at 8192² (a real apartment of 800,000 faces in 4 tiles, whose driver then peaked
+    above the untiled run). The gains need every tile's colours on the overlaps, so ``harmonize`` takes the
+    whole map.
     """
-    from scantex.atlas.padding import pad_gutters
-    from scantex.atlas.texelmap import texel_map
+    from scantex.atlas.padding import fill_gutters
+    from scantex.atlas.texelmap import texel_map, texel_strips
     from scantex.views.render import to_uint8
 
     corners = scan.triangles
@@ -390,51 +396,86 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
         if len(sizes) > 1:
             raise ValueError(f"the tiles baked material {m} at different sizes: {sorted(sizes)}")
         (H, W), = sizes
-        tmap = texel_map(scan.triangle_uvs, W, H, faces)
-        covered = tmap.mask
-        face_of = tmap.face_id[covered]
-        st = plan.coords(tmap.points(corners))  # [N, 2]
-        ys, xs = np.nonzero(covered)  # the covered texels in the order of image[covered]
-
-        def colour(t: int, sel=slice(None)) -> np.ndarray:
-            """Tile ``t``'s colours at the covered texels ``sel`` (0 where it baked no image)."""
-            image = tile_images[t][m]
-            if image is None:
-                return np.zeros((len(ys[sel]), 3), np.float32)
-            return image[ys[sel], xs[sel]].astype(np.float32) / 255.0
-
-        def weight(t: int) -> np.ndarray:
-            if tile_images[t][m] is None:
-                return np.zeros(len(st))
-            return np.where(holds_face[t, face_of], plan.weights(t, st), 0.0)
-
         gains = np.ones((T, 3))
-        if harmonize and T > 1:  # the gains need every tile's colours at once
-            colours, weights = [colour(t) for t in range(T)], [weight(t) for t in range(T)]
-            holds = [holds_face[t, face_of] & (tile_images[t][m] is not None) for t in range(T)]
-            gains = tile_gains(plan, colours, weights, holds)
-        total = np.zeros(len(st))
-        acc = np.zeros((len(st), 3), np.float32)
-        for t in range(T):  # else one tile's colours at a time: an 8192² atlas's texels are 0.5 GB a tile
-            c, w = (colours[t], weights[t]) if harmonize and T > 1 else (colour(t), weight(t))
-            acc += (w[:, None] * np.clip(c * gains[t].astype(np.float32), 0, 1)).astype(np.float32)
-            total += w
-            del c, w
-        # texels whose point no tile's weight reaches (a face larger than the overlap): its home tile's colour
-        orphan = total <= 1e-9
-        if orphan.any():
-            home = plan.home[face_of[orphan]]
-            idx = np.flatnonzero(orphan)
-            for t in np.unique(home):
-                sel = idx[home == t]
-                acc[sel] = np.clip(colour(t, sel) * gains[t].astype(np.float32), 0, 1)
-                total[sel] = 1.0
-        image = np.zeros((H, W, 3), np.float32)
-        image[covered] = acc / total[:, None].astype(np.float32)
-        fused_images.append(to_uint8(pad_gutters(image, covered)))
+        if harmonize and T > 1:
+            gains = _tile_gains_on(scan, plan, [img[m] for img in tile_images], texel_map(scan.triangle_uvs, W, H,
+                                                                                          faces), holds_face)
+        # 8-bit from the start: the gutters copy their nearest covered texel, which commutes with the rounding
+        image = np.zeros((H, W, 3), np.uint8)
+        covered_all = np.zeros((H, W), bool)
+        for y0, strip in texel_strips(scan.triangle_uvs, W, H, faces):
+            covered = strip.mask
+            if not covered.any():
+                continue
+            rows = slice(y0, y0 + covered.shape[0])
+            image[rows][covered] = to_uint8(_fuse_texels(plan, [img[m] for img in tile_images], strip, y0, corners,
+                                                         holds_face, gains))
+            covered_all[rows] = covered
+        if covered_all.any() and not covered_all.all():
+            fill_gutters(image, covered_all)
+        fused_images.append(image)
         gains_all.append(gains)
     report = {"gains": [np.round(g, 4).tolist() for g in gains_all]}
     return tuple(fused_images), report
+
+
+def _tile_colours(images: list, covered: np.ndarray, y0: int = 0):
+    """``colour(t, sel)``: tile ``t``'s colours (float32, 0-1) at the ``covered`` texels ``sel`` (row-major, the
+    texel rows from ``y0``; 0 where the tile baked no image)."""
+    ys, xs = np.nonzero(covered)
+    ys += y0
+
+    def colour(t: int, sel=slice(None)) -> np.ndarray:
+        if images[t] is None:
+            return np.zeros((len(ys[sel]), 3), np.float32)
+        return images[t][ys[sel], xs[sel]].astype(np.float32) / 255.0
+
+    return colour
+
+
+def _tile_weight(plan: TilePlan, images: list, t: int, st: np.ndarray, face_of: np.ndarray,
+                 holds_face: np.ndarray) -> np.ndarray:
+    """Tile ``t``'s blending weight at texels of tile coordinates ``st`` on faces ``face_of`` (0 off its faces)."""
+    if images[t] is None:
+        return np.zeros(len(st))
+    return np.where(holds_face[t, face_of], plan.weights(t, st), 0.0)
+
+
+def _tile_gains_on(scan: Scan, plan: TilePlan, images: list, tmap, holds_face: np.ndarray) -> np.ndarray:
+    """:func:`tile_gains` on the whole texel map ``tmap`` of one material."""
+    covered = tmap.mask
+    face_of = tmap.face_id[covered]
+    st = plan.coords(tmap.points(scan.triangles))
+    colour = _tile_colours(images, covered)
+    T = len(plan)
+    return tile_gains(plan, [colour(t) for t in range(T)],
+                      [_tile_weight(plan, images, t, st, face_of, holds_face) for t in range(T)],
+                      [holds_face[t, face_of] & (images[t] is not None) for t in range(T)])
+
+
+def _fuse_texels(plan: TilePlan, images: list, strip, y0: int, corners: np.ndarray, holds_face: np.ndarray,
+                 gains: np.ndarray) -> np.ndarray:
+    """The fused colours ``(N, 3) float32`` of the covered texels of ``strip`` (atlas rows from ``y0``)."""
+    covered = strip.mask
+    face_of = strip.face_id[covered]
+    st = plan.coords(strip.points(corners))  # [N, 2]
+    colour = _tile_colours(images, covered, y0)
+    total = np.zeros(len(st))
+    acc = np.zeros((len(st), 3), np.float32)
+    for t in range(len(plan)):
+        w = _tile_weight(plan, images, t, st, face_of, holds_face)
+        acc += (w[:, None] * np.clip(colour(t) * gains[t].astype(np.float32), 0, 1)).astype(np.float32)
+        total += w
+    # texels whose point no tile's weight reaches (a face larger than the overlap): its home tile's colour
+    orphan = total <= 1e-9
+    if orphan.any():
+        home = plan.home[face_of[orphan]]
+        idx = np.flatnonzero(orphan)
+        for t in np.unique(home):
+            sel = idx[home == t]
+            acc[sel] = np.clip(colour(t, sel) * gains[t].astype(np.float32), 0, 1)
+            total[sel] = 1.0
+    return acc / total[:, None].astype(np.float32)
 
 
 def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: TilingConfig = TilingConfig(tiles=4),
@@ -541,6 +582,8 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
     t = time.perf_counter()
     with reporter.stage("fusing the tiles") as update:
         images, fuse_report = fuse_tiles(scan, plan, [o["images"] for o in outputs], tiling.harmonize)
+        for o in outputs:  # a full atlas each, fused: let go (the caller's list holds the same dicts)
+            del o["images"]
         materials = tuple(m if img is None else dataclasses.replace(
             m, image=img, image_name=f"enhanced_{m.name}.png", diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
             for m, img in zip(scan.materials, images))
