@@ -252,19 +252,24 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
     train, held = split_photos(len(photos), pc.holdout, config.seed)
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
     corrections: list = []
+    # the stage's progress counts the training photos refined (input mode), then each one cast
+    steps = 2 * len(train) if mode == "input" else len(train)
     if mode == "input":
-        photos, corrections = refine_poses(scan, photos, train, partial(shade_hits, scan), caster, update=update)
-    per_tile, hidden, factors = tiles_seen(scan, plan, photos, train, caster, pc.max_side, pc.depth_tolerance)
+        photos, corrections = refine_poses(scan, photos, train, partial(shade_hits, scan), caster,
+                                           update=update and (lambda done, total: update(done, steps)))
+    first = steps - len(train)
+    per_tile, hidden, factors = tiles_seen(scan, plan, photos, train, caster, pc.max_side, pc.depth_tolerance,
+                                           update and (lambda done, total: update(first + done, steps)))
     log.info("photos per tile: %s", [len(p) for p in per_tile])
     return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report)
 
 
 def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, max_side: int,
-               depth_tolerance: float = 0.05) -> tuple[list[np.ndarray], list[dict], dict]:
+               depth_tolerance: float = 0.05, update=None) -> tuple[list[np.ndarray], list[dict], dict]:
     """Per tile, the photos of ``indices`` that see any of its faces; in each, the pixels another tile's
     surface takes (``{photo: (packed rows, width)}``); and each photo's depth map judged against the whole
     scan (see :class:`TilePhotos`): each photo ray-cast against the whole scan at its working size
-    (``max_side``), the nearest surface at each pixel's centre."""
+    (``max_side``), the nearest surface at each pixel's centre. ``update(done, total)``: progress, in photos."""
     from scipy import ndimage
 
     from scantex.photos.training import depth_factor, resize_depth, working_camera
@@ -276,7 +281,9 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
     seen: list[list[int]] = [[] for _ in range(len(plan))]
     hidden: list[dict] = [{} for _ in range(len(plan))]
     factors: dict = {}
-    for i in indices:
+    for k, i in enumerate(indices):
+        if update:
+            update(k, len(indices))
         g = cast_gbuffer(caster, working_camera(photos.cameras[int(i)], max_side))
         face_id = g.face_id
         hit = face_id >= 0
@@ -290,6 +297,8 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
             other = hit & ~holds[t, np.where(hit, face_id, 0)]
             if other.any():
                 hidden[t][int(i)] = (np.packbits(other, axis=1), other.shape[1])
+    if update:
+        update(len(indices), len(indices))
     return [np.array(s, np.int64) for s in seen], hidden, factors
 
 
