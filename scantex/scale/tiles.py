@@ -93,6 +93,13 @@ class TilePlan:
         """``(N, 3)`` points -> ``(N, 2)`` tile coordinates."""
         return (points - self.origin) @ self.axes.T
 
+    def holds(self) -> np.ndarray:
+        """``(T, F) bool``: whether each tile holds each face (its cell's and its overlaps')."""
+        holds = np.zeros((len(self.faces), len(self.home)), bool)
+        for t, faces in enumerate(self.faces):
+            holds[t, faces] = True
+        return holds
+
     def weights(self, tile: int, st: np.ndarray) -> np.ndarray:
         """``(N,)`` blending weight of ``tile`` at tile coordinates ``st (N, 2)``: 1 inside its cell away
         from borders, a smoothstep across each inner border (the neighbour's weight is 1 minus it)."""
@@ -223,10 +230,10 @@ class TilePhotos:
             masks.append(None if packed is None else
                          np.unpackbits(packed[0], axis=1, count=packed[1]).astype(bool))
         subset = self.photos.subset(self.per_tile[tile])
-        factors = [self.depth_factors.get(int(i)) for i in self.per_tile[tile]]
+        # a map judged not of its photo's view is set aside (no factor); a photo without a map has none either
+        factors = tuple(self.depth_factors.get(int(i)) for i in self.per_tile[tile])
         depths = tuple(None if f is None else d for f, d in zip(factors, subset.depths))
-        return dataclasses.replace(subset, hidden=tuple(masks), depths=depths,
-                                   depth_factors=tuple(f if d is not None else None for f, d in zip(factors, depths)))
+        return dataclasses.replace(subset, hidden=tuple(masks), depths=depths, depth_factors=factors)
 
     def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
         """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here."""
@@ -275,9 +282,7 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
     from scantex.photos.training import depth_factor, resize_depth, working_camera
     from scantex.views.raycast import cast_gbuffer
 
-    holds = np.zeros((len(plan), scan.n_faces), bool)
-    for t, faces in enumerate(plan.faces):
-        holds[t, faces] = True
+    holds = plan.holds()
     seen: list[list[int]] = [[] for _ in range(len(plan))]
     hidden: list[dict] = [{} for _ in range(len(plan))]
     factors: dict = {}
@@ -392,9 +397,7 @@ def fuse_tiles(scan: Scan, plan: TilePlan, tile_images: list[tuple], harmonize: 
 
     corners = scan.triangles
     T = len(plan)
-    holds_face = np.zeros((T, scan.n_faces), bool)
-    for t, f in enumerate(plan.faces):
-        holds_face[t, f] = True
+    holds_face = plan.holds()
     fused_images, gains_all = [], []
     for m in range(len(scan.materials)):
         sizes = {img[m].shape[:2] for img in tile_images if img[m] is not None}
