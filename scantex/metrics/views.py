@@ -18,10 +18,13 @@ _REFERENCE = object()
 #: a view's PSNR where the images are identical (infinite): a mean over views with one such view would be
 #: infinite too, hiding the others' errors (and ``Infinity`` is not JSON)
 PSNR_CAP_DB = 100.0
+#: rays a pixel side when views are scored (box-filtered): the scores are robust to a texel's aliasing
+SCORE_SUPERSAMPLE = 2
 
 
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
-                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = 2) -> dict:
+                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = SCORE_SUPERSAMPLE, *,
+                renders: list | None = None, reference_name: str = "reference") -> dict:
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
 
     ``reference`` is a function giving a camera's ``(image, alpha)``, or a scan of the same geometry (a
@@ -37,30 +40,40 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...],
         "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
         order of ``cameras`` (the report shows them next to each view).
+
+    ``renders``: if given, receives one dict a camera, in order: each scan's render (and a reference
+    scan's, as ``reference_name``) before its supersamples are averaged, ``uint8`` (see
+    :func:`scantex.views.render.render_scans`'s ``fine``): the report shows these.
     """
     from scantex.metrics.patches import patch_score
 
     truth = reference if isinstance(reference, Scan) else None
 
-    def score(cam: Camera) -> dict[str, tuple[dict[str, float], np.ndarray | None]]:
-        """Each scan's scores at ``cam``, and its squared errors over hole pixels (``None``: none)."""
+    def score(cam: Camera) -> tuple[dict[str, tuple[dict[str, float], np.ndarray | None]], dict | None]:
+        """Each scan's scores at ``cam`` and its squared errors over hole pixels (``None``: none), and the
+        fine renders (``None`` unless ``renders`` is given)."""
+        fine = {} if renders is not None else None
         if truth is None:
             ref, ref_alpha = reference(cam)
-            shown = render_scans(scans, cam, caster, supersample=supersample)
+            shown = render_scans(scans, cam, caster, supersample=supersample, fine=fine)
         else:
-            shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample)
+            shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample, fine=fine)
             ref, ref_alpha = shown.pop(_REFERENCE)
+            if fine is not None:
+                fine[reference_name] = fine.pop(_REFERENCE)
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam)
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
         return {name: ({"psnr": min(psnr(img, ref, mask), PSNR_CAP_DB), "ssim": ssim(img, ref, mask),
                         "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},
                        ((img - ref) ** 2)[holes] if holes.any() else None)
-                for name, (img, _) in shown.items()}
+                for name, (img, _) in shown.items()}, fine
 
     # the views side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
-        per_view = list(pool.map(score, cameras))
+        per_view, fine_renders = zip(*pool.map(score, cameras)) if cameras else ((), ())
+    if renders is not None:
+        renders.extend(fine_renders)
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
     hole_pixels = {name: [] for name in scans}
     for scored in per_view:

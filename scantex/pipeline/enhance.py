@@ -74,6 +74,9 @@ class EnhanceResult:
     """the scan that was enhanced (for the report's before/after)"""
     ground_truth: Scan | None = None
     """the ground truth it was scored against, if any"""
+    renders: list[dict[str, np.ndarray]] = field(default_factory=list)
+    """the held-out views as scored, one dict a view (``views.test`` order) of ``uint8`` renders at the
+    scoring's supersampled size by name (input, enhanced, ground truth): the report shows them"""
 
 
 def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
@@ -826,8 +829,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
 
     t = time.perf_counter()
     comparisons: dict[str, np.ndarray] = {}
+    shown: list[dict[str, np.ndarray]] = []
     with reporter.stage("measuring") as update:
-        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches)
+        metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches,
+                          renders=shown)
         if from_vertex_colours:
             metrics["input"]["texture"] = (f"baked from the vertex colours ({vertex_atlas}x{vertex_atlas}; not levelled"
                                          f"{'' if blends else ' nor blended'} at its seams: the colours are "
@@ -862,7 +867,8 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
                 metrics["photos"]["final_texture"]["held_out_pose_corrections"] = [c.to_dict() for c in photo.final[2]]
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
-    return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth)
+    return EnhanceResult(enhanced, metrics, config, tv, comparisons, input_scan=scan, ground_truth=ground_truth,
+                         renders=shown)
 
 
 def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: PhotoData,
@@ -904,9 +910,11 @@ def alignment_metrics(report) -> dict | None:
 
 
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
-            charts: np.ndarray, caster: RayCaster, coverage, fitted, patches: dict | None = None) -> dict:
+            charts: np.ndarray, caster: RayCaster, coverage, fitted, patches: dict | None = None,
+            renders: list | None = None) -> dict:
     """The run's metrics: geometry identity always; texture scores on the held-out views. ``patches``: the
-    result's :func:`patch_metrics`, when already taken."""
+    result's :func:`patch_metrics`, when already taken. ``renders``: if given, receives the scored views'
+    renders (:func:`scantex.metrics.views.score_views`), for the report."""
     edges = seam_edges(scan)
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
@@ -923,10 +931,12 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     test_cams = [tv.views.cameras[i] for i in tv.views.test]
     if ground_truth is not None:
         metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced},
-                                                          test_cams, caster, holes)
+                                                          test_cams, caster, holes, renders=renders,
+                                                          reference_name="ground truth")
     elif scan.is_textured:
         # no truth: how faithfully the result reproduces the input where the input has colour
-        metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes)
+        metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes,
+                                                   renders=renders, reference_name="input")
         if patches is None:  # scored against the input's renders, that is the patch measure: not twice
             patches = patch_summary(metrics["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
     if scan.is_textured:

@@ -28,11 +28,11 @@ from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges
 from scantex.io.atomic import atomic_files
 from scantex.metrics.image import psnr, ssim
-from scantex.metrics.views import PSNR_CAP_DB
+from scantex.metrics.views import PSNR_CAP_DB, SCORE_SUPERSAMPLE
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import PAIR_THREADS, RayCaster
-from scantex.views.render import render_scans, to_uint8
+from scantex.views.render import downsample, render_scans, to_uint8
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +45,8 @@ THUMBNAIL = 512
 #: the atlas comparison: this many input texels across (the output's atlas shows the same UV square at
 #: its own resolution)
 CROP_TEXELS = 256
-#: held-out views are rendered for display at least this many pixels on their longer side (the metrics
-#: are computed at the views' own size; a finer render shows the texels)
+#: held-out views are shown as the metrics rendered them, before averaging their supersamples (twice the
+#: scored size: a finer render shows the texels), halved for the page (or more) when over twice this size
 RENDER_DISPLAY = 720
 #: the wipe viewer's largest size on the page, CSS pixels
 VIEWER_SIZE = (720, 540)
@@ -102,7 +102,8 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
                  "move together. Each face shows the mean texture colour at its corners and centre: this view "
                  "is for the geometry; judge the texture in the comparisons below.")
         if plotly else _section("3D view", f"<p>{html.escape(missing_message('plotly', 'The 3D view'))}.</p>"),
-        _section("Held-out views", _renders(before, after, truth, cameras, _per_view_scores(metrics)),
+        _section("Held-out views", _renders(before, after, truth, cameras, _per_view_scores(metrics),
+                                            getattr(result, "renders", None)),
                  "Unlit renders at views no stage trained on, compared with a wipe: drag the white "
                  "handle or the slider to move the split, scroll or use the buttons to zoom, drag the image to "
                  "pan; the menus pick which image is on each side. The scores are each view's own, from "
@@ -248,35 +249,42 @@ def _per_view_scores(m: dict) -> tuple[str, dict[str, dict[str, list]]] | None:
 
 
 def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list[Camera],
-             scores: tuple[str, dict] | None = None) -> str:
-    from scantex.photos.alignment import resized_camera
-
-    caster = RayCaster(after.positions, after.faces)  # the geometry is the same for all three
+             scores: tuple[str, dict] | None = None, shown: list[dict[str, np.ndarray]] | None = None) -> str:
+    """The held-out views' wipe comparisons. ``shown``: the renders the metrics were scored from, one dict a
+    view in ``cameras`` order (:attr:`scantex.pipeline.enhance.EnhanceResult.renders`); views without
+    them are rendered here the same way (one cast for the three scans)."""
     columns = [("input", before), ("enhanced", after), ("ground truth", truth)]
     columns = [(n, s) for n, s in columns if s is not None]
+    shown = shown or []
+    given = [k < len(shown) and all(n in shown[k] for n, _ in columns) for k in range(len(cameras))]
+    # the geometry is the same for all three
+    caster = None if all(given) else RayCaster(after.positions, after.faces)
 
     def widget(k: int, cam: Camera) -> str:
-        factor = max(1, math.ceil(RENDER_DISPLAY / max(cam.width, cam.height)))
-        fine = resized_camera(cam, cam.width * factor, cam.height * factor)
-        # one ray cast for the three (same geometry); shown at twice the scored size or more, one ray per
-        # pixel is enough (supersampling there cost 8 of the demo's 10 report seconds)
-        shown = render_scans(dict(columns), fine, caster, supersample=1 if factor >= 2 else 2)
-        images = {n: to_uint8(im) for n, (im, _) in shown.items()}
-        if scores is None and truth is not None:  # metrics without per-view scores: score here, as they would
-            scored = render_scans(dict(columns), cam, caster, supersample=2)  # one cast for the three
-            ref, ref_alpha = scored.pop("ground truth")
-            mask = ref_alpha >= 0.999
-            measured = {n: im for n, (im, _) in scored.items()}
-            view_scores = ("ground truth", {n: {"psnr": min(psnr(im, ref, mask), PSNR_CAP_DB),
-                                                "ssim": ssim(im, ref, mask)} for n, im in measured.items()})
-        elif scores is not None:
+        view_scores = None
+        if given[k]:
+            images = {n: shown[k][n] for n, _ in columns}
+        else:
+            # as the metrics render a view: SCORE_SUPERSAMPLE rays a pixel side, the finer image shown
+            images = {}
+            scored = render_scans(dict(columns), cam, caster, supersample=SCORE_SUPERSAMPLE, fine=images)
+            if scores is None and truth is not None:  # metrics without per-view scores: score here, as they would
+                ref, ref_alpha = scored.pop("ground truth")
+                mask = ref_alpha >= 0.999
+                view_scores = ("ground truth", {n: {"psnr": min(psnr(im, ref, mask), PSNR_CAP_DB),
+                                                    "ssim": ssim(im, ref, mask)} for n, (im, _) in scored.items()})
+        if scores is not None:
             against, per_view = scores
             view_scores = (against, {n: {m: v[m][k] for m in ("psnr", "ssim") if k < len(v.get(m, []))}
                                      for n, v in per_view.items()})
-        else:
-            view_scores = None
+        # a view far larger than the page shows is halved (or more) for it
+        step = max(1, max(next(iter(images.values())).shape[:2]) // RENDER_DISPLAY)
+        if step > 1:
+            images = {n: to_uint8(downsample(im[:im.shape[0] // step * step, :im.shape[1] // step * step]
+                                             .astype(np.float32) / 255, step)) for n, im in images.items()}
+        height, width = next(iter(images.values())).shape[:2]
         table = _scores_table(view_scores, f"view {k + 1}: {cam.width}×{cam.height} px scored, "
-                              f"{fine.width}×{fine.height} shown")
+                              f"{width}×{height} shown")
         right = "enhanced"
         left = "input" if "input" in images else "ground truth" if "ground truth" in images else "enhanced"
         return _compare(f"view-{k + 1}", images, left, right, table, fit=True)

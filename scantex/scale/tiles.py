@@ -610,9 +610,10 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
     t = time.perf_counter()
     caster = caster or RayCaster(scan.positions, scan.faces)
     comparisons: dict = {}
+    shown: list = []
     with reporter.stage("measuring") as update:
         views, metrics = measure_whole(scan, fused, ground_truth, config, caster,
-                                       photos=photos.photos if photos is not None else None)
+                                       photos=photos.photos if photos is not None else None, renders=shown)
         if photos is not None:
             metrics.update(tiled_photo_metrics(scan, fused, ground_truth, photos, config, caster, comparisons))
         update(1, 1)
@@ -626,7 +627,8 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
     metrics["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     metrics["timings_s"]["total"] = round(sum(timings.values()), 2)
     comparisons = {f"held_out_photo_{i:03d}": im for i, im in comparisons.items()}
-    return EnhanceResult(fused, metrics, config, views, comparisons, input_scan=scan, ground_truth=ground_truth)
+    return EnhanceResult(fused, metrics, config, views, comparisons, input_scan=scan, ground_truth=ground_truth,
+                         renders=shown)
 
 
 def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,
@@ -659,11 +661,12 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
 
 
 def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config: EnhanceConfig, caster=None,
-                  photos: PhotoSet | None = None):
+                  photos: PhotoSet | None = None, renders: list | None = None):
     """Views of the whole scan planned as ``enhance`` plans them (same seed, so the same held-out
     cameras), and the result's metrics on them: geometry identity, seam visibility, held-out scores. With
     ``photos`` (photo mode) as an untiled photo-mode run plans and renders them: no views added for coverage,
-    and only the held-out ones rendered (nothing trains on the others)."""
+    and only the held-out ones rendered (nothing trains on the others). ``renders``: if given, receives the
+    held-out views' renders as scored (:func:`scantex.metrics.views.score_views`), for the report."""
     from scantex.atlas.holes import untextured_faces
     from scantex.atlas.seams import seam_visibility
     from scantex.metrics.geometry import geometry_metrics
@@ -671,7 +674,6 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     from scantex.pipeline.enhance import render_training_views, up_axis, views_teach
     from scantex.views.planning import add_views_for_coverage, plan_views
     from scantex.views.raycast import RayCaster
-    from scantex.views.render import render
 
     vc = config.views
     caster = caster or RayCaster(scan.positions, scan.faces)
@@ -694,10 +696,9 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     }
     test = [views.views.cameras[i] for i in views.views.test]
     if ground_truth is not None:
-        metrics["held_out_vs_ground_truth"] = score_views(
-            lambda cam: render(ground_truth, cam, caster, supersample=2), {"input": scan, "enhanced": enhanced},
-            test, caster, holes)
+        metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced}, test,
+                                                          caster, holes, renders=renders, reference_name="ground truth")
     else:
-        metrics["held_out_vs_input"] = score_views(
-            lambda cam: render(scan, cam, caster, supersample=2), {"enhanced": enhanced}, test, caster, holes)
+        metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test, caster, holes, renders=renders,
+                                                   reference_name="input")
     return views, metrics

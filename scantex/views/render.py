@@ -177,9 +177,12 @@ def render(scan: Scan, camera: Camera, caster: RayCaster | None = None, *, lit: 
 
 
 def render_scans(scans: dict[str, Scan], camera: Camera, caster: RayCaster | None = None, *, lit: bool = False,
-                 supersample: int = 1, light: Light = Light(), background=(0.0, 0.0, 0.0)) -> dict:
+                 supersample: int = 1, light: Light = Light(), background=(0.0, 0.0, 0.0),
+                 fine: dict | None = None) -> dict:
     """:func:`render` of several scans that share one geometry (an input, its result, a ground truth):
-    the rays are cast once. Returns ``{name: (image, alpha)}``."""
+    the rays are cast once. Returns ``{name: (image, alpha)}``. ``fine``: if given, receives each scan's
+    image before the supersamples are averaged (``supersample`` times the camera's size, one ray a pixel:
+    the render of ``camera.scaled(supersample)``), as ``uint8``."""
     first = next(iter(scans.values()))
     caster = caster or RayCaster(first.positions, first.faces)
     cam = camera.scaled(supersample) if supersample > 1 else camera
@@ -199,6 +202,8 @@ def render_scans(scans: dict[str, Scan], camera: Camera, caster: RayCaster | Non
         rgb = shade_pixels(scan, g.face_id, g.bary, background, uv)
         if lit:
             rgb = shade_lit(rgb, g, cam, light)
+        if fine is not None:
+            fine[name] = to_uint8(rgb)
         out[name] = (downsample(rgb, supersample), alpha)
     return out
 

@@ -146,3 +146,31 @@ def test_scores_are_measured_when_the_metrics_lack_per_view_scores(page, result)
     measured = build_report(result, metrics=old)
     tables = lambda p: re.findall(r"<table class='cmp-scores'><caption>view .*?</table>", p, re.S)  # noqa: E731
     assert tables(measured) == tables(page)
+
+
+def test_held_out_views_show_the_renders_the_metrics_scored(page, result, monkeypatch):
+    """Given the renders its metrics were scored from (as ``enhance`` gives them), the report shows them and
+    casts no ray; made without them it renders the same images itself."""
+    import dataclasses
+
+    import scantex.report.html as report_html
+    from scantex.atlas.holes import untextured_faces
+    from scantex.metrics.views import score_views
+    from scantex.views.raycast import RayCaster
+
+    cameras = [result.views.views.cameras[i] for i in result.views.views.test]
+    shown: list = []
+    scan, truth = result.input_scan, result.ground_truth
+    score_views(truth, {"input": scan, "enhanced": result.scan}, cameras, RayCaster(scan.positions, scan.faces),
+                untextured_faces(scan), renders=shown, reference_name="ground truth")
+    assert [sorted(r) for r in shown] == [["enhanced", "ground truth", "input"]] * len(cameras)
+    assert shown[0]["input"].shape == (2 * cameras[0].height, 2 * cameras[0].width, 3)
+
+    def no_casting(*args, **kwargs):
+        raise AssertionError("the report rendered a view it was given")
+
+    monkeypatch.setattr(report_html, "render_scans", no_casting)
+    monkeypatch.setattr(report_html, "RayCaster", no_casting)
+    given = build_report(dataclasses.replace(result, renders=shown))
+    views = lambda p: re.findall(r'<div class="compare" id="compare-view-.*?</table>', p, re.S)  # noqa: E731
+    assert views(given) and views(given) == views(page)

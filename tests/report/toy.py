@@ -23,7 +23,7 @@ def toy_result() -> EnhanceResult:
     demo = make_wall(grid=(24, 18), gt_texture_size=256, scan_texture_size=64, seed=3,
                      degradation=Degradation(hole_share=0.06, hole_clusters=1))
     scan, truth = demo.scan, demo.ground_truth
-    cameras = plan_views(scan, 10, width=96, height=72, seed=0)
+    cameras = plan_views(scan, 10, width=384, height=288, seed=0)
     views = render_views(scan, cameras)
     N, H, W = views.alpha.shape
     tv = TrainingViews(views, np.full((N, H, W), -1, np.int32), np.zeros((N, H, W), np.float32),
@@ -38,5 +38,5 @@ def toy_result() -> EnhanceResult:
         "seam_visibility": {"input": seam_visibility(scan), "enhanced": seam_visibility(truth)},
         "timings_s": {"plan": 0.1, "render": 0.2, "total": 0.3},
     }
-    config = EnhanceConfig(preset="toy", views=ViewsConfig(n_views=10, width=96, height=72))
+    config = EnhanceConfig(preset="toy", views=ViewsConfig(n_views=10, width=384, height=288))
     return EnhanceResult(truth, metrics, config, tv, input_scan=scan, ground_truth=truth)
