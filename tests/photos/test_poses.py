@@ -55,6 +55,10 @@ def test_refined_poses_cut_the_reprojection_error(capture):
     assert set(d) >= {"photo", "rotation_deg", "translation_mm", "focal_scale", "applied", "shift_px"}
     assert all(c.shift_px >= 0.5 for c in corrections if c.applied)  # PoseSettings.min_shift_px
     json.dumps(d)  # goes into metrics.json as it is
+    # the photos are refined side by side (one a core); each fit is its own, so one at a time fits the same
+    alone, _ = refine_poses(scan, photos, range(len(photos)), lambda f, b: shade_hits(scan, f, b), caster, threads=1)
+    assert all(np.array_equal(a.K, b.K) and np.array_equal(a.world_to_camera, b.world_to_camera)
+               for a, b in zip(alone.cameras, refined.cameras))
 
 
 def test_image_shift_finds_a_known_shift_whatever_the_exposure():
