@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,9 +35,6 @@ from scantex.scan import Scan
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
-
-#: photos refined at once at most (each holds its photo, blurred copies and gradients at working size)
-MAX_THREADS = 8
 
 #: typical size of each correction parameter (rotation vector in radians: 0.5 degrees; translation as a
 #: share of the depth: 1 %; focal change: 1 %), the unit of the prior towards the recorded pose
@@ -341,29 +336,24 @@ def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, ca
                  ) -> tuple[PhotoSet, list[PoseCorrection]]:
     """``photos`` with the cameras at ``indices`` refined (the others as recorded), and the corrections.
     ``faces``: :func:`reference_faces` of ``scan``, when the caller has them (computed here otherwise, for a
-    textured scan). ``threads``: photos refined at once (``None``: one a core, up to :data:`MAX_THREADS`);
-    each photo's fit is its own, so the corrections are the same whatever the number."""
-    from threadpoolctl import threadpool_limits
+    textured scan). ``threads``: photos refined at once (:func:`scantex.threads.side_by_side`; ``None``: one a
+    core); each photo's fit is its own, so the corrections are the same whatever the number."""
+    from scantex.threads import side_by_side
 
     cameras = list(photos.cameras)
     corrections = []
     if faces is None and scan.is_textured:
         faces = reference_faces(scan)
-    indices = [int(i) for i in indices]
-    workers = max(1, min(threads or os.cpu_count() or 1, MAX_THREADS, len(indices)))
-    # the photos side by side, each fit on one core: a fit is many small steps (numpy, Embree and the solver
-    # release the interpreter lock in theirs), and the solver's small factorisations on BLAS threads only spin
-    # (the bolster's 12 photos: 3.2 s on one core and 2.3 s more spinning, 1.9 s two at a time)
-    with ThreadPoolExecutor(workers) as pool, threadpool_limits(1, user_api="blas"):
-        fits = pool.map(lambda i: refine_pose(scan, photos, i, reference, caster, settings, faces), indices)
-        for k, c in enumerate(fits):
-            cameras[c.index] = c.camera
-            corrections.append(c)
-            log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (error %.4f -> %.4f)%s",
-                     c.index, c.rotation_deg, 1000 * c.translation_m, c.focal_scale, c.error_before,
-                     c.error_after, "" if c.applied else " (kept as recorded)")
-            if update:
-                update(k + 1, len(indices))
+    fits = side_by_side(lambda i: refine_pose(scan, photos, int(i), reference, caster, settings, faces), indices,
+                        threads)
+    for k, c in enumerate(fits):
+        cameras[c.index] = c.camera
+        corrections.append(c)
+        log.info("photo %d: pose corrected by %.2f deg, %.1f mm, focal x%.4f (error %.4f -> %.4f)%s", c.index,
+                 c.rotation_deg, 1000 * c.translation_m, c.focal_scale, c.error_before, c.error_after,
+                 "" if c.applied else " (kept as recorded)")
+        if update:
+            update(k + 1, len(indices))
     return dataclasses.replace(photos, cameras=tuple(cameras)), corrections
 
 
