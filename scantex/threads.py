@@ -1,4 +1,4 @@
-"""Photos side by side on threads: one a core, with the BLAS library held to one thread meanwhile.
+"""Photos (or views) side by side on threads: one a core, with the BLAS library held to one thread meanwhile.
 
 Per-photo work (a pose fit, an alignment check) is many small numpy, Embree and solver steps; the heavy
 ones release the interpreter lock, so photos on threads use every core. The solver's small factorisations

@@ -30,7 +30,8 @@ from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
-from scantex.views.raycast import RayCaster, cast_gbuffer, interpolate, pixel_footprints
+from scantex.threads import side_by_side
+from scantex.views.raycast import PAIR_THREADS, RayCaster, cast_gbuffer, interpolate, pixel_footprints
 from scantex.views.render import downsample, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
 
@@ -98,29 +99,28 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
     rendered = np.zeros(len(cameras), bool)
     rendered[test] = True
     rendered[train] = render_train
-    images, alpha, fids, depths, valids = [], [], [], [], []
-    for i, cam in enumerate(cameras):
+    def view(i: int) -> tuple:
+        """View ``i``'s image, alpha, face ids, depths and valid pixels (empty where it is not rendered)."""
+        cam = cameras[i]
+        H, W = cam.height, cam.width
         if not rendered[i]:
-            images.append(np.zeros((cam.height, cam.width, 3), np.float32))
-            alpha.append(np.zeros((cam.height, cam.width), np.float32))
-            fids.append(np.full((cam.height, cam.width), -1, np.int32))
-            depths.append(np.full((cam.height, cam.width), np.inf, np.float32))
-            valids.append(np.zeros((cam.height, cam.width), bool))
-            update(i + 1, len(cameras))
-            continue
+            return (np.zeros((H, W, 3), np.float32), np.zeros((H, W), np.float32), np.full((H, W), -1, np.int32),
+                    np.full((H, W), np.inf, np.float32), np.zeros((H, W), bool))
         g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam)
         rgb = render_gbuffer(scan, g)
-        H, W = cam.height, cam.width
         _, all_usable, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s, usable)
         # a pixel is a clean sample of one surface when all its sub-samples hit usable faces at
         # nearly the same depth (no silhouette, no hole border)
         valid = all_usable & (spread < 0.02 * mean_depth)
-        images.append(downsample(rgb, s))
-        alpha.append(downsample(g.mask.astype(np.float32)[..., None], s)[..., 0])
-        fids.append(g.face_id.reshape(H, s, W, s)[:, s // 2, :, s // 2])
-        depths.append(mean_depth)
-        valids.append(valid)
+        return (downsample(rgb, s), downsample(g.mask.astype(np.float32)[..., None], s)[..., 0],
+                g.face_id.reshape(H, s, W, s)[:, s // 2, :, s // 2], mean_depth, valid)
+
+    # the views side by side (Embree and numpy release the interpreter lock)
+    rows = []
+    for i, row in enumerate(side_by_side(view, range(len(cameras)), PAIR_THREADS)):
+        rows.append(row)
         update(i + 1, len(cameras))
+    images, alpha, fids, depths, valids = zip(*rows) if rows else ([], [], [], [], [])
     views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test, rendered=rendered)
     return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
 
