@@ -330,7 +330,9 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
 
     # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
     small = [halved(view) for view in views]
-    references = [texture_seen(scan, view, caster) for view in small] if scan.is_textured else None
+    # the photos' views of the input texture side by side (Embree and numpy release the interpreter lock)
+    references = (list(side_by_side(lambda view: texture_seen(scan, view, caster), small))
+                  if scan.is_textured else None)
     transforms = fit_photo_transforms(references, small, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       blur_px=0.5, pair_weight=pair_weight)
