@@ -51,6 +51,7 @@ import numpy as np
 from scantex.photos.photoset import PhotoSet
 from scantex.photos.training import PhotoView
 from scantex.scan import Scan
+from scantex.threads import side_by_side
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
@@ -626,14 +627,16 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence
     charts = np.zeros(max((int(v.face_id.max()) + 1 for v in views), default=1), np.int64) if charts is None else charts
     C = int(charts.max()) + 1 if reference is not None else 0
     area = np.ones(C) if chart_area is None else np.asarray(chart_area, np.float64)
-    rows: list[tuple[int, int, np.ndarray, float]] = []  # (photo, chart, median log ratio (3,), weight)
-    blurred = [np.stack([ndimage.gaussian_filter(view.image[..., c], blur_px) for c in range(3)], -1)
-               for view in views]
-    for k, (view, ref) in enumerate(zip(views, reference if reference is not None else [])):
+    def blur(image: np.ndarray) -> np.ndarray:
+        return np.stack([ndimage.gaussian_filter(image[..., c], blur_px) for c in range(3)], -1)
+
+    def chart_rows(k: int) -> list[tuple[int, int, np.ndarray, float]]:
+        """Photo ``k``'s (photo, chart, median log ratio (3,), weight) rows."""
+        view, ref = views[k], reference[k]
         mask = view.valid & (view.face_id >= 0)
         if mask.sum() < min_pixels:
-            continue
-        x = np.stack([ndimage.gaussian_filter(ref[..., c], blur_px) for c in range(3)], -1)[mask]
+            return []
+        x = blur(ref)[mask]
         y = blurred[k][mask]
         chart = charts[view.face_id[mask]]
         ok = ((x > 0.03) & (x < 0.97) & (y > 0.03) & (y < 0.97)).all(axis=1)  # neither dark nor clipped
@@ -641,9 +644,13 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence
         order = np.argsort(chart, kind="stable")
         ratio, chart = ratio[order], chart[order]
         bounds = np.flatnonzero(np.diff(chart)) + 1
-        for part, c in zip(np.split(ratio, bounds), chart[np.r_[0, bounds]] if chart.size else []):
-            if len(part) >= min_pixels:
-                rows.append((k, int(c), np.median(part, axis=0), float(np.sqrt(len(part)))))
+        return [(k, int(c), np.median(part, axis=0), float(np.sqrt(len(part))))
+                for part, c in zip(np.split(ratio, bounds), chart[np.r_[0, bounds]] if chart.size else [])
+                if len(part) >= min_pixels]
+
+    # the photos side by side (numpy and scipy's filters release the interpreter lock)
+    blurred = list(side_by_side(lambda view: blur(view.image), views))
+    rows = [row for photo in side_by_side(chart_rows, range(P if reference is not None else 0)) for row in photo]
     out = np.tile(np.vstack([np.eye(3), np.zeros((1, 3))]), (P, 1, 1))
     if reference is None:
         pair_weight = pair_weight or 1.0
@@ -703,17 +710,25 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
                               (np.repeat(np.arange(P), [f.size for f in seen]), np.concatenate(seen or [[]]))),
                              shape=(P, n_faces))
     shared = (sees @ sees.T).toarray()  # (P, P) faces both see
-    pairs = []
-    for k, v in enumerate(views):
+    # each photo's sample of its pixels, drawn in photo order (the same draws however the photos are spread)
+    picked = []
+    for v in views:
         ys, xs = np.nonzero(v.valid)
+        if len(ys) >= min_pixels:
+            pick = rng.choice(len(ys), min(per_photo, len(ys)), replace=False)
+            ys, xs = ys[pick], xs[pick]
+        picked.append((ys, xs))
+
+    def pairs_of(k: int) -> list[tuple[int, int, np.ndarray, float]]:
+        """The pairs (k, l) of photo ``k``."""
+        v, (ys, xs) = views[k], picked[k]
         if len(ys) < min_pixels:
-            continue
-        pick = rng.choice(len(ys), min(per_photo, len(ys)), replace=False)
-        ys, xs = ys[pick], xs[pick]
+            return []
         K = v.camera.K
         rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
         points = (rays * v.depth[ys, xs, None] - v.camera.t) @ v.camera.R  # camera -> world
         own = blurred[k][ys, xs]
+        out = []
         for l, u in enumerate(views):
             if l == k or shared[k, l] < 1:
                 continue
@@ -722,8 +737,11 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
             good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)  # neither dark nor clipped
             if good.sum() >= min_pixels:
                 ratio = np.median(np.log(b[good]) - np.log(a[good]), axis=0)
-                pairs.append((k, l, ratio, float(np.sqrt(good.sum()))))
-    return pairs
+                out.append((k, l, ratio, float(np.sqrt(good.sum()))))
+        return out
+
+    # the photos side by side (numpy releases the interpreter lock)
+    return [pair for photo in side_by_side(pairs_of, range(P)) for pair in photo]
 
 
 def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
