@@ -434,8 +434,8 @@ def add_executor_options(p, job: str) -> None:
                         "does not fit)")
     if job == "scan":
         p.add_argument("--cpus-per-scan", type=int, metavar="N",
-                       help="torch threads per scan, and the CPUs a Ray task declares (default: local, the cores "
-                            "shared among the scans running at once; Ray, 1)")
+                       help="threads per scan (torch's, the bake's, the photos'), and the CPUs a Ray task declares "
+                            "(default: local, the cores shared among the scans running at once; Ray, 1)")
         p.add_argument("--gpus-per-scan", type=float, metavar="N",
                        help="GPUs a Ray task declares (default: 1 with --device cuda, else 0)")
 

@@ -29,3 +29,19 @@ def test_side_by_side_keeps_order_and_holds_blas_to_one_thread():
     assert threading.get_ident() not in seen_threads and len(seen_threads) <= 2
     assert blas_threads() == before
     assert list(side_by_side(work, [])) == []
+
+
+def test_a_runs_cores_bound_the_threads():
+    """``EnhanceConfig.threads`` (a tile's share of the machine) bounds the photos side by side."""
+    from scantex.threads import cores, using_cores
+
+    seen = set()
+
+    def work(i: int) -> int:
+        seen.add(threading.get_ident())
+        return i
+
+    with using_cores(1):
+        assert cores() == 1
+        assert list(side_by_side(work, range(6), threads=2)) == list(range(6))
+    assert len(seen) == 1 and cores() >= 1

@@ -23,8 +23,9 @@ SCORE_SUPERSAMPLE = 2
 
 
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
-                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray, supersample: int = SCORE_SUPERSAMPLE, *,
-                renders: list | None = None, reference_name: str = "reference") -> dict:
+                cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray,
+                supersample: int = SCORE_SUPERSAMPLE, *, renders: list | None = None,
+                reference_name: str = "reference") -> dict:
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
 
     ``reference`` is a function giving a camera's ``(image, alpha)``, or a scan of the same geometry (a

@@ -185,7 +185,7 @@ class EnhanceConfig:
     device: str = "auto"
     """torch device: auto (CUDA when present), cpu or cuda"""
     threads: int = 0
-    """CPU threads for torch (0: all cores)"""
+    """CPU threads for torch, the bake, and the stages that handle photos or views side by side (0: all cores)"""
     views: ViewsConfig = default(default_factory=ViewsConfig)
     field: FieldSettings = default(default_factory=FieldSettings)
     train: TrainConfig = default(default_factory=TrainConfig)

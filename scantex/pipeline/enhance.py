@@ -30,7 +30,7 @@ from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
-from scantex.threads import side_by_side
+from scantex.threads import side_by_side, using_cores
 from scantex.views.raycast import PAIR_THREADS, RayCaster, cast_gbuffer, interpolate, pixel_footprints
 from scantex.views.render import downsample, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
@@ -546,7 +546,18 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
         work_dir: where field checkpoints go (for ``resume``).
         resume: continue from the checkpoint in ``work_dir`` if there is one.
         reporter: progress reporting (default: silent).
+
+    ``config.threads`` (0: every core) bounds the threads of the stages that handle photos or views side by
+    side (:func:`scantex.threads.cores`), as it bounds torch's and the bake's.
     """
+    with using_cores(config.threads):
+        return _enhance(scan, config, ground_truth=ground_truth, photos=photos, work_dir=work_dir, resume=resume,
+                        reporter=reporter)
+
+
+def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, photos: PhotoSet | None,
+             work_dir: str | Path | None, resume: bool, reporter: Reporter | None) -> EnhanceResult:
+    """:func:`enhance`, within its cores."""
     from scantex.errors import ScanError
     from scantex.pipeline.config import validate
     from scantex.uv import blend_seams, plan_uvs
