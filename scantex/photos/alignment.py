@@ -257,6 +257,7 @@ def check_alignment(scan: Scan, photos: PhotoSet, *, n_photos: int = 4, max_phot
     edges = _MeshEdges.of(scan)
     first = min(n_photos, len(photos))
     order = _spread_order(len(photos), first, max(first, min(max_photos, len(photos))))
+
     def check(i) -> tuple:
         return _check_photo(scan, photos, int(i), max_side, caster, edges)
 

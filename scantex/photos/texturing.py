@@ -627,6 +627,7 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence
     charts = np.zeros(max((int(v.face_id.max()) + 1 for v in views), default=1), np.int64) if charts is None else charts
     C = int(charts.max()) + 1 if reference is not None else 0
     area = np.ones(C) if chart_area is None else np.asarray(chart_area, np.float64)
+
     def blur(image: np.ndarray) -> np.ndarray:
         return np.stack([ndimage.gaussian_filter(image[..., c], blur_px) for c in range(3)], -1)
 

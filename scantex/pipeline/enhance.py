@@ -28,9 +28,9 @@ from scantex.photos.photoset import PhotoSet
 from scantex.photos.training import PhotoView
 from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
 from scantex.scan import Scan
+from scantex.threads import side_by_side, using_cores
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
-from scantex.threads import side_by_side, using_cores
 from scantex.views.raycast import PAIR_THREADS, RayCaster, cast_gbuffer, interpolate, pixel_footprints
 from scantex.views.render import downsample, render_gbuffer, render_scans, shade_hits
 from scantex.views.viewset import ViewSet, split_train_test
@@ -99,6 +99,7 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
     rendered = np.zeros(len(cameras), bool)
     rendered[test] = True
     rendered[train] = render_train
+
     def view(i: int) -> tuple:
         """View ``i``'s image, alpha, face ids, depths and valid pixels (empty where it is not rendered)."""
         cam = cameras[i]
