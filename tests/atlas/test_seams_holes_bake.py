@@ -300,6 +300,18 @@ def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
 
     _, (iy, ix) = distance_transform_edt(~covered, return_indices=True)
     assert np.array_equal(padded, image[iy, ix]) and padded is not image
+    # float texels, the colour channels of an RGBA atlas (a view) and a column-major image, in place, alike
+    from scantex.atlas.padding import fill_gutters
+
+    floats = image.astype(np.float32) / 255
+    fill_gutters(floats, covered)
+    assert np.array_equal(floats, image[iy, ix].astype(np.float32) / 255)
+    rgba = np.concatenate([image, np.full((23, 17, 1), 7, np.uint8)], axis=2)
+    fill_gutters(rgba[..., :3], covered)
+    assert np.array_equal(rgba[..., :3], image[iy, ix]) and (rgba[..., 3] == 7).all()
+    columns = np.asfortranarray(image)
+    fill_gutters(columns, covered)
+    assert np.array_equal(columns, image[iy, ix])
 
 
 def test_vertex_colours_baked_into_a_texture_render_as_the_vertex_colours():
