@@ -218,14 +218,31 @@ def _dark_texels(scan: Scan):
             image = scan.materials[m].image
             out = np.empty((*image.shape[:2], 4), np.uint8)
             for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
-                levels = image[r:r + 512, :, :3].astype(np.float32) * (1.0 if image.dtype == np.uint8 else 255.0)
-                # the channels' maximum pairwise: numpy's max over a row of three is many times slower
-                brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])[..., None]
-                w = np.clip((BLACK_LEVEL + DARK_RAMP - brightest) / DARK_RAMP, 0, 1)
-                # in 8-bit levels: w * 255, and w times the texel (at most BLACK_LEVEL + DARK_RAMP levels)
-                out[r:r + 512] = np.concatenate([np.rint(w * 255), np.rint(w * levels)], axis=2)
+                band = out[r:r + 512]
+                if image.dtype != np.uint8:
+                    band[:] = weighted(image[r:r + 512, :, :3].astype(np.float32) * 255.0)
+                    continue
+                # 8-bit texels: w is 1 at BLACK_LEVEL and below (the entry is the texel itself) and 0 from the
+                # ramp's end (the entry is 0), both exactly; only the few texels on the ramp take arithmetic
+                # (an 8192² atlas: 3.4 -> 1.3 s, the same table)
+                levels = image[r:r + 512, :, :3]
+                brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])
+                black = (brightest <= BLACK_LEVEL).view(np.uint8)
+                np.multiply(black, 255, out=band[..., 0])
+                np.multiply(levels, black[..., None], out=band[..., 1:])
+                ramp = np.flatnonzero((brightest > BLACK_LEVEL) & (brightest < BLACK_LEVEL + DARK_RAMP))
+                if ramp.size:
+                    band.reshape(-1, 4)[ramp] = weighted(levels.reshape(-1, 3)[ramp].astype(np.float32))
             tables[m] = out
         return tables[m]
+
+    def weighted(levels: np.ndarray) -> np.ndarray:
+        """``(..., 4)`` table entries of texels ``levels (..., 3)`` in 8-bit levels (float32)."""
+        # the channels' maximum pairwise: numpy's max over a row of three is many times slower
+        brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])[..., None]
+        w = np.clip((BLACK_LEVEL + DARK_RAMP - brightest) / DARK_RAMP, 0, 1)
+        # in 8-bit levels: w * 255, and w times the texel (at most BLACK_LEVEL + DARK_RAMP levels)
+        return np.concatenate([np.rint(w * 255), np.rint(w * levels)], axis=-1)
 
     def darkness(face_ids: np.ndarray, bary: np.ndarray, offset=None) -> tuple[np.ndarray, np.ndarray]:
         """``offset(face_ids, bary)``, when given, is what a colour adds to every texel it looks up: ``dark``

@@ -333,3 +333,22 @@ def test_vertex_colours_baked_into_a_texture_render_as_the_vertex_colours():
     (image,) = [m.image for m in texture_from_vertex_colours(coloured, size=64, texels_per_vertex=64).materials]
     assert image.shape[:2] in ((128, 128), (256, 256)) and image.shape[0] ** 2 > 64 * coloured.n_vertices
     assert texture_from_vertex_colours(coloured, size=64).materials[0].image.shape[:2] == (64, 64)
+
+
+def test_black_texel_lookup_of_an_8_bit_atlas_is_the_ramps_arithmetic():
+    """The 8-bit table takes the texels at black level and above the ramp as they are (weights exactly 1 and
+    0) and computes only the ramp: the same lookups as the arithmetic on every texel (a float atlas)."""
+    from scantex.atlas.colour import _dark_texels
+
+    wall = grid_wall(n=8)
+    rng = np.random.default_rng(0)
+    atlas = rng.integers(0, 45, (64, 64, 3)).astype(np.uint8)  # black, the ramp and above it
+    atlas[::7] = rng.integers(0, 256, (len(atlas[::7]), 64, 3))
+    as_bytes = wall.replace(materials=(Material("m", atlas),))
+    as_floats = wall.replace(materials=(Material("m", atlas.astype(np.float32) / 255),))
+    face = rng.integers(0, wall.n_faces, 5000)
+    bary = rng.dirichlet(np.ones(3), 5000)[:, 1:].astype(np.float32)
+    share, dark = _dark_texels(as_bytes)(face, bary)
+    share_f, dark_f = _dark_texels(as_floats)(face, bary)
+    assert 0 < (share > 0).mean() < 1  # both kinds of texel are looked up
+    assert np.array_equal(share, share_f) and np.array_equal(dark, dark_f)
