@@ -50,11 +50,10 @@ def fill_gutters(image: np.ndarray, covered: np.ndarray, sources: np.ndarray | N
     # each texel's channels as one opaque element, the texels by flat index: a gather of whole texels, without
     # dividing indices into rows and columns (an 8192^2 atlas 60 % gutter: 3.2 -> 1.1 s)
     texels = image.reshape(-1).view(np.dtype((np.void, image.itemsize * image.shape[2])))
-    gaps = ~covered.reshape(-1)
-    nearest = sources.reshape(-1)
+    inside, nearest = covered.reshape(-1), sources.reshape(-1)
     step = covered.shape[1] * ROWS_PER_STRIP
-    for start in range(0, len(gaps), step):
-        at = np.flatnonzero(gaps[start:start + step]) + start
+    for start in range(0, len(inside), step):
+        at = np.flatnonzero(~inside[start:start + step]) + start
         texels[at] = texels[np.take(nearest, at)]
 
 
