@@ -17,6 +17,10 @@ from scantex.views.raycast import RayCaster, interpolate
 
 #: texel rows per ray-casting strip (bounded memory for 8192^2 atlases)
 ROWS_PER_STRIP = 512
+#: the side, in texels, of the cells that say where a strip's rays are cast (where a triangle's box reaches)
+BOX_BLOCK = 8
+#: a strip whose cells reached by triangles' boxes are at most this share of it casts rays only there
+SPARSE_STRIP = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,20 +69,58 @@ def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.nd
         pix = uv_to_pixel(triangle_uvs[selected], width, height)  # [f, 3, 2]
         flat = np.concatenate([pix.reshape(-1, 2), np.zeros((pix.shape[0] * 3, 1))], axis=1)
         caster = RayCaster(flat, np.arange(flat.shape[0]).reshape(-1, 3))
+        # each triangle's texel box, a texel wider all round than the centres it can cover
+        with np.errstate(invalid="ignore"):
+            lo = np.floor(pix.min(axis=1)) - 1
+            hi = np.ceil(pix.max(axis=1)) + 1
+        finite = np.isfinite(lo).all(axis=1) & np.isfinite(hi).all(axis=1)
+        lo = np.clip(np.where(finite[:, None], lo, 0), 0, [width - 1, height - 1]).astype(np.int64)
+        hi = np.clip(np.where(finite[:, None], hi, -1), -1, [width - 1, height - 1]).astype(np.int64)
     xs = np.arange(width, dtype=np.float64)
     for y0 in range(0, height, rows):
         y1 = min(y0 + rows, height)
         if caster is None:
             yield y0, TexelMap(np.full((y1 - y0, width), -1, np.int32), np.zeros((y1 - y0, width, 2), np.float32))
             continue
-        gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
-        origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
-        directions = np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
-        hits = caster.intersect(origins, directions)
-        hit = hits.face_id >= 0
-        fid = np.full(hits.face_id.shape, -1, dtype=np.int32)
-        fid[hit] = selected[hits.face_id[hit]]
-        yield y0, TexelMap(fid.reshape(y1 - y0, width), hits.bary.reshape(y1 - y0, width, 2).astype(np.float32, copy=False))
+        reached = _in_boxes(lo, hi, y0, y1, width)
+        if reached.mean() > SPARSE_STRIP:
+            # most of the strip: one ray a texel (a ray that misses costs little, picking the others more)
+            gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
+            origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+            hits = caster.intersect(origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape))
+            fid, bary = np.full(origins.shape[0], -1, np.int32), hits.bary
+            hit = np.flatnonzero(hits.face_id >= 0)
+            fid[hit] = selected[hits.face_id[hit]]
+        else:
+            # rays only where a triangle's box reaches: an app's atlas is mostly empty (the bathroom's 8192^2
+            # is 14 % covered; its boxes' cells 18 %)
+            at = np.flatnonzero(reached)
+            origins = np.stack([at % width, at // width + y0, np.ones(len(at))], axis=1).astype(np.float64)
+            hits = caster.intersect(origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape))
+            fid = np.full((y1 - y0) * width, -1, np.int32)
+            bary = np.zeros(((y1 - y0) * width, 2), np.float32)
+            hit = hits.face_id >= 0
+            fid[at[hit]] = selected[hits.face_id[hit]]
+            bary[at] = hits.bary
+        yield y0, TexelMap(fid.reshape(y1 - y0, width), bary.reshape(y1 - y0, width, 2))
+
+
+def _in_boxes(lo: np.ndarray, hi: np.ndarray, y0: int, y1: int, width: int, block: int = BOX_BLOCK) -> np.ndarray:
+    """``((y1 - y0) * width,) bool``: the texels of rows ``y0 .. y1`` in a ``block`` x ``block`` cell of texels
+    that at least one box ``lo .. hi`` reaches (``(n, 2)`` inclusive texel corners, x then y; an empty box has
+    ``hi < lo``): every texel of every box, and a few around them. Boxes are marked at their cells' corners and
+    summed (two cumulative sums over the cells, not over every texel)."""
+    h = y1 - y0
+    box = np.flatnonzero((lo[:, 1] < y1) & (hi[:, 1] >= y0) & (hi[:, 0] >= lo[:, 0]))
+    top = (np.maximum(lo[box, 1], y0) - y0) // block
+    bottom = (np.minimum(hi[box, 1], y1 - 1) - y0) // block + 1
+    left, right = lo[box, 0] // block, hi[box, 0] // block + 1
+    rows, cols = -(-h // block), -(-width // block)
+    marks = np.zeros((rows + 1) * (cols + 1), np.int64)
+    for rows_at, cols_at, sign in ((top, left, 1), (top, right, -1), (bottom, left, -1), (bottom, right, 1)):
+        marks += sign * np.bincount(rows_at * (cols + 1) + cols_at, minlength=marks.size)
+    cells = marks.reshape(rows + 1, cols + 1).cumsum(axis=0).cumsum(axis=1)[:rows, :cols] > 0
+    return np.repeat(np.repeat(cells, block, axis=0), block, axis=1)[:h, :width].reshape(-1)
 
 
 def texel_map(triangle_uvs: np.ndarray, width: int, height: int, faces: np.ndarray | None = None) -> TexelMap:

@@ -288,6 +288,26 @@ def test_streamed_texel_map_and_mask_match_the_reference(wall, monkeypatch):
     assert np.array_equal(covered_texels(wall.triangle_uvs, 50, 37), tmap.mask)
 
 
+def test_a_mostly_empty_atlas_casts_only_where_triangles_reach(monkeypatch):
+    """Strips that triangles' boxes reach sparsely cast rays only there: the same map as a ray at every texel,
+    and the reference rasteriser's."""
+    import scantex.atlas.texelmap
+
+    rng = np.random.default_rng(3)
+    corner = rng.random((40, 1, 2)) * 0.9
+    triangle_uvs = corner + rng.random((40, 3, 2)) * 0.06  # small charts scattered over the square
+    monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", 16)
+    maps = {}
+    for name, share in (("every texel", 0.0), ("where boxes reach", 1.0)):
+        monkeypatch.setattr(scantex.atlas.texelmap, "SPARSE_STRIP", share)
+        maps[name] = texel_map(triangle_uvs, 160, 120)
+    dense, sparse = maps["every texel"], maps["where boxes reach"]
+    assert np.array_equal(dense.face_id, sparse.face_id) and np.array_equal(dense.bary, sparse.bary)
+    assert 0.01 < sparse.mask.mean() < 0.5
+    ref = texel_map_reference(triangle_uvs, 160, 120)
+    assert (ref.face_id == sparse.face_id).mean() > 0.999
+
+
 def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
     import scantex.atlas.padding
 
