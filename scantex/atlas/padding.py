@@ -48,7 +48,7 @@ def fill_gutters(image: np.ndarray, covered: np.ndarray, sources: np.ndarray | N
             image[y0:y0 + ROWS_PER_STRIP][gap] = image[nearest // W, nearest % W]
         return
     # each texel's channels as one opaque element, the texels by flat index: a gather of whole texels, without
-    # dividing indices into rows and columns (an 8192^2 atlas 60 % gutter: 3.2 -> 1.1 s)
+    # dividing indices into rows and columns (an 8192^2 atlas 83 % gutter: 3.2 -> 1.1 s)
     texels = image.reshape(-1).view(np.dtype((np.void, image.itemsize * image.shape[2])))
     inside, nearest = covered.reshape(-1), sources.reshape(-1)
     step = covered.shape[1] * ROWS_PER_STRIP
