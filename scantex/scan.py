@@ -31,6 +31,27 @@ _GEOMETRY_CACHE = ("welded", "face_normals", "face_areas", "_normals_and_areas",
 _LAYOUT_MEMO, _TEXTURE_MEMO = "_layout_memo", "_texture_memo"
 
 
+#: the maps of a glTF material besides its colour, as :attr:`Material.maps` names them
+GLTF_MAPS = ("normal", "occlusion", "metallic_roughness", "emissive")
+#: the parameters of a glTF material besides its colour, as :attr:`Material.gltf` holds them
+GLTF_PARAMETERS = ("metallicFactor", "roughnessFactor", "emissiveFactor", "alphaMode", "alphaCutoff", "doubleSided")
+
+
+@dataclass(frozen=True, eq=False)
+class TextureMap:
+    """One of a material's maps besides its colour (a glTF normal, occlusion, metallic-roughness or emissive
+    texture), drawn in the same UV layout as the colour. scantex changes the colour only: a map goes to the
+    outputs as it came, while the layout stays the input's.
+
+    Attributes:
+        image: ``(H, W)`` or ``(H, W, C) uint8`` as decoded, row 0 at the top.
+        encoded: the file's own bytes of it (JPEG or PNG), written back as they are; ``None``: encoded anew.
+    """
+
+    image: np.ndarray
+    encoded: bytes | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class Material:
     """One material: a base colour and, usually, a texture atlas.
@@ -40,12 +61,18 @@ class Material:
         image: ``(H, W, 3|4) uint8`` texture, row 0 at the top; ``None`` for an untextured material.
         diffuse: ``(4,) float`` RGBA base colour in [0, 1]; multiplies the image when rendering.
         image_name: file name the texture is written under (``None``: derived from ``name``).
+        maps: the material's other maps by kind (:data:`GLTF_MAPS`), on the same UV layout as ``image``
+            (a Polycam GLB's normal and occlusion maps); a new layout leaves them out.
+        gltf: the glTF material's other parameters (:data:`GLTF_PARAMETERS`) that its file set; the GLB
+            written gives them back (a material from another format gets scantex's defaults there).
     """
 
     name: str
     image: np.ndarray | None = None
     diffuse: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     image_name: str | None = None
+    maps: dict[str, TextureMap] = field(default_factory=dict)
+    gltf: dict[str, object] = field(default_factory=dict)
 
     def with_image(self, image: np.ndarray) -> Material:
         return dataclasses.replace(self, image=image)
@@ -282,7 +309,8 @@ class Scan:
 
     def summary(self) -> str:
         tex = ", ".join(
-            f"{m.name}: {m.image.shape[1]}x{m.image.shape[0]}" if m.image is not None else f"{m.name}: -"
+            (f"{m.name}: {m.image.shape[1]}x{m.image.shape[0]}" if m.image is not None else f"{m.name}: -")
+            + "".join(f" + {kind.replace('_', '-')} map" for kind in m.maps)
             for m in self.materials
         )
         return (f"{self.n_vertices:,} vertices, {self.n_faces:,} faces, "

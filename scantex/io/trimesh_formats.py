@@ -16,8 +16,8 @@ import numpy as np
 
 from scantex.arrays import unique_rows
 from scantex.errors import ScanError
-from scantex.io.images import image_from_pil
-from scantex.scan import Material, Scan
+from scantex.io.images import check_image_size, image_from_pil
+from scantex.scan import GLTF_PARAMETERS, Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
 
@@ -35,8 +35,15 @@ def _load_scene(path: Path):
     return loaded
 
 
-def _material_of(geometry, index: int, where) -> tuple[Material, np.ndarray | None]:
-    """Material and per-vertex UVs of one trimesh geometry."""
+#: trimesh's ``PBRMaterial`` attribute of each of :data:`scantex.scan.GLTF_MAPS`
+_MAP_ATTRIBUTES = {"normal": "normalTexture", "occlusion": "occlusionTexture",
+                   "metallic_roughness": "metallicRoughnessTexture", "emissive": "emissiveTexture"}
+
+
+def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_maps: frozenset = frozenset()
+                 ) -> tuple[Material, np.ndarray | None]:
+    """Material and per-vertex UVs of one trimesh geometry. ``encoded``: the file's images' own bytes by
+    :func:`_image_key` (a map found there is written back as those bytes); ``skip_maps``: map kinds left out."""
     visual = geometry.visual
     if getattr(visual, "kind", None) == "texture" and visual.uv is not None:
         mat = visual.material
@@ -50,8 +57,40 @@ def _material_of(geometry, index: int, where) -> tuple[Material, np.ndarray | No
             diffuse = tuple((f / 255.0 if f.max() > 1 else f).tolist() + [1.0] * (4 - len(f)))[:4]
         name = getattr(mat, "name", None) or f"material_{index}"
         img = image_from_pil(image, where) if image is not None else None
-        return Material(str(name), img, diffuse), np.asarray(visual.uv, dtype=np.float64)
+        maps = {kind: _texture_map(getattr(mat, attribute), where, encoded or {})
+                for kind, attribute in _MAP_ATTRIBUTES.items()
+                if kind not in skip_maps and getattr(mat, attribute, None) is not None}
+        gltf = {}
+        for key in GLTF_PARAMETERS:
+            value = getattr(mat, key, None)
+            if value is not None:
+                gltf[key] = np.asarray(value, np.float64).ravel().tolist() if key == "emissiveFactor" else value
+        return (Material(str(name), img, diffuse, maps=maps, gltf=gltf),
+                np.asarray(visual.uv, dtype=np.float64))
     return Material(f"material_{index}", diffuse=(0.7, 0.7, 0.7, 1.0)), None
+
+
+def _texture_map(image, where, encoded: dict) -> TextureMap:
+    """A glTF map trimesh decoded, with the file's own bytes of it when they are JPEG or PNG."""
+    check_image_size(image, where, "embedded texture image")
+    pixels = np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
+    return TextureMap(pixels, encoded.get(_image_key(image)))
+
+
+def _image_key(image) -> tuple:
+    """What identifies a decoded image's pixels: its mode, size and a digest of its bytes."""
+    import hashlib
+
+    return image.mode, image.size, hashlib.blake2b(image.tobytes(), digest_size=16).digest()
+
+
+def _normals_of(geometry) -> np.ndarray | None:
+    """The vertex normals the file gave ``geometry`` (trimesh keeps them in its cache; it would compute
+    others on request, which the file did not have)."""
+    if "vertex_normals" not in geometry._cache.cache:
+        return None
+    normals = np.asarray(geometry.vertex_normals, dtype=np.float64)
+    return normals if normals.shape == (len(geometry.vertices), 3) else None
 
 
 def _check_stl(path: Path) -> None:
@@ -70,9 +109,9 @@ def _check_stl(path: Path) -> None:
                           f"({84 + 50 * n} bytes), the file has {len(data)} bytes")
 
 
-def _gltf_images(path: Path) -> tuple[list[tuple[str, bytes | Path]], list[Path]]:
-    """The images a GLB/glTF holds, as ``(label, bytes or file)``, and the external files it names."""
-    import base64
+def _gltf_document(path: Path) -> tuple[dict | None, bytes]:
+    """A GLB/glTF's JSON document and its binary chunk (``None``, ``b""`` where it cannot be read: trimesh
+    then reports what is wrong with the file)."""
     import json
     import struct
 
@@ -80,7 +119,7 @@ def _gltf_images(path: Path) -> tuple[list[tuple[str, bytes | Path]], list[Path]
     binary = b""
     if path.suffix.lower() == ".glb":
         if len(data) < 20 or data[:4] != b"glTF":
-            return [], []  # trimesh reports what is wrong with it
+            return None, b""
         length = struct.unpack("<I", data[12:16])[0]
         doc_bytes = data[20:20 + length]
         rest = data[20 + length:]
@@ -91,8 +130,15 @@ def _gltf_images(path: Path) -> tuple[list[tuple[str, bytes | Path]], list[Path]
     try:
         doc = json.loads(doc_bytes)
     except (ValueError, RecursionError):
-        return [], []
-    if not isinstance(doc, dict):
+        return None, b""
+    return (doc, binary) if isinstance(doc, dict) else (None, b"")
+
+
+def _gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[list[tuple[str, bytes | Path]], list[Path]]:
+    """The images a GLB/glTF holds, as ``(label, bytes or file)``, and the external files it names."""
+    import base64
+
+    if doc is None:
         return [], []
     files, images = [], []
     for key in ("buffers", "images"):
@@ -120,41 +166,77 @@ def _gltf_images(path: Path) -> tuple[list[tuple[str, bytes | Path]], list[Path]
     return images, files
 
 
-def _check_gltf_images(path: Path) -> list[Path]:
+def _check_gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[list[Path], dict]:
     """Decode every image of a GLB/glTF (size checked first): trimesh drops one it cannot read without a
-    word. Returns the external files the document names."""
+    word. Returns the external files the document names, and the JPEG and PNG images' own bytes by
+    :func:`_image_key` of their pixels."""
     import io
 
     from PIL import Image
 
-    from scantex.io.images import check_image_size, open_image
+    from scantex.io.images import open_image
 
-    images, files = _gltf_images(path)
+    images, files = _gltf_images(path, doc, binary)
+    encoded = {}
     for label, source in images:
         if isinstance(source, Path):
             with open_image(source, "texture") as im:
                 im.load()
+                if im.format in ("JPEG", "PNG"):
+                    encoded[_image_key(im)] = source.read_bytes()
             continue
         try:
             with Image.open(io.BytesIO(source)) as im:
                 check_image_size(im, path, label)
                 im.load()
+                if im.format in ("JPEG", "PNG"):
+                    encoded[_image_key(im)] = source
         except ScanError:
             raise
         except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError, DecompressionBombError...
             raise ScanError(path, f"{label} cannot be decoded ({type(e).__name__}: "
                                   f"{(str(e).strip().splitlines() or [''])[0][:80]})") from None
-    return files
+    return files, encoded
+
+
+def _maps_off_layout(path: Path, doc: dict | None) -> frozenset:
+    """The map kinds a glTF material of ``path`` draws in a second UV set that is not its first (the layout
+    scantex reads and writes): those maps cannot be written back on the first, and are left out."""
+    off = set()
+    try:
+        for mesh in (doc or {}).get("meshes") or []:
+            for primitive in mesh.get("primitives") or []:
+                attributes = primitive.get("attributes") or {}
+                material = (doc.get("materials") or [])[primitive["material"]] if "material" in primitive else {}
+                infos = {"normal": material.get("normalTexture"), "occlusion": material.get("occlusionTexture"),
+                         "emissive": material.get("emissiveTexture"),
+                         "metallic_roughness": (material.get("pbrMetallicRoughness") or {}).get(
+                             "metallicRoughnessTexture")}
+                for kind, info in infos.items():
+                    uv_set = int((info or {}).get("texCoord", 0))
+                    if uv_set and attributes.get(f"TEXCOORD_{uv_set}") != attributes.get("TEXCOORD_0"):
+                        off.add(kind)
+    except (ValueError, AttributeError, TypeError, KeyError, IndexError):
+        return frozenset()  # trimesh reports what is wrong with the document
+    if off:
+        log.warning("%s: its %s maps are drawn in a second UV layout, which scantex does not keep: left out",
+                    path, " and ".join(sorted(k.replace("_", "-") for k in off)))
+    return frozenset(off)
 
 
 def read_with_trimesh(path: str | Path) -> Scan:
     path = Path(path)
     suffix = path.suffix.lower()
     inputs, ply, ply_texture = [path], None, None
+    encoded: dict = {}
+    skip_maps: frozenset = frozenset()
     if suffix == ".stl":
         _check_stl(path)
     elif suffix in (".glb", ".gltf"):
-        inputs += _check_gltf_images(path)
+        doc, binary = _gltf_document(path)
+        files, encoded = _check_gltf_images(path, doc, binary)
+        inputs += files
+        skip_maps = _maps_off_layout(path, doc)
     elif suffix == ".ply":
         from scantex.io.images import read_image
         from scantex.io.ply import check_ply
@@ -183,16 +265,22 @@ def read_with_trimesh(path: str | Path) -> Scan:
             # node transforms are applied (world coordinates); an identity node keeps positions bitwise
             log.info("%s: mesh %s has a node transform; positions are taken in world coordinates", path, name)
             positions = positions @ transform[:3, :3].T + transform[:3, 3]
-        pieces.append((g, positions))
+        pieces.append((g, positions, transform))
     if not pieces:
         raise ScanError(path, "the mesh has no faces")
 
-    positions, faces, uvs, colors, fcolors, face_mat, materials = [], [], [], [], [], [], []
+    positions, faces, uvs, colors, fcolors, face_mat, materials, normals = [], [], [], [], [], [], [], []
     offset = 0
     any_uv = False
-    for i, (g, pos) in enumerate(pieces):
-        mat, uv = _material_of(g, i, path)
+    for i, (g, pos, transform) in enumerate(pieces):
+        mat, uv = _material_of(g, i, path, encoded, skip_maps)
         materials.append(mat)
+        vn = _normals_of(g)
+        if vn is not None and not np.allclose(transform, np.eye(4)):
+            # normals turn with the node: by the inverse transpose, then of unit length again
+            vn = vn @ np.linalg.inv(transform[:3, :3])
+            vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        normals.append(vn)
         positions.append(pos)
         faces.append(np.asarray(g.faces, dtype=np.int64) + offset)
         face_mat.append(np.full(len(g.faces), i, dtype=np.int32))
@@ -216,6 +304,11 @@ def read_with_trimesh(path: str | Path) -> Scan:
     if any(c is not None for c in fcolors):
         face_colors = np.concatenate([c[:, :4] if c is not None else np.full((len(f), 4), 255, np.uint8)
                                       for c, f in zip(fcolors, faces)])
+    # the file's shading normals, one a vertex (glTF, PLY), when every mesh has them: as the OBJ reader, a scan
+    # with normals on part of it has none (a viewer shades it by its own)
+    scan_normals = face_normals = None
+    if normals and all(n is not None for n in normals):
+        scan_normals, face_normals = np.concatenate(normals), all_faces.copy()
     if ply is not None:
         if (len(all_pos), len(all_faces)) != (ply.vertices, ply.triangles):
             raise ScanError(path, f"read as {len(all_pos)} vertices and {len(all_faces)} triangles, but the "
@@ -226,60 +319,80 @@ def read_with_trimesh(path: str | Path) -> Scan:
         image = ply_texture if scan_uvs is not None else None
         materials = [dataclasses.replace(m, image=image) for m in materials]
     return Scan(all_pos, all_faces, scan_uvs, face_uvs, np.concatenate(face_mat), tuple(materials),
-                vertex_colors=vertex_colors, face_colors=face_colors, source=path, inputs=tuple(inputs))
+                vertex_colors=vertex_colors, face_colors=face_colors, normals=scan_normals,
+                face_normals_idx=face_normals, source=path, inputs=tuple(inputs))
 
 
 def _split_for_gltf(scan: Scan, faces_sel: np.ndarray):
-    """Vertices for glTF, where a vertex has one position and one UV.
+    """Vertices for glTF, where a vertex has one position, one UV and one normal.
 
-    Returns positions, faces (into them), uvs (or None), vertex colours (or None). A vertex is made for
-    every distinct (position index, UV index) pair used by the selected faces, in order of first use,
-    so positions (and the triangles) are the scan's, bit for bit; only OBJ-style split UV indexing is
-    expressed by repeating a position, as the format requires.
+    Returns positions, faces (into them), uvs (or None), vertex colours (or None), normals (or None). A
+    vertex is made for every distinct (position index, UV index, normal index) triple used by the selected
+    faces, in the order of those indices, so positions (and the triangles) are the scan's, bit for bit;
+    only OBJ-style split indexing is expressed by repeating a position, as the format requires.
     """
     f = scan.faces[faces_sel]
-    if scan.uvs is None:
+    # the index spaces that are not the positions' own (OBJ's vt and vn): each splits vertices further
+    split = [index for index, values in ((scan.face_uvs, scan.uvs), (scan.face_normals_idx, scan.normals))
+             if values is not None and not np.array_equal(index, scan.faces)]
+    if not split:
         used, inverse = np.unique(f.ravel(), return_inverse=True)
-        keys_pos, uv = used, None
-    elif np.array_equal(scan.face_uvs, scan.faces):
-        used, inverse = np.unique(f.ravel(), return_inverse=True)
-        keys_pos, uv = used, scan.uvs[used]
+        keys = used[:, None]
     else:
-        pairs = np.stack([f.ravel(), scan.face_uvs[faces_sel].ravel()], axis=1)
-        uniq, inverse = unique_rows(pairs, return_inverse=True)
-        keys_pos, uv = uniq[:, 0], scan.uvs[uniq[:, 1]]
-    colors = scan.vertex_colors[keys_pos] if scan.vertex_colors is not None else None
-    return scan.positions[keys_pos], inverse.reshape(-1, 3), uv, colors
+        keys, inverse = unique_rows(np.stack([f.ravel()] + [index[faces_sel].ravel() for index in split], axis=1),
+                                    return_inverse=True)
+    positions = keys[:, 0]
+
+    def of(index, values):
+        """Each glTF vertex's value from ``values`` (indexed by ``index`` per corner)."""
+        if values is None:
+            return None
+        for column, other in enumerate(split, start=1):
+            if other is index:
+                return values[keys[:, column]]
+        return values[positions]  # the same index space as the positions
+
+    colors = scan.vertex_colors[positions] if scan.vertex_colors is not None else None
+    return (scan.positions[positions], inverse.reshape(-1, 3), of(scan.face_uvs, scan.uvs), colors,
+            of(scan.face_normals_idx, scan.normals))
 
 
-def _encoded_png(image: np.ndarray, cache: dict | None):
-    """A PIL image of ``image`` that trimesh's glTF export embeds as our PNG bytes: trimesh would encode
-    it again at zlib's default level (several times slower on a large atlas, and a second encoding when
-    the OBJ's PNG is already made)."""
+def _embedded(image: np.ndarray, data: bytes):
+    """A PIL image of ``image`` that trimesh's glTF export embeds as the bytes ``data`` (the file's own
+    JPEG or PNG, or our PNG of it): trimesh would otherwise encode it again (several times slower on a
+    large atlas at zlib's default level, a second encoding when the OBJ's PNG is already made, and a JPEG
+    again with a JPEG's loss)."""
     import io
 
     from PIL import Image
 
-    from scantex.io.images import png_bytes
-
-    data = png_bytes(image, cache)
-    pil = Image.open(io.BytesIO(data))  # reads the header only
+    pil = Image.open(io.BytesIO(data))  # reads the header only; trimesh names a JPEG's type from its format
     pil.save = lambda fp, format=None, **params: fp.write(data)  # noqa: A002 (PIL's own argument name)
-    # trimesh hashes a material's image as an array: the pixels it was encoded from, not the PNG decoded again
+    # trimesh hashes a material's image as an array: the pixels it was encoded from, not the file decoded again
     # (0.17 s for a 2048² atlas)
     pixels = np.ascontiguousarray(image)
-    pil.__class__ = type("EncodedPng", (type(pil),),
+    pil.__class__ = type("Embedded", (type(pil),),
                          {"__array_interface__": property(lambda _: pixels.__array_interface__)})
     return pil
 
 
+def _embedded_map(texture_map, png_cache: dict | None):
+    from scantex.io.images import png_bytes
+
+    data = texture_map.encoded if texture_map.encoded is not None else png_bytes(texture_map.image, png_cache)
+    return _embedded(texture_map.image, data)
+
+
 def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:
-    """Write ``scan`` as a binary glTF, one mesh per material, textures embedded as PNG.
+    """Write ``scan`` as a binary glTF, one mesh per material, with the scan's shading normals; colour textures
+    embedded as PNG, a material's other maps as their file's own bytes (:class:`scantex.scan.TextureMap`).
 
     Args:
         png_cache: see :func:`scantex.io.images.png_bytes`.
     """
     import trimesh
+
+    from scantex.io.images import png_bytes
 
     f32 = scan.positions.astype(np.float32)
     if not np.array_equal(f32.astype(np.float64), scan.positions):
@@ -290,18 +403,22 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
         sel = np.flatnonzero(scan.face_materials == m)
         if sel.size == 0:
             continue
-        pos, faces, uv, colors = _split_for_gltf(scan, sel)
+        pos, faces, uv, colors, normals = _split_for_gltf(scan, sel)
         if uv is not None and material.image is not None:
+            # a glTF material's own parameters and maps come back as they were; other materials are matte,
+            # not metallic, and seen from both sides (a scan's open surfaces)
+            parameters = {"metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True, **material.gltf}
+            maps = {_MAP_ATTRIBUTES[kind]: _embedded_map(texture, png_cache) for kind, texture in material.maps.items()}
             pbr = trimesh.visual.material.PBRMaterial(
-                name=material.name, baseColorTexture=_encoded_png(material.image, png_cache),
-                baseColorFactor=[float(c) for c in material.diffuse], metallicFactor=0.0,
-                roughnessFactor=1.0, doubleSided=True)
+                name=material.name, baseColorTexture=_embedded(material.image, png_bytes(material.image, png_cache)),
+                baseColorFactor=[float(c) for c in material.diffuse], **parameters, **maps)
             visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr)
         elif colors is not None:
             visual = trimesh.visual.ColorVisuals(vertex_colors=colors)
         else:
             visual = None
-        mesh = trimesh.Trimesh(pos, faces, visual=visual, process=False, validate=False)
+        # the scan's shading normals go with it (a glTF viewer shades a mesh without them flat: faceted)
+        mesh = trimesh.Trimesh(pos, faces, visual=visual, vertex_normals=normals, process=False, validate=False)
         if scan.face_colors is not None and visual is None:
             mesh.visual.face_colors = scan.face_colors[sel]
         # the index prefix keeps the materials' order through trimesh's name-sorted export

@@ -178,10 +178,12 @@ def plan_tiles(scan: Scan, n: int, overlap: float = 0.15) -> TilePlan:
 
 def tile_scan(scan: Scan, faces: np.ndarray) -> Scan:
     """The part of ``scan`` made of ``faces``: their vertices re-indexed, the UVs, materials and atlases
-    shared (the tile bakes into the same layout)."""
+    shared (the tile bakes into the same layout). The materials' other maps stay with the whole scan: a
+    tile's job changes colour only."""
     used, inverse = np.unique(scan.faces[faces], return_inverse=True)
+    materials = tuple(dataclasses.replace(m, maps={}) if m.maps else m for m in scan.materials)
     sub = dict(positions=scan.positions[used], faces=inverse.reshape(-1, 3),
-               face_materials=scan.face_materials[faces], materials=scan.materials, source=scan.source)
+               face_materials=scan.face_materials[faces], materials=materials, source=scan.source)
     if scan.has_uvs:
         sub.update(uvs=scan.uvs, face_uvs=scan.face_uvs[faces])
     if scan.vertex_colors is not None:

@@ -50,9 +50,11 @@ def _default_size(scan: Scan) -> int:
 
 
 def _atlas_material(scan: Scan, size: int) -> Material:
+    """The new layout's one material: the input's when it has one, without its other maps (a normal or an
+    occlusion map is drawn in the old layout, and scantex bakes colour only)."""
     image = np.zeros((size, size, 3), np.uint8)
     if len(scan.materials) == 1:
-        return dataclasses.replace(scan.materials[0], image=image)
+        return dataclasses.replace(scan.materials[0], image=image, maps={})
     return Material("atlas", image, diffuse=scan.materials[0].diffuse, image_name="atlas.png")
 
 
@@ -132,5 +134,11 @@ def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dic
     report["texels_per_metre"] = atlas.texels_per_metre
     report["atlas_utilisation"] = atlas.utilisation
     report["images"] = f"zero placeholders ({size}, {size}, 3) uint8; bake(size={size}) fills them"
+    dropped = sorted({kind for m in scan.materials for kind in m.maps})
+    if dropped:
+        report["maps_left_out"] = dropped
+        log.warning("%s: the input's %s maps are left out: they are drawn in the input's UV layout, not the new "
+                    "one (--uv keep, the default, keeps them)", scan.source or "the scan",
+                    " and ".join(k.replace("_", "-") for k in dropped))
     return scan.with_texture(atlas.uvs, atlas.face_uvs, (_atlas_material(scan, size),),
                              np.zeros(scan.n_faces, dtype=np.int32))
