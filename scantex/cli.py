@@ -647,6 +647,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("scantex: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of our output went away (`scantex info scan.glb | head -1`): not the input's fault; stdout
+        # goes to nothing so that Python's own flush at exit does not complain again
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except ImportError as e:
         from scantex.deps import MissingDependency
 

@@ -69,3 +69,13 @@ def test_import_is_cheap():
     code = "import sys, scantex; print(sorted(m for m in ('torch', 'trimesh', 'plotly', 'scipy') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "[]"
+
+
+def test_a_reader_that_goes_away_is_no_error(tmp_path, wall):
+    """`scantex info scan.obj | head -1`: the pipe closes before scantex prints; no message blames the file."""
+    save_scan(wall, tmp_path / "wall.obj")
+    proc = subprocess.Popen([sys.executable, "-m", "scantex", "info", str(tmp_path / "wall.obj")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # long before the scan is read and its summary printed
+    stderr = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141 and stderr == ""

@@ -218,3 +218,19 @@ def test_polycam_glbs_keep_their_maps_and_normals(tmp_path, name):
     for before, after in zip(scan.materials, back.materials):
         assert {k: m.encoded for k, m in before.maps.items()} == {k: m.encoded for k, m in after.maps.items()}
     assert np.allclose(back.normals, scan.normals, atol=1e-6)
+
+
+def test_ply_normals_reach_both_outputs(tmp_path):
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.3]], float)
+    normals = np.array([[0, 0, 1], [0, 0.6, 0.8], [0.6, 0, 0.8], [0.48, 0.6, 0.64]])
+    header = ["ply", "format ascii 1.0", "element vertex 4"] + [f"property float {a}" for a in
+                                                            ("x", "y", "z", "nx", "ny", "nz")]
+    header += ["element face 2", "property list uchar int vertex_indices", "end_header"]
+    rows = [" ".join(map(str, [*p, *n])) for p, n in zip(corners, normals)] + ["3 0 1 2", "3 1 3 2"]
+    (tmp_path / "n.ply").write_text("\n".join(header + rows) + "\n")
+    scan = load_scan(tmp_path / "n.ply")
+    assert np.allclose(scan.normals, normals, atol=1e-6)
+    for name in ("out.glb", "out.obj"):
+        save_scan(scan, tmp_path / name)
+        back = load_scan(tmp_path / name)
+        assert np.allclose(back.normals[back.face_normals_idx], normals[scan.faces], atol=1e-6), name
