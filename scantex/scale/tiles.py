@@ -181,7 +181,9 @@ def tile_scan(scan: Scan, faces: np.ndarray) -> Scan:
     shared (the tile bakes into the same layout). The materials' other maps stay with the whole scan: a
     tile's job changes colour only."""
     used, inverse = np.unique(scan.faces[faces], return_inverse=True)
-    materials = tuple(dataclasses.replace(m, maps={}) if m.maps else m for m in scan.materials)
+    materials = scan.materials
+    if any(m.maps for m in materials):
+        materials = tuple(dataclasses.replace(m, maps={}) for m in materials)
     sub = dict(positions=scan.positions[used], faces=inverse.reshape(-1, 3),
                face_materials=scan.face_materials[faces], materials=materials, source=scan.source)
     if scan.has_uvs:

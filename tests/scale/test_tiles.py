@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from scantex.errors import ScanError
 from scantex.scale.executors import LocalPool
 from scantex.scale.tiles import (TilingConfig, enhance_tiled, fuse_tiles, grid_shape, plan_tiles, smoothstep,
                                  tile_gains, tile_scan)
+from scantex.scan import TextureMap
 
 from tests.pipeline.test_enhance import toy_demo  # noqa: F401  (a fixture)
 from tests.pipeline.test_photo_mode import toy_photos  # noqa: F401  (a fixture)
@@ -62,6 +65,11 @@ def test_tile_scan_keeps_the_uv_layout(wall):
     assert np.array_equal(sub.positions[sub.faces], scan.positions[scan.faces[faces]])
     assert np.array_equal(sub.triangle_uvs, scan.triangle_uvs[faces])
     assert sub.materials is scan.materials
+    # a material's other maps stay with the whole scan (a tile's job changes colour only); the atlases are shared
+    with_maps = scan.replace(materials=tuple(dataclasses.replace(m, maps={"occlusion": TextureMap(m.image[..., 0])})
+                                             for m in scan.materials))
+    sub = tile_scan(with_maps, faces)
+    assert all(m.maps == {} and m.image is w.image for m, w in zip(sub.materials, with_maps.materials))
 
 
 def test_fusing_identical_tiles_gives_that_image_back(wall):
