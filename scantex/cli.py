@@ -125,6 +125,7 @@ def check_output_early(output: Path, overwrite: bool) -> None:
 def cmd_render(args) -> int:
     from scantex.io import load_scan
     from scantex.io.atomic import atomic_dir, check_output
+    from scantex.pipeline.enhance import up_axis
     from scantex.views.planning import face_coverage, plan_views
     from scantex.views.raycast import RayCaster
     from scantex.views.viewset import render_views, write_views
@@ -135,7 +136,7 @@ def cmd_render(args) -> int:
     _echo(args, f"{args.mesh}: {scan.summary()}")
     caster = RayCaster(scan.positions, scan.faces)
     cameras = plan_views(scan, args.views, mode=args.mode, width=args.width, height=args.height,
-                         fov_deg=args.fov, seed=args.seed, up=up_axis(args.up, args.mesh), caster=caster)
+                         fov_deg=args.fov, seed=args.seed, up=up_axis(scan, args.up), caster=caster)
     coverage = face_coverage(scan, cameras, caster=caster)
     _echo(args, f"{len(cameras)} views planned ({args.mode}); {coverage.summary()}")
     with atomic_dir(args.output, overwrite=args.overwrite, inputs=scan.inputs) as tmp:
@@ -145,16 +146,6 @@ def cmd_render(args) -> int:
         write_views(views, tmp)
     _echo(args, f"{len(cameras)} renders and cameras.json written to {args.output}")
     return 0
-
-
-AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-
-
-def up_axis(choice: str, mesh: Path) -> tuple[float, float, float]:
-    """The scan's up direction: glTF is y-up by specification; OBJ/PLY scans are usually z-up."""
-    if choice == "auto":
-        choice = "y" if mesh.suffix.lower() in (".glb", ".gltf") else "z"
-    return AXES[choice]
 
 
 def cmd_view(args) -> int:
@@ -277,7 +268,10 @@ def _enhance_capture(args, config, capture) -> int:
         raise
     remove_work_dir(work, keep_checkpoint=False)
     _echo(args, enhance_summary(result.metrics))
-    _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb, "
+    from scantex.pipeline.outputs import usd_input
+
+    usdz = ", enhanced.usdz" if usd_input(result) else ""
+    _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb{usdz}, "
                 f"metrics.json, config.json, report.html)")
     return 0
 
@@ -472,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Plan cameras around the mesh (or in front of the side its normals "
                                    "face, for walls and rooms), ray-cast them with Embree and write "
                                    "view_NNN.png and cameras.json (OpenCV convention).")
-    p.add_argument("mesh", type=Path, help="mesh file (OBJ, GLB/GLTF, PLY, ...)")
+    p.add_argument("mesh", type=Path, help="mesh file (OBJ, GLB/GLTF, USDZ, PLY, ...)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--views", type=whole(1, 10_000), default=8, help="number of views (default: 8)")
     p.add_argument("--mode", choices=["auto", "orbit", "hemisphere", "surface"], default="auto",
@@ -501,9 +495,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "score the result. The texture is baked into the scan's own UV layout; vertex "
                                    "positions and faces are written back unchanged.")
     p.add_argument("mesh", type=Path, metavar="PATH",
-                   help="the scan: a mesh file (OBJ, GLB/GLTF, PLY with UVs, ...), or a capture app's export "
-                        "as written (a 3D Scanner App folder, a Polycam zip, ...): its mesh is found, and its "
-                        "posed photos are used when it holds them")
+                   help="the scan: a mesh file (OBJ, GLB/GLTF, USDZ, PLY with UVs, ...), or a capture app's "
+                        "export as written (a 3D Scanner App folder, a Polycam zip, ...): its mesh is found, and "
+                        "its posed photos are used when it holds them")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset: the synthetic views' number and size, and the field's size where one "

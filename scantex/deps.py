@@ -9,6 +9,7 @@ unwrap     xatlas            ``--uv unwrap`` / meshes without UVs: charts for th
 view       plotly            the 3D views: ``scantex view`` and the report's 3D section
                              (the report is written without it, saying so)
 bench      scikit-image      the classical inpainting baseline in ``bench/``
+usd        usd-core          reading USD scans (``.usdz``, ``.usda``, ``.usdc``): Pixar's library
 =========  ================  ===========================================================
 """
 
@@ -19,7 +20,8 @@ import importlib.util
 import sys
 
 #: module -> (pip package, scantex extra)
-OPTIONAL = {"xatlas": ("xatlas", "unwrap"), "plotly": ("plotly", "view"), "skimage": ("scikit-image", "bench")}
+OPTIONAL = {"xatlas": ("xatlas", "unwrap"), "plotly": ("plotly", "view"), "skimage": ("scikit-image", "bench"),
+            "pxr": ("usd-core", "usd")}
 
 
 class MissingDependency(ImportError):

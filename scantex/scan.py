@@ -94,6 +94,8 @@ class Scan:
         normals: ``(N, 3) float64`` shading normals, or ``None``.
         face_normals_idx: ``(F, 3) int64`` indices into ``normals`` per face corner, or ``None``.
         source: the file the scan came from, if any.
+        up: the up axis its file declares (``"y"`` for glTF, by the format's rule; a USD stage's ``upAxis``),
+            ``None`` where the format says nothing (OBJ, PLY: scanners mostly write z up).
         inputs: every file the scan was read from (the mesh, its material libraries, textures, buffers),
             so that no output ever replaces one of them.
     """
@@ -110,6 +112,7 @@ class Scan:
     face_normals_idx: np.ndarray | None = None
     source: Path | None = field(default=None)
     inputs: tuple[Path, ...] = ()
+    up: str | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__

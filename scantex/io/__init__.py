@@ -1,8 +1,9 @@
 """Reading and writing scans without moving a vertex.
 
 ``load_scan`` reads OBJ (+MTL, several materials) itself, to keep OBJ's separate position/UV indexing,
-and everything else (GLB/glTF, PLY, STL, OFF, ...) through trimesh with ``process=False``.
-``save_scan`` writes OBJ+MTL+PNG or GLB, atomically.
+USD (``.usdz``, ...) with Pixar's library, and everything else (GLB/glTF, PLY, STL, OFF, ...) through
+trimesh with ``process=False``.
+``save_scan`` writes OBJ+MTL+PNG, GLB or USDZ, atomically.
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ log = logging.getLogger(__name__)
 
 #: extensions read by trimesh, besides OBJ
 TRIMESH_FORMATS = (".glb", ".gltf", ".ply", ".stl", ".off", ".dae", ".3mf")
-READ_FORMATS = (".obj",) + TRIMESH_FORMATS
-WRITE_FORMATS = (".obj", ".glb")
+#: USD, read with Pixar's library (the ``usd`` extra)
+USD_FORMATS = (".usdz", ".usd", ".usda", ".usdc")
+READ_FORMATS = (".obj",) + TRIMESH_FORMATS + USD_FORMATS
+WRITE_FORMATS = (".obj", ".glb", ".usdz")
 
 
 def load_scan(path: str | Path) -> Scan:
@@ -47,6 +50,10 @@ def load_scan(path: str | Path) -> Scan:
         from scantex.io.obj import read_obj
 
         scan = read_obj(path)
+    elif suffix in USD_FORMATS:
+        from scantex.io.usd import read_usd
+
+        scan = read_usd(path)
     else:
         from scantex.io.trimesh_formats import read_with_trimesh
 
@@ -90,7 +97,7 @@ def _warn_defects(scan: Scan) -> None:
 
 
 def save_scan(scan: Scan, path: str | Path, *, png_cache: dict | None = None) -> list[Path]:
-    """Write ``scan`` to ``path`` (``.obj`` with MTL and PNG textures beside it, or ``.glb``).
+    """Write ``scan`` to ``path`` (``.obj`` with MTL and PNG textures beside it, ``.glb``, or ``.usdz``).
 
     All files appear at once (written to temporary names, then renamed); the scan's own source files
     are never overwritten. Passing the same ``png_cache`` (a dict) to several saves of one scan
@@ -110,6 +117,10 @@ def save_scan(scan: Scan, path: str | Path, *, png_cache: dict | None = None) ->
             from scantex.io.obj import write_obj
 
             write_obj(scan, path, files, png_cache)
+        elif suffix == ".usdz":
+            from scantex.io.usd import write_usdz
+
+            write_usdz(scan, path, files, png_cache)
         else:
             from scantex.io.trimesh_formats import write_glb
 

@@ -34,10 +34,10 @@ from scantex.errors import ScanError
 log = logging.getLogger(__name__)
 
 #: mesh formats in order of preference (textured and exact first)
-MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".ply", ".off", ".stl", ".dae", ".3mf")
+MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".usdz", ".usdc", ".usda", ".usd", ".ply", ".off", ".stl", ".dae", ".3mf")
 #: file names capture apps give their textured mesh, preferred over any other mesh in an export
-APP_MESH_NAMES = ("textured_output.obj", "textured_output.glb", "raw.glb", "mesh.glb", "model.obj", "model.glb",
-                  "scene.obj", "export.obj")
+APP_MESH_NAMES = ("textured_output.obj", "textured_output.glb", "textured_output.usdz", "raw.glb", "mesh.glb",
+                  "model.obj", "model.glb", "scene.obj", "export.obj")
 #: folders searched below the root for a mesh
 MAX_DEPTH = 3
 #: folders that hold no mesh worth enhancing (photos, previews, macOS zip metadata)

@@ -58,6 +58,27 @@ def open_image(path: str | Path, what: str = "image"):
         raise ScanError(path, f"{what} is damaged or truncated ({_first_line(e)})") from None
 
 
+@contextlib.contextmanager
+def decoded(data: bytes, where, what: str = "image"):
+    """``with decoded(data, path, "embedded texture image 0") as im:`` a Pillow image of the encoded bytes
+    ``data`` (an image inside a GLB or a USDZ), its size checked before it is decoded; an image Pillow cannot
+    decode is a one-line :class:`ScanError` naming ``where``."""
+    import io
+
+    from PIL import Image
+
+    try:
+        im = Image.open(io.BytesIO(data))
+        check_image_size(im, where, what)
+        im.load()
+    except ScanError:
+        raise
+    except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError, DecompressionBombError...
+        raise ScanError(where, f"{what} cannot be decoded ({type(e).__name__}: {_first_line(e)[:80]})") from None
+    with im:
+        yield im
+
+
 def _first_line(e: BaseException) -> str:
     text = str(e).strip()
     return text.splitlines()[0][:120] if text else type(e).__name__

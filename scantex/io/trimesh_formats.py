@@ -65,6 +65,8 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
             value = getattr(mat, key, None)
             if value is not None:
                 gltf[key] = np.asarray(value, np.float64).ravel().tolist() if key == "emissiveFactor" else value
+        if type(mat).__name__ == "PBRMaterial":  # a glTF material: what its file leaves out is the format's default
+            gltf = {"metallicFactor": 1.0, "roughnessFactor": 1.0, "doubleSided": False, **gltf}
         return (Material(str(name), img, diffuse, maps=maps, gltf=gltf),
                 np.asarray(visual.uv, dtype=np.float64))
     return Material(f"material_{index}", diffuse=(0.7, 0.7, 0.7, 1.0)), None
@@ -170,11 +172,7 @@ def _check_gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[lis
     """Decode every image of a GLB/glTF (size checked first): trimesh drops one it cannot read without a
     word. Returns the external files the document names, and the JPEG and PNG images' own bytes by
     :func:`_image_key` of their pixels."""
-    import io
-
-    from PIL import Image
-
-    from scantex.io.images import open_image
+    from scantex.io.images import decoded, open_image
 
     images, files = _gltf_images(path, doc, binary)
     encoded = {}
@@ -185,17 +183,9 @@ def _check_gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[lis
                 if im.format in ("JPEG", "PNG"):
                     encoded[_image_key(im)] = source.read_bytes()
             continue
-        try:
-            with Image.open(io.BytesIO(source)) as im:
-                check_image_size(im, path, label)
-                im.load()
-                if im.format in ("JPEG", "PNG"):
-                    encoded[_image_key(im)] = source
-        except ScanError:
-            raise
-        except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError, DecompressionBombError...
-            raise ScanError(path, f"{label} cannot be decoded ({type(e).__name__}: "
-                                  f"{(str(e).strip().splitlines() or [''])[0][:80]})") from None
+        with decoded(source, path, label) as im:
+            if im.format in ("JPEG", "PNG"):
+                encoded[_image_key(im)] = source
     return files, encoded
 
 
@@ -320,7 +310,8 @@ def read_with_trimesh(path: str | Path) -> Scan:
         materials = [dataclasses.replace(m, image=image) for m in materials]
     return Scan(all_pos, all_faces, scan_uvs, face_uvs, np.concatenate(face_mat), tuple(materials),
                 vertex_colors=vertex_colors, face_colors=face_colors, normals=scan_normals,
-                face_normals_idx=face_normals, source=path, inputs=tuple(inputs))
+                face_normals_idx=face_normals, source=path, inputs=tuple(inputs),
+                up="y" if suffix in (".glb", ".gltf") else None)  # glTF is y-up by the format's rule
 
 
 def _split_for_gltf(scan: Scan, faces_sel: np.ndarray):

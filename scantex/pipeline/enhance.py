@@ -81,10 +81,11 @@ class EnhanceResult:
 
 
 def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
+    """The scan's up direction: ``choice``, or with ``auto`` the one its file declares (glTF: y, by the
+    format's rule; USD: the stage's), else z (OBJ and PLY scans are mostly z-up)."""
     axes = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
     if choice == "auto":
-        suffix = Path(scan.source).suffix.lower() if scan.source else ""
-        choice = "y" if suffix in (".glb", ".gltf") else "z"  # glTF is y-up by specification
+        choice = scan.up or "z"
     return axes[choice]
 
 

@@ -46,8 +46,8 @@ def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = Tru
 
 
 def write_outputs(result, out_dir: str | Path) -> None:
-    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``metrics.json``, ``config.json``, ``renders/``,
-    ``comparisons/`` (photo mode: held-out photo | input | result), ``report.html``."""
+    """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``enhanced.usdz`` (a USD input's), ``metrics.json``,
+    ``config.json``, ``renders/``, ``comparisons/`` (photo mode: held-out photo | input | result), ``report.html``."""
     from concurrent.futures import ThreadPoolExecutor
 
     from scantex.io.images import png_bytes
@@ -63,6 +63,16 @@ def write_outputs(result, out_dir: str | Path) -> None:
             done.result()
     save_scan(result.scan, out_dir / "enhanced.obj", png_cache=png_cache)
     save_scan(result.scan, out_dir / "enhanced.glb", png_cache=png_cache)
+    if usd_input(result):  # a USDZ given, a USDZ back (what iOS opens), beside the OBJ and the GLB
+        save_scan(result.scan, out_dir / "enhanced.usdz", png_cache=png_cache)
+
+
+def usd_input(result) -> bool:
+    """Whether the run's input scan was read from a USD file."""
+    from scantex.io import USD_FORMATS
+
+    source = getattr(getattr(result, "input_scan", None), "source", None)
+    return source is not None and Path(source).suffix.lower() in USD_FORMATS
 
 
 def _write_the_rest(result, out_dir: Path) -> None:

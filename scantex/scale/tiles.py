@@ -185,7 +185,7 @@ def tile_scan(scan: Scan, faces: np.ndarray) -> Scan:
     if any(m.maps for m in materials):
         materials = tuple(dataclasses.replace(m, maps={}) for m in materials)
     sub = dict(positions=scan.positions[used], faces=inverse.reshape(-1, 3),
-               face_materials=scan.face_materials[faces], materials=materials, source=scan.source)
+               face_materials=scan.face_materials[faces], materials=materials, source=scan.source, up=scan.up)
     if scan.has_uvs:
         sub.update(uvs=scan.uvs, face_uvs=scan.face_uvs[faces])
     if scan.vertex_colors is not None:
