@@ -1,11 +1,11 @@
 """Seconds outside the stages: imports, reading an 8192² JPEG atlas, PNG encoding, writing OBJ and GLB.
 
-    python bench/bench_io.py
+    python bench/bench_io.py [--no-write]
 
 Uses the bathroom scan (``../shared/data/bathroom_3dscannerapp``: 132,317 faces, 8192² JPEG atlas) when
 it is there, else a synthetic wall with an 8192² atlas. "Before" rows re-create what the outputs did
 before each atlas was encoded once: the OBJ's PNG at zlib level 1, then trimesh encoding the GLB's at
-zlib's default level 6. Writes the 'io' section of bench/RESULTS.md.
+zlib's default level 6. Writes the 'io' section of bench/RESULTS.md (``--no-write``: prints it only).
 """
 
 from __future__ import annotations
@@ -84,15 +84,16 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        plain = tf._encoded_png
+        plain = tf._embedded
 
         def before():
-            save_scan(scan, out / "a.obj")
-            tf._encoded_png = lambda image, cache: Image.fromarray(image)  # trimesh encodes at level 6
+            cache: dict = {}
+            save_scan(scan, out / "a.obj", png_cache=cache)
+            tf._embedded = lambda image, data: Image.fromarray(image)  # trimesh encodes at level 6
             try:
-                save_scan(scan, out / "a.glb")
+                save_scan(scan, out / "a.glb", png_cache=cache)
             finally:
-                tf._encoded_png = plain
+                tf._embedded = plain
 
         def after():
             cache: dict = {}
@@ -103,16 +104,29 @@ def main() -> None:
         s_after, _ = timed(after)
         rows.append(("write OBJ (+PNG) and GLB, before: two encodings, the GLB's at level 6", s_before))
         rows.append(("write OBJ (+PNG) and GLB, now: one encoding at level 1, shared", s_after))
-        s_obj, _ = timed(lambda: save_scan(scan, out / "c.obj", png_cache={id(image): (image, png_bytes(image))}))
+        encoded = {id(image): (image, png_bytes(image))}
+        s_obj, _ = timed(lambda: save_scan(scan, out / "c.obj", png_cache=encoded))
         rows.append(("of which: the OBJ + MTL text alone (PNG already encoded)", s_obj))
-    for row in rows[-3:]:
-        print(row, flush=True)
+        for row in rows[-3:]:
+            print(row, flush=True)
+        from scantex.deps import has_module
+
+        if has_module("pxr"):  # the usd extra: a USD input's outputs include a USDZ
+            s_usdz, _ = timed(lambda: save_scan(scan, out / "c.usdz", png_cache=encoded))
+            rows.append(("write the USDZ (PNG already encoded)", s_usdz))
+            s_read, _ = timed(lambda: load_scan(out / "c.usdz"))
+            rows.append(("load that USDZ (its PNG decoded)", s_read))
+            for row in rows[-2:]:
+                print(row, flush=True)
 
     lines = [f"## Start-up and I/O outside the stages ({source})", "", "| step | seconds |", "|---|---|"]
     lines += [f"| {name} | {s:.2f} |" for name, s in rows]
     lines += ["", "Command: `python bench/bench_io.py` (one run each unless stated; the machine was shared, so "
               "times are noisy: compare rows of one run)."]
-    update_section("io", "\n".join(lines))
+    if "--no-write" in sys.argv:
+        print("\n".join(lines))
+    else:
+        update_section("io", "\n".join(lines))
 
 
 if __name__ == "__main__":
