@@ -44,6 +44,8 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
                  ) -> tuple[Material, np.ndarray | None]:
     """Material and per-vertex UVs of one trimesh geometry. ``encoded``: the file's images' own bytes by
     :func:`_image_key` (a map found there is written back as those bytes); ``skip_maps``: map kinds left out."""
+    from trimesh.visual.material import PBRMaterial
+
     visual = geometry.visual
     if getattr(visual, "kind", None) == "texture" and visual.uv is not None:
         mat = visual.material
@@ -65,7 +67,7 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
             value = getattr(mat, key, None)
             if value is not None:
                 gltf[key] = np.asarray(value, np.float64).ravel().tolist() if key == "emissiveFactor" else value
-        if type(mat).__name__ == "PBRMaterial":  # a glTF material: what its file leaves out is the format's default
+        if isinstance(mat, PBRMaterial):  # a glTF material: what its file leaves out is the format's default
             gltf = {"metallicFactor": 1.0, "roughnessFactor": 1.0, "doubleSided": False, **gltf}
         return (Material(str(name), img, diffuse, maps=maps, gltf=gltf),
                 np.asarray(visual.uv, dtype=np.float64))

@@ -36,7 +36,7 @@ def read_usd(path: str | Path) -> Scan:
     try:
         stage = Usd.Stage.Open(str(path))
     except Tf.ErrorException as e:
-        raise ScanError(path, f"cannot read USD file: {_first_line(e)}") from None
+        raise ScanError(path, f"cannot read USD file: {_usd_problem(e)}") from None
     if stage is None:
         raise ScanError(path, "cannot read USD file")
     time = Usd.TimeCode.Default()
@@ -61,9 +61,14 @@ def read_usd(path: str | Path) -> Scan:
     return _assemble(path, pieces, reader, up)
 
 
-def _first_line(e: BaseException) -> str:
-    text = str(e).strip()
-    return text.splitlines()[-1][:160] if text else type(e).__name__
+def _usd_problem(e) -> str:
+    """The first (most specific) of the errors USD raised, without its C++ source location: a parse error's
+    line and column, or that the layer cannot be opened."""
+    for error in e.args:
+        text = (getattr(error, "commentary", "") or "").strip()
+        if text:
+            return text.splitlines()[0][:160]
+    return (str(e).strip().splitlines() or [type(e).__name__])[-1][:160]
 
 
 def _values(attribute, dtype, width: int | None = None) -> np.ndarray | None:

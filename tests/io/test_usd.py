@@ -199,6 +199,9 @@ def test_bad_usd_files_are_one_line_errors(tmp_path):
     (tmp_path / "junk.usdz").write_bytes(b"PK\x03\x04 not really a package")
     with pytest.raises(ScanError, match="junk.usdz"):
         load_scan(tmp_path / "junk.usdz")
+    (tmp_path / "typo.usda").write_text("#usda 1.0\n(\n  bad")
+    with pytest.raises(ScanError, match=r"typo.usda:3:3: Expected \)"):  # USD's own words, its C++ source left out
+        load_scan(tmp_path / "typo.usda")
     (tmp_path / "empty.usda").write_text("#usda 1.0\n")
     with pytest.raises(ScanError, match="no mesh"):
         load_scan(tmp_path / "empty.usda")
