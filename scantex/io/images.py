@@ -41,7 +41,7 @@ def open_image(path: str | Path, what: str = "image"):
     # our own limit is checked below from the header; Pillow's guard would stop at ~89 Mpx
     Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, MAX_IMAGE_PIXELS + 1)
     try:
-        im = Image.open(path)
+        im = _opened(path)
     except UnidentifiedImageError:
         raise ScanError(path, f"{what} is not an image Pillow can read") from None
     except Image.DecompressionBombError:
@@ -67,16 +67,31 @@ def decoded(data: bytes, where, what: str = "image"):
 
     from PIL import Image
 
+    Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, MAX_IMAGE_PIXELS + 1)  # ours is checked below
     try:
-        im = Image.open(io.BytesIO(data))
+        im = _opened(io.BytesIO(data))
         check_image_size(im, where, what)
         im.load()
     except ScanError:
         raise
-    except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError, DecompressionBombError...
+    except Image.DecompressionBombError:
+        raise ScanError(where, f"{what} claims more pixels than scantex reads") from None
+    except Exception as e:  # Pillow raises OSError, SyntaxError, ValueError...
         raise ScanError(where, f"{what} cannot be decoded ({type(e).__name__}: {_first_line(e)[:80]})") from None
     with im:
         yield im
+
+
+def _opened(source):
+    """``Image.open(source)`` without Pillow's warning for an image over its own size guard: scantex's check
+    (:func:`check_image_size`) follows at once and says what is wrong in its one line."""
+    import warnings
+
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        return Image.open(source)
 
 
 def _first_line(e: BaseException) -> str:

@@ -15,6 +15,7 @@ import struct
 import numpy as np
 import pytest
 
+from scantex.errors import ScanError
 from scantex.io import load_scan
 from tests.io.hostile import (TINY, assert_clean_error, fingerprint, png_claiming, run_cli, write_cube,
                               write_glb, write_photos, write_tiny_config)
@@ -463,7 +464,6 @@ def test_stale_file_temporary_is_removed_by_the_next_success(tmp_path, capsys, m
 
 def test_binary_ply_check_fast_path_agrees_with_the_row_walk(tmp_path):
     """All-triangle face lists are checked at numpy speed; any other layout row by row: same verdicts."""
-    from scantex.errors import ScanError
     from scantex.io.ply import check_ply
 
     head = ("ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
@@ -483,3 +483,15 @@ def test_binary_ply_check_fast_path_agrees_with_the_row_walk(tmp_path):
                 verdicts.append(e.problem)
         assert verdicts[0] == verdicts[1], verdicts
         assert (verdicts[0] == 2) == (bad is None)
+
+
+def test_a_texture_between_pillows_guards_is_the_one_error_line_not_a_warning_too(tmp_path):
+    """20000² pixels: over Pillow's warning size, under its error size. Its DecompressionBombWarning went to
+    stderr before scantex's own error line; now only the error."""
+    import warnings
+
+    mesh = _cube_with_texture(tmp_path, png_claiming(20000, 20000))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning fails the test
+        with pytest.raises(ScanError, match="claims 20000x20000 pixels"):
+            load_scan(mesh)

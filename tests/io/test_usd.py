@@ -285,3 +285,60 @@ def test_the_outputs_of_a_usd_input_include_a_usdz(tmp_path):
     back = load_scan(tmp_path / "out" / "enhanced.usdz")
     assert np.array_equal(back.positions, result.scan.positions) and np.array_equal(back.faces, result.scan.faces)
     assert np.array_equal(back.materials[0].image, result.scan.materials[0].image)
+
+
+PLAIN = """#usda 1.0
+(
+    upAxis = "Z"
+)
+def Mesh "scan" (prepend apiSchemas = ["MaterialBindingAPI"])
+{
+    int[] faceVertexCounts = [3, 3]
+    int[] faceVertexIndices = [0, 1, 2, 0, 2, 3]
+    point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
+    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")
+    rel material:binding = </m>
+}
+def Material "m"
+{
+    token outputs:surface.connect = </m/s.outputs:surface>
+    def Shader "s"
+    {
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor.connect = </m/t.outputs:rgb>
+        token outputs:surface
+    }
+    def Shader "t"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @texture.png@
+        float3 outputs:rgb
+    }
+}
+"""
+
+
+def test_a_hand_written_usda_with_a_texture_beside_it(tmp_path):
+    """The text form, a texture file beside it (never to be overwritten: it is one of the scan's inputs), UVs
+    one a point and no primvar reader (the st convention), z up."""
+    (tmp_path / "scan.usda").write_text(PLAIN)
+    Image.fromarray(checker(16, 2)).save(tmp_path / "texture.png")
+    scan = load_scan(tmp_path / "scan.usda")
+    assert np.array_equal(scan.materials[0].image, checker(16, 2)) and scan.up == "z"
+    assert tmp_path / "texture.png" in scan.inputs
+    assert np.array_equal(scan.uvs[scan.face_uvs], np.array([[0, 0], [1, 0], [1, 1], [0, 1]])[scan.faces])
+
+
+def test_hostile_usd_inputs_are_one_line_errors(tmp_path):
+    from tests.io.hostile import png_claiming
+
+    (tmp_path / "nan.usda").write_text(PLAIN.replace("(0, 1, 0)]", "(0, nan, 0)]"))
+    with pytest.raises(ScanError, match="NaN"):
+        load_scan(tmp_path / "nan.usda")
+    (tmp_path / "bomb.usda").write_text(PLAIN)
+    (tmp_path / "texture.png").write_bytes(png_claiming(100_000, 100_000))
+    with pytest.raises(ScanError, match="texture.png claims more pixels than scantex reads"):
+        load_scan(tmp_path / "bomb.usda")
+    (tmp_path / "texture.png").write_bytes(png_claiming(20_000, 20_000))  # under Pillow's own guard, over ours
+    with pytest.raises(ScanError, match="claims 20000x20000 pixels"):
+        load_scan(tmp_path / "bomb.usda")
