@@ -268,6 +268,9 @@ def _enhance_capture(args, config, capture) -> int:
         raise
     remove_work_dir(work, keep_checkpoint=False)
     _echo(args, enhance_summary(result.metrics))
+    kept = shading_summary(result.input_scan, result.scan)
+    if kept:
+        _echo(args, kept)
     from scantex.pipeline.outputs import usd_input
 
     usdz = ", enhanced.usdz" if usd_input(result) else ""
@@ -316,6 +319,24 @@ def cmd_batch(args) -> int:
         print(f"scantex: {r['name']}: {r['error']}", file=sys.stderr)
     _echo(args, f"summary: {result.index} (+ summary.json, summary.csv)")
     return 1 if result.failed else 0
+
+
+def shading_summary(before, after) -> str | None:
+    """A line on what shades the surface besides its colour (vertex normals, a material's other maps): kept,
+    or which maps a new UV layout left out; ``None`` when the input has neither."""
+    if before is None:
+        return None
+    maps = sorted({kind for m in before.materials for kind in m.maps})
+    kept = sorted({kind for m in after.materials for kind in m.maps})
+    parts = ["the vertex normals"] if before.normals is not None and after.normals is not None else []
+    if kept:
+        parts.append(f"the {' and '.join(k.replace('_', '-') for k in kept)} maps")
+    lines = [f"shading kept as it came: {', '.join(parts)}"] if parts else []
+    lost = [k.replace("_", "-") for k in maps if k not in kept]
+    if lost:
+        lines.append(f"shading: the input's {' and '.join(lost)} maps are left out (they are drawn in its UV layout, "
+                     "not the new one)")
+    return "\n".join(lines) or None
 
 
 def enhance_summary(m: dict) -> str:

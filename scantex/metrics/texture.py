@@ -138,7 +138,10 @@ def texture_summary(scan: Scan, unit_m: float = 1.0, visibility: float | None = 
     return {"charts": int(uv_shells(scan).max()) + 1, "seam_edges": len(edges),
             "seam_visibility": round(visibility, 3),
             "texel_density": texel_density(scan, unit_m), "coverage": coverage(scan),
-            "atlas_sizes": [list(m.image.shape[:2]) if m.image is not None else None for m in scan.materials]}
+            "atlas_sizes": [list(m.image.shape[:2]) if m.image is not None else None for m in scan.materials],
+            # what shades the surface besides the colour, which scantex passes through (scantex.scan.TextureMap)
+            "vertex_normals": scan.normals is not None,
+            "other_maps": sorted({kind for m in scan.materials for kind in m.maps})}
 
 
 def render_reference(scan: Scan, supersample: int = 2) -> Reference:

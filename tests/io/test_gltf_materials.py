@@ -235,3 +235,25 @@ def test_ply_normals_reach_both_outputs(tmp_path):
         save_scan(scan, tmp_path / name)
         back = load_scan(tmp_path / name)
         assert np.allclose(back.normals[back.face_normals_idx], normals[scan.faces], atol=1e-6), name
+
+
+def test_the_run_says_what_shading_it_kept(tmp_path):
+    from scantex.cli import shading_summary
+
+    scanner_glb(tmp_path / "raw.glb")
+    scan = load_scan(tmp_path / "raw.glb")
+    assert shading_summary(scan, scan) == "shading kept as it came: the vertex normals, the normal and occlusion maps"
+    relaid = plan_uvs(scan, "unwrap", texture_size=64, use_xatlas=False).scan
+    assert shading_summary(scan, relaid) == ("shading kept as it came: the vertex normals\n"
+                                             "shading: the input's normal and occlusion maps are left out (they are "
+                                             "drawn in its UV layout, not the new one)")
+    wall = grid_wall()
+    assert shading_summary(wall, wall) is None
+    assert texture_summary_of(scan) == (True, ["normal", "occlusion"])
+
+
+def texture_summary_of(scan) -> tuple:
+    from scantex.metrics.texture import texture_summary
+
+    summary = texture_summary(scan)
+    return summary["vertex_normals"], summary["other_maps"]
