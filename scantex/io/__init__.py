@@ -73,10 +73,11 @@ def _refuse_overwriting_input(scan: Scan, path: Path) -> None:
         inputs |= {src.parent / m.image_name for m in scan.materials if m.image_name}
     outputs = {path.resolve()}
     if path.suffix.lower() == ".obj":
-        from scantex.io.obj import texture_names
+        from scantex.io.obj import map_names, texture_names
 
         outputs.add(path.with_suffix(".mtl").resolve())
         outputs |= {path.parent.resolve() / n for n in texture_names(scan, path.stem) if n}
+        outputs |= {path.parent.resolve() / n for names in map_names(scan, path.stem) for n in names.values()}
     clash = sorted(str(p) for p in inputs & outputs)
     if clash:
         raise ScanError(path, f"refusing to overwrite the input scan ({clash[0]})")

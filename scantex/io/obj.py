@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.io.images import read_image, write_png
-from scantex.scan import Material, Scan
+from scantex.io.images import png_bytes, read_image, write_png
+from scantex.scan import Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
 
@@ -93,8 +93,16 @@ def _mtl_numbers(path: Path, line: str, rest: str, lo: int, hi: int) -> list[flo
     return values
 
 
+#: MTL statements of a material's other maps (the PBR extension's; ``map_Bump``/``bump`` are left alone: files
+#: hold height maps and normal maps under them alike), by the kind of :attr:`scantex.scan.Material.maps`
+MTL_MAPS = {"norm": "normal", "map_ke": "emissive"}
+#: the statement each kind is written back as
+MTL_STATEMENTS = {"normal": "norm", "emissive": "map_Ke"}
+
+
 def parse_mtl(path: Path) -> dict[str, dict]:
-    """Materials of an MTL file: ``{name: {"diffuse": (r, g, b, a), "map_Kd": Path | None}}``."""
+    """Materials of an MTL file: ``{name: {"diffuse": (r, g, b, a), "map_Kd": Path | None, "maps": {kind:
+    Path}}}`` (``maps``: :data:`MTL_MAPS`)."""
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError as e:
@@ -108,7 +116,7 @@ def parse_mtl(path: Path) -> dict[str, dict]:
         key, rest = (line.split(None, 1) + [""])[:2]
         rest = rest.strip()
         if key == "newmtl":
-            current = materials.setdefault(rest, {"diffuse": [1.0, 1.0, 1.0, 1.0], "map_Kd": None})
+            current = materials.setdefault(rest, {"diffuse": [1.0, 1.0, 1.0, 1.0], "map_Kd": None, "maps": {}})
         elif current is None:
             continue
         elif key == "Kd":
@@ -119,6 +127,10 @@ def parse_mtl(path: Path) -> dict[str, dict]:
         elif key.lower() == "map_kd":
             name = map_file_name(rest)
             current["map_Kd"] = (path.parent / name.replace("\\", "/")) if name else None
+        elif key.lower() in MTL_MAPS:
+            name = map_file_name(rest)
+            if name:
+                current["maps"][MTL_MAPS[key.lower()]] = path.parent / name.replace("\\", "/")
     return materials
 
 
@@ -303,6 +315,24 @@ BAD = -(1 << 62)
 MAX_INDEX = (1 << 62) - 1
 
 
+def _map_files(files: dict[str, Path], material: str, inputs: list[Path]) -> dict[str, TextureMap]:
+    """A material's other maps (:data:`MTL_MAPS`), with their files' own bytes; one a file lost is a warning."""
+    from scantex.io.images import open_image
+
+    maps = {}
+    for kind, file in files.items():
+        if not file.is_file():
+            log.warning("%s: %s map named by material '%s' not found: left out", file, kind, material)
+            continue
+        with open_image(file, f"{kind} map") as im:
+            im.load()
+            pixels = np.asarray(im if im.mode in ("L", "LA", "RGB", "RGBA") else im.convert("RGB"))
+            own = im.format in ("JPEG", "PNG")
+        maps[kind] = TextureMap(pixels, file.read_bytes() if own else None)
+        inputs.append(file)
+    return maps
+
+
 def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.ndarray, inputs: list[Path]):
     library: dict[str, dict] = {}
     for lib in mtllibs:
@@ -332,7 +362,8 @@ def _materials(path: Path, mtllibs: list[str], names: list[str], face_mat: np.nd
                 images[tex] = read_image(tex)
                 inputs.append(tex)
             image = images[tex]
-        materials.append(Material(name, image, tuple(spec["diffuse"]), image_name=tex.name if tex else None))
+        materials.append(Material(name, image, tuple(spec["diffuse"]), image_name=tex.name if tex else None,
+                                  maps=_map_files(spec["maps"], name, inputs)))
     if (face_mat < 0).any():
         materials.append(Material("default", diffuse=(0.7, 0.7, 0.7, 1.0)))
         face_mat = np.where(face_mat < 0, len(materials) - 1, face_mat)
@@ -371,6 +402,20 @@ def texture_names(scan: Scan, stem: str) -> list[str | None]:
     return names
 
 
+def map_names(scan: Scan, stem: str) -> list[dict[str, str]]:
+    """File name of each material's other maps that MTL can name (:data:`MTL_STATEMENTS`), by kind:
+    ``stem_material_kind.jpg`` (or ``.png``, as their bytes are)."""
+    names = []
+    for m in scan.materials:
+        own = {}
+        for kind, texture in m.maps.items():
+            if kind in MTL_STATEMENTS and m.image is not None:
+                jpeg = texture.encoded is not None and texture.encoded[:2] == b"\xff\xd8"
+                own[kind] = re.sub(r"[^\w.-]+", "_", f"{stem}_{m.name}_{kind}") + (".jpg" if jpeg else ".png")
+        names.append(own)
+    return names
+
+
 def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) -> None:
     """Write ``scan`` as OBJ + MTL + PNG textures next to ``obj_path``.
 
@@ -384,12 +429,17 @@ def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) 
     mat_names = [re.sub(r"\s+", "_", m.name) or f"material_{i}" for i, m in enumerate(scan.materials)]
 
     mtl = ["# written by scantex\n"]
-    for m, name, tex in zip(scan.materials, mat_names, tex_names):
+    for m, name, tex, others in zip(scan.materials, mat_names, tex_names, map_names(scan, stem)):
         r, g, b, a = m.diffuse
         mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")
         if tex:
             mtl.append(f"map_Kd {tex}\n")
             write_png(files.path(obj_path.parent / tex), m.image, png_cache)
+        for kind, file in others.items():  # the input's own bytes, or a PNG of them
+            texture = m.maps[kind]
+            mtl.append(f"{MTL_STATEMENTS[kind]} {file}\n")
+            files.path(obj_path.parent / file).write_bytes(
+                texture.encoded if texture.encoded is not None else png_bytes(texture.image, png_cache))
         mtl.append("\n")
     mtl_tmp = files.path(mtl_path)
     mtl_tmp.write_text("".join(mtl), encoding="utf-8")

@@ -187,7 +187,9 @@ def _check_gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[lis
             continue
         with decoded(source, path, label) as im:
             if im.format in ("JPEG", "PNG"):
-                encoded[_image_key(im)] = source
+                # a buffer view may hold the 4-byte alignment's zeros after the image; a JPEG ends in its EOI
+                # marker and a PNG in IEND's CRC, so the zeros are not the image's
+                encoded[_image_key(im)] = source.rstrip(b"\0")
     return files, encoded
 
 

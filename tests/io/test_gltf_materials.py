@@ -257,3 +257,32 @@ def texture_summary_of(scan) -> tuple:
 
     summary = texture_summary(scan)
     return summary["vertex_normals"], summary["other_maps"]
+
+
+def test_an_obj_carries_the_normal_and_emissive_maps_under_the_pbr_statements(tmp_path):
+    """MTL's PBR extension names a normal map ``norm`` and an emissive one ``map_Ke``: read into the material's
+    maps (so the GLB written has them) and written back, as their own bytes. A GLB's occlusion map has no MTL
+    statement: the OBJ leaves it out, the GLB keeps it."""
+    made = scanner_glb(tmp_path / "raw.glb")
+    scan = load_scan(tmp_path / "raw.glb")
+    save_scan(scan, tmp_path / "out.obj")
+    mtl = (tmp_path / "out.mtl").read_text()
+    assert "norm out_material_0_normal.jpg" in mtl and "occlusion" not in mtl
+    assert (tmp_path / "out_material_0_normal.jpg").read_bytes() == unpadded(scan.materials[0].maps["normal"].encoded)
+    back = load_scan(tmp_path / "out.obj")
+    assert set(back.materials[0].maps) == {"normal"}
+    assert unpadded(back.materials[0].maps["normal"].encoded) == made["files"]["normal"]
+    save_scan(back, tmp_path / "again.glb")
+    assert material_of(tmp_path / "again.glb")[1] == {"normal": made["files"]["normal"]}
+
+    # a capture's own OBJ: options before the file names, an emissive map, and a normal map the export lost
+    glow = np.zeros((8, 8, 3), np.uint8)
+    Image.fromarray(glow).save(tmp_path / "glow.png")
+    lines = mtl.replace("norm out_material_0_normal.jpg", "norm -bm 1.0 out_material_0_normal.jpg\nmap_Ke glow.png")
+    (tmp_path / "out.mtl").write_text(lines)
+    back = load_scan(tmp_path / "out.obj")
+    assert set(back.materials[0].maps) == {"normal", "emissive"}
+    assert np.array_equal(back.materials[0].maps["emissive"].image, glow)
+    assert tmp_path / "glow.png" in back.inputs  # never overwritten
+    (tmp_path / "out.mtl").write_text(lines.replace("glow.png", "lost.png"))
+    assert set(load_scan(tmp_path / "out.obj").materials[0].maps) == {"normal"}  # a warning says so
