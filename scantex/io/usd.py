@@ -241,7 +241,7 @@ class _Materials:
     def _texture(self, shader_input) -> tuple[bytes, str, str] | None:
         """The bytes, name and UV set of the ``UsdUVTexture`` an input reads, ``None`` if it reads none (or
         its file is missing: a warning names it)."""
-        from pxr import Ar, UsdShade
+        from pxr import UsdShade
 
         if not shader_input or not shader_input.HasConnectedSource():
             return None
@@ -260,14 +260,13 @@ class _Materials:
         if not asset.resolvedPath:
             log.warning("%s: texture %s not found: that material is read untextured", self.path, asset.path)
             return None
-        opened = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(asset.resolvedPath))
-        data = opened.GetBuffer() if opened else None
+        data = _asset_bytes(asset.resolvedPath)
         if data is None:
             log.warning("%s: texture %s cannot be read: that material is read untextured", self.path, asset.path)
             return None
         if "[" not in asset.resolvedPath:  # a file beside the stage, not inside a package: never overwritten
             self.inputs.append(Path(asset.resolvedPath))
-        return bytes(data), asset.path, uv_set
+        return data, asset.path, uv_set
 
     def _decode(self, data: bytes, name: str, what: str, keep_mode: bool = False) -> np.ndarray:
         from scantex.io.images import decoded, image_from_pil
@@ -276,6 +275,28 @@ class _Materials:
             if not keep_mode:
                 return image_from_pil(image, self.path)
             return np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
+
+
+def _asset_bytes(resolved: str) -> bytes | None:
+    """The bytes of a resolved asset path: a file, or a file inside a package (``scan.usdz[0/texture.png]``,
+    packages nested as ``a.usdz[b.usdz[c.png]]``). A USDZ is a plain zip archive (stored, not compressed);
+    Python's own reader serves every usd-core version (Ar's asset reading is not bound in all of them)."""
+    import io
+    import zipfile
+
+    outer, _, inner = resolved.partition("[")
+    try:
+        if not inner:
+            return Path(outer).read_bytes()
+        source = outer  # the package on disk, then each nested one in memory
+        while inner:
+            member, _, inner = inner[:-1].partition("[")  # the closing bracket of this level goes
+            with zipfile.ZipFile(source) as package:
+                data = package.read(member)
+            source = io.BytesIO(data)
+    except (OSError, KeyError, zipfile.BadZipFile):
+        return None
+    return data
 
 
 def _assemble(path: Path, pieces: list[dict], reader: _Materials, up: str) -> Scan:
@@ -366,7 +387,8 @@ def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> 
         del stage
         # the package: the stage first, then the files it names at the paths it names them by (USD's own
         # packaging would look for them again, and warn about every one)
-        writer = Sdf.ZipFileWriter.CreateNew(str(work / "scan.usdz"))
+        zip_writer = getattr(Sdf, "ZipFileWriter", None) or Usd.ZipFileWriter  # Usd's before usd-core 25.x
+        writer = zip_writer.CreateNew(str(work / "scan.usdz"))
         writer.AddFile(str(work / "scan.usdc"), "scan.usdc")
         for texture in sorted((work / "textures").glob("*")) if (work / "textures").is_dir() else ():
             writer.AddFile(str(texture), f"textures/{texture.name}")
