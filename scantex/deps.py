@@ -9,7 +9,8 @@ unwrap     xatlas            ``--uv unwrap`` / meshes without UVs: charts for th
 view       plotly            the 3D views: ``scantex view`` and the report's 3D section
                              (the report is written without it, saying so)
 bench      scikit-image      the classical inpainting baseline in ``bench/``
-usd        usd-core          reading USD scans (``.usdz``, ``.usda``, ``.usdc``): Pixar's library
+usd        usd-core          USD scans (``.usdz``, ``.usda``, ``.usdc``) in, ``enhanced.usdz`` out:
+                             Pixar's library
 =========  ================  ===========================================================
 """
 

@@ -40,8 +40,9 @@ GLTF_PARAMETERS = ("metallicFactor", "roughnessFactor", "emissiveFactor", "alpha
 @dataclass(frozen=True, eq=False)
 class TextureMap:
     """One of a material's maps besides its colour (a glTF normal, occlusion, metallic-roughness or emissive
-    texture), drawn in the same UV layout as the colour. scantex changes the colour only: a map goes to the
-    outputs as it came, while the layout stays the input's.
+    texture; an MTL's ``norm`` or ``map_Ke``; a ``UsdPreviewSurface``'s normal, occlusion or emissive input),
+    drawn in the same UV layout as the colour. scantex changes the colour only: a map goes to the outputs as
+    it came, while the layout stays the input's.
 
     Attributes:
         image: ``(H, W)`` or ``(H, W, C) uint8`` as decoded, row 0 at the top.
@@ -63,8 +64,9 @@ class Material:
         image_name: file name the texture is written under (``None``: derived from ``name``).
         maps: the material's other maps by kind (:data:`GLTF_MAPS`), on the same UV layout as ``image``
             (a Polycam GLB's normal and occlusion maps); a new layout leaves them out.
-        gltf: the glTF material's other parameters (:data:`GLTF_PARAMETERS`) that its file set; the GLB
-            written gives them back (a material from another format gets scantex's defaults there).
+        gltf: the material's other parameters, as glTF names them (:data:`GLTF_PARAMETERS`): a glTF
+            material's (glTF's defaults for what its file leaves out), a ``UsdPreviewSurface``'s; the GLB
+            and the USDZ written give them back (a material from another format gets scantex's defaults).
     """
 
     name: str
