@@ -320,7 +320,8 @@ class Scan:
         )
         return (f"{self.n_vertices:,} vertices, {self.n_faces:,} faces, "
                 f"{'UVs' if self.has_uvs else 'no UVs'}, materials [{tex}]"
-                + (", vertex colours" if self.vertex_colors is not None else ""))
+                + (", vertex colours" if self.vertex_colors is not None else "")
+                + (", vertex normals" if self.normals is not None else ""))
 
 
 def _check_index(where, idx: np.ndarray, n: int, owner: str, target: str, plural: str) -> None:

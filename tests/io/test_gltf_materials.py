@@ -94,7 +94,7 @@ def test_a_glb_is_read_with_its_normals_maps_and_parameters(tmp_path):
     assert material.gltf == {"metallicFactor": 0.0, "roughnessFactor": 0.6, "doubleSided": False}
     assert np.allclose(scan.normals, made["normals"], atol=1e-6)
     assert np.array_equal(scan.face_normals_idx, scan.faces)
-    assert "normal map + occlusion map" in scan.summary()
+    assert "normal map + occlusion map" in scan.summary() and scan.summary().endswith(", vertex normals")
     assert scan.up == "y"  # glTF is y-up by the format's rule: views are planned so
 
 
