@@ -40,10 +40,11 @@ _MAP_ATTRIBUTES = {"normal": "normalTexture", "occlusion": "occlusionTexture",
                    "metallic_roughness": "metallicRoughnessTexture", "emissive": "emissiveTexture"}
 
 
-def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_maps: frozenset = frozenset()
-                 ) -> tuple[Material, np.ndarray | None]:
+def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_maps: frozenset = frozenset(),
+                 extensions: dict | None = None) -> tuple[Material, np.ndarray | None]:
     """Material and per-vertex UVs of one trimesh geometry. ``encoded``: the file's images' own bytes by
-    :func:`_image_key` (a map found there is written back as those bytes); ``skip_maps``: map kinds left out."""
+    :func:`_image_key` (a map found there is written back as those bytes); ``skip_maps``: map kinds left out;
+    ``extensions``: the glTF material extensions to keep (:func:`_material_extensions`)."""
     from trimesh.visual.material import PBRMaterial
 
     visual = geometry.visual
@@ -69,6 +70,8 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
                 gltf[key] = np.asarray(value, np.float64).ravel().tolist() if key == "emissiveFactor" else value
         if isinstance(mat, PBRMaterial):  # a glTF material: what its file leaves out is the format's default
             gltf = {"metallicFactor": 1.0, "roughnessFactor": 1.0, "doubleSided": False, **gltf}
+            if extensions:
+                gltf["extensions"] = extensions
         return (Material(str(name), img, diffuse, maps=maps, gltf=gltf),
                 np.asarray(visual.uv, dtype=np.float64))
     return Material(f"material_{index}", diffuse=(0.7, 0.7, 0.7, 1.0)), None
@@ -193,6 +196,25 @@ def _check_gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[lis
     return files, encoded
 
 
+def _material_extensions(path: Path, doc: dict | None) -> dict:
+    """The material extensions a GLB/glTF gives every one of its materials alike (``KHR_materials_unlit``:
+    a photogrammetry scan's texture holds its light already, and viewers must not light it again), to be
+    written back. One that names a texture is left out (the textures are numbered anew), and so are all
+    when the materials differ in them (trimesh does not say which of its materials is which of the file's)."""
+    import json
+
+    materials = [m for m in (doc or {}).get("materials") or [] if isinstance(m, dict)]
+    found = [{name: value for name, value in (m.get("extensions") or {}).items()
+              if isinstance(value, dict) and '"index"' not in json.dumps(value)} for m in materials]
+    if not found or not found[0]:
+        return {}
+    if any(f != found[0] for f in found):
+        log.info("%s: its materials' extensions differ (%s): left out", path,
+                 ", ".join(sorted({name for f in found for name in f})))
+        return {}
+    return found[0]
+
+
 def _maps_off_layout(path: Path, doc: dict | None) -> frozenset:
     """The map kinds a glTF material of ``path`` draws in a second UV set that is not its first (the layout
     scantex reads and writes): those maps cannot be written back on the first, and are left out."""
@@ -224,6 +246,7 @@ def read_with_trimesh(path: str | Path) -> Scan:
     inputs, ply, ply_texture = [path], None, None
     encoded: dict = {}
     skip_maps: frozenset = frozenset()
+    extensions: dict = {}
     if suffix == ".stl":
         _check_stl(path)
     elif suffix in (".glb", ".gltf"):
@@ -231,6 +254,7 @@ def read_with_trimesh(path: str | Path) -> Scan:
         files, encoded = _check_gltf_images(path, doc, binary)
         inputs += files
         skip_maps = _maps_off_layout(path, doc)
+        extensions = _material_extensions(path, doc)
     elif suffix == ".ply":
         from scantex.io.images import read_image
         from scantex.io.ply import check_ply
@@ -267,7 +291,7 @@ def read_with_trimesh(path: str | Path) -> Scan:
     offset = 0
     any_uv = False
     for i, (g, pos, transform) in enumerate(pieces):
-        mat, uv = _material_of(g, i, path, encoded, skip_maps)
+        mat, uv = _material_of(g, i, path, encoded, skip_maps, extensions)
         materials.append(mat)
         vn = _normals_of(g)
         if vn is not None and not np.allclose(transform, np.eye(4)):
@@ -402,7 +426,8 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
         if uv is not None and material.image is not None:
             # a glTF material's own parameters and maps come back as they were; other materials are matte,
             # not metallic, and seen from both sides (a scan's open surfaces)
-            parameters = {"metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True, **material.gltf}
+            parameters = {"metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True,
+                          **{k: v for k, v in material.gltf.items() if k in GLTF_PARAMETERS}}
             maps = {_MAP_ATTRIBUTES[kind]: _embedded_map(texture, png_cache) for kind, texture in material.maps.items()}
             pbr = trimesh.visual.material.PBRMaterial(
                 name=material.name, baseColorTexture=_embedded(material.image, png_bytes(material.image, png_cache)),
@@ -419,4 +444,27 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
         # the index prefix keeps the materials' order through trimesh's name-sorted export
         scene.add_geometry(mesh, geom_name=f"{m:04d}_{material.name}", node_name=f"{m:04d}_{material.name}")
     data = scene.export(file_type="glb")
-    files.path(path).write_bytes(data)
+    extensions = {m.name: m.gltf["extensions"] for m in scan.materials if m.gltf.get("extensions")}
+    files.path(path).write_bytes(_with_material_extensions(data, extensions) if extensions else data)
+
+
+def _with_material_extensions(glb: bytes, by_name: dict[str, dict]) -> bytes:
+    """``glb`` with each material named in ``by_name`` given those extensions (trimesh's exporter writes none),
+    declared in ``extensionsUsed``; the binary chunk as it was."""
+    import json
+    import struct
+
+    length = struct.unpack("<I", glb[12:16])[0]
+    doc = json.loads(glb[20:20 + length])
+    used = set(doc.get("extensionsUsed", []))
+    for material in doc.get("materials", []):
+        extensions = by_name.get(material.get("name"))
+        if extensions:
+            material["extensions"] = {**material.get("extensions", {}), **extensions}
+            used |= set(extensions)
+    doc["extensionsUsed"] = sorted(used)
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
+    rest = glb[20 + length:]
+    return (b"glTF" + struct.pack("<II", 2, 12 + 8 + len(text) + len(rest))
+            + struct.pack("<I", len(text)) + b"JSON" + text + rest)

@@ -286,3 +286,31 @@ def test_an_obj_carries_the_normal_and_emissive_maps_under_the_pbr_statements(tm
     assert tmp_path / "glow.png" in back.inputs  # never overwritten
     (tmp_path / "out.mtl").write_text(lines.replace("glow.png", "lost.png"))
     assert set(load_scan(tmp_path / "out.obj").materials[0].maps) == {"normal"}  # a warning says so
+
+
+def test_an_unlit_scan_stays_unlit(tmp_path):
+    """A photogrammetry GLB's materials say KHR_materials_unlit (the texture holds the light already): the GLB
+    written says it too. An extension naming a texture, or extensions the materials differ in, are left out."""
+    scanner_glb(tmp_path / "raw.glb")
+
+    def unlit(doc):
+        doc["materials"][0]["extensions"] = {"KHR_materials_unlit": {},
+                                             "KHR_materials_clearcoat": {"clearcoatTexture": {"index": 0}}}
+        doc["extensionsUsed"] = ["KHR_materials_unlit", "KHR_materials_clearcoat"]
+
+    rewritten_glb(tmp_path / "raw.glb", tmp_path / "unlit.glb", unlit)
+    scan = load_scan(tmp_path / "unlit.glb")
+    assert scan.materials[0].gltf["extensions"] == {"KHR_materials_unlit": {}}
+    save_scan(scan, tmp_path / "out.glb")
+    doc, _ = glb_document(tmp_path / "out.glb")
+    assert doc["materials"][0]["extensions"] == {"KHR_materials_unlit": {}}
+    assert doc["extensionsUsed"] == ["KHR_materials_unlit"]
+    back = load_scan(tmp_path / "out.glb")  # the file stays readable, its geometry and maps as they were
+    assert np.array_equal(back.positions, scan.positions) and set(back.materials[0].maps) == {"normal", "occlusion"}
+    assert back.materials[0].gltf["extensions"] == {"KHR_materials_unlit": {}}
+
+    def two_materials_differ(doc):
+        doc["materials"].append(dict(doc["materials"][0], extensions={}))
+
+    rewritten_glb(tmp_path / "unlit.glb", tmp_path / "mixed.glb", two_materials_differ)
+    assert "extensions" not in load_scan(tmp_path / "mixed.glb").materials[0].gltf
