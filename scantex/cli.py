@@ -326,8 +326,7 @@ def shading_summary(before, after) -> str | None:
     or which maps a new UV layout left out; ``None`` when the input has neither."""
     if before is None:
         return None
-    maps = sorted({kind for m in before.materials for kind in m.maps})
-    kept = sorted({kind for m in after.materials for kind in m.maps})
+    maps, kept = before.map_kinds, after.map_kinds
     parts = ["the vertex normals"] if before.normals is not None and after.normals is not None else []
     if kept:
         parts.append(f"the {' and '.join(k.replace('_', '-') for k in kept)} maps")

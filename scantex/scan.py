@@ -52,6 +52,24 @@ class TextureMap:
     image: np.ndarray
     encoded: bytes | None = None
 
+    @classmethod
+    def of(cls, image, data: bytes | None = None) -> TextureMap:
+        """The map of a decoded Pillow ``image`` (its channels as stored; a palette or other mode as RGB),
+        keeping ``data``, its file's bytes, when they are a JPEG or a PNG (what glTF, USD and MTL all read)."""
+        pixels = np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
+        return cls(pixels, data if data is not None and image.format in ("JPEG", "PNG") else None)
+
+    def file_bytes(self, png_cache: dict | None = None) -> bytes:
+        """The bytes a file of it holds: its own, or a PNG of its pixels (see :func:`scantex.io.images.png_bytes`)."""
+        from scantex.io.images import png_bytes
+
+        return self.encoded if self.encoded is not None else png_bytes(self.image, png_cache)
+
+    @property
+    def suffix(self) -> str:
+        """The file suffix of :meth:`file_bytes`: ``jpg`` for its own JPEG bytes, else ``png``."""
+        return "jpg" if self.encoded is not None and self.encoded[:2] == b"\xff\xd8" else "png"
+
 
 @dataclass(frozen=True, eq=False)
 class Material:
@@ -311,6 +329,11 @@ class Scan:
         import trimesh
 
         return trimesh.Trimesh(self.positions, self.faces, process=process, validate=False)
+
+    @property
+    def map_kinds(self) -> list[str]:
+        """The kinds of the materials' other maps (:attr:`Material.maps`), sorted."""
+        return sorted({kind for m in self.materials for kind in m.maps})
 
     def summary(self) -> str:
         tex = ", ".join(

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.io.images import png_bytes, read_image, write_png
+from scantex.io.images import read_image, write_png
 from scantex.scan import Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
@@ -326,9 +326,7 @@ def _map_files(files: dict[str, Path], material: str, inputs: list[Path]) -> dic
             continue
         with open_image(file, f"{kind} map") as im:
             im.load()
-            pixels = np.asarray(im if im.mode in ("L", "LA", "RGB", "RGBA") else im.convert("RGB"))
-            own = im.format in ("JPEG", "PNG")
-        maps[kind] = TextureMap(pixels, file.read_bytes() if own else None)
+            maps[kind] = TextureMap.of(im, file.read_bytes())
         inputs.append(file)
     return maps
 
@@ -410,8 +408,7 @@ def map_names(scan: Scan, stem: str) -> list[dict[str, str]]:
         own = {}
         for kind, texture in m.maps.items():
             if kind in MTL_STATEMENTS and m.image is not None:
-                jpeg = texture.encoded is not None and texture.encoded[:2] == b"\xff\xd8"
-                own[kind] = re.sub(r"[^\w.-]+", "_", f"{stem}_{m.name}_{kind}") + (".jpg" if jpeg else ".png")
+                own[kind] = re.sub(r"[^\w.-]+", "_", f"{stem}_{m.name}_{kind}") + f".{texture.suffix}"
         names.append(own)
     return names
 
@@ -436,10 +433,8 @@ def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) 
             mtl.append(f"map_Kd {tex}\n")
             write_png(files.path(obj_path.parent / tex), m.image, png_cache)
         for kind, file in others.items():  # the input's own bytes, or a PNG of them
-            texture = m.maps[kind]
             mtl.append(f"{MTL_STATEMENTS[kind]} {file}\n")
-            files.path(obj_path.parent / file).write_bytes(
-                texture.encoded if texture.encoded is not None else png_bytes(texture.image, png_cache))
+            files.path(obj_path.parent / file).write_bytes(m.maps[kind].file_bytes(png_cache))
         mtl.append("\n")
     mtl_tmp = files.path(mtl_path)
     mtl_tmp.write_text("".join(mtl), encoding="utf-8")

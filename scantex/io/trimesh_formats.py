@@ -80,8 +80,7 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
 def _texture_map(image, where, encoded: dict) -> TextureMap:
     """A glTF map trimesh decoded, with the file's own bytes of it when they are JPEG or PNG."""
     check_image_size(image, where, "embedded texture image")
-    pixels = np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
-    return TextureMap(pixels, encoded.get(_image_key(image)))
+    return TextureMap.of(image, encoded.get(_image_key(image)))
 
 
 def _image_key(image) -> tuple:
@@ -278,26 +277,24 @@ def read_with_trimesh(path: str | Path) -> Scan:
         g = scene.geometry[name]
         if not hasattr(g, "faces") or len(g.faces) == 0:
             continue  # point clouds and paths carry no surface
-        positions = np.asarray(g.vertices, dtype=np.float64)
+        positions, vn = np.asarray(g.vertices, dtype=np.float64), _normals_of(g)
         if not np.allclose(transform, np.eye(4)):
             # node transforms are applied (world coordinates); an identity node keeps positions bitwise
             log.info("%s: mesh %s has a node transform; positions are taken in world coordinates", path, name)
             positions = positions @ transform[:3, :3].T + transform[:3, 3]
-        pieces.append((g, positions, transform))
+            if vn is not None:  # normals turn with the node: by the inverse transpose, then of unit length again
+                vn = vn @ np.linalg.inv(transform[:3, :3])
+                vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        pieces.append((g, positions, vn))
     if not pieces:
         raise ScanError(path, "the mesh has no faces")
 
     positions, faces, uvs, colors, fcolors, face_mat, materials, normals = [], [], [], [], [], [], [], []
     offset = 0
     any_uv = False
-    for i, (g, pos, transform) in enumerate(pieces):
+    for i, (g, pos, vn) in enumerate(pieces):
         mat, uv = _material_of(g, i, path, encoded, skip_maps, extensions)
         materials.append(mat)
-        vn = _normals_of(g)
-        if vn is not None and not np.allclose(transform, np.eye(4)):
-            # normals turn with the node: by the inverse transpose, then of unit length again
-            vn = vn @ np.linalg.inv(transform[:3, :3])
-            vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
         normals.append(vn)
         positions.append(pos)
         faces.append(np.asarray(g.faces, dtype=np.int64) + offset)
@@ -396,10 +393,7 @@ def _embedded(image: np.ndarray, data: bytes):
 
 
 def _embedded_map(texture_map, png_cache: dict | None):
-    from scantex.io.images import png_bytes
-
-    data = texture_map.encoded if texture_map.encoded is not None else png_bytes(texture_map.image, png_cache)
-    return _embedded(texture_map.image, data)
+    return _embedded(texture_map.image, texture_map.file_bytes(png_cache))
 
 
 def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
+from scantex.io.images import decoded
 from scantex.scan import Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
@@ -223,9 +224,8 @@ class _Materials:
             found = self._texture(shader.GetInput(input_name))
             if found is not None:
                 data, source, _ = found
-                own = data[:2] == b"\xff\xd8" or data[:8] == b"\x89PNG\r\n\x1a\n"  # JPEG or PNG: glTF's
-                maps[kind] = TextureMap(self._decode(data, source, f"{kind} map", keep_mode=True),
-                                        data if own else None)
+                with decoded(data, self.path, f"{kind} map {source}") as opened:
+                    maps[kind] = TextureMap.of(opened, data)
         # the glTF written gives the surface as USD defines it: UsdPreviewSurface's own defaults (not metallic,
         # roughness 0.5) where it sets no constant, one side unless the mesh says both
         gltf: dict = {"metallicFactor": 0.0, "roughnessFactor": 0.5,
@@ -268,13 +268,12 @@ class _Materials:
             self.inputs.append(Path(asset.resolvedPath))
         return data, asset.path, uv_set
 
-    def _decode(self, data: bytes, name: str, what: str, keep_mode: bool = False) -> np.ndarray:
-        from scantex.io.images import decoded, image_from_pil
+    def _decode(self, data: bytes, name: str, what: str) -> np.ndarray:
+        """``(H, W, 3) uint8`` RGB of a colour texture's bytes."""
+        from scantex.io.images import image_from_pil
 
         with decoded(data, self.path, f"{what} {name}") as image:
-            if not keep_mode:
-                return image_from_pil(image, self.path)
-            return np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
+            return image_from_pil(image, self.path)
 
 
 def _asset_bytes(resolved: str) -> bytes | None:
@@ -437,8 +436,7 @@ def _preview_surface(stage, where: str, material: Material, index: int, work: Pa
         found = material.maps.get(kind)
         if found is None:
             continue
-        data = found.encoded if found.encoded is not None else png_bytes(found.image, png_cache)
-        suffix = "jpg" if data[:2] == b"\xff\xd8" else "png"
+        data, suffix = found.file_bytes(png_cache), found.suffix
         if kind == "normal":  # a tangent-space normal map's bytes hold (n + 1) / 2
             texture(kind, data, suffix, "rgb", Sdf.ValueTypeNames.Normal3f, input_name, raw=True,
                     scale=(2.0, 2.0, 2.0, 1.0), bias=(-1.0, -1.0, -1.0, 0.0))

@@ -141,7 +141,7 @@ def texture_summary(scan: Scan, unit_m: float = 1.0, visibility: float | None = 
             "atlas_sizes": [list(m.image.shape[:2]) if m.image is not None else None for m in scan.materials],
             # what shades the surface besides the colour, which scantex passes through (scantex.scan.TextureMap)
             "vertex_normals": scan.normals is not None,
-            "other_maps": sorted({kind for m in scan.materials for kind in m.maps})}
+            "other_maps": scan.map_kinds}
 
 
 def render_reference(scan: Scan, supersample: int = 2) -> Reference:

@@ -134,7 +134,7 @@ def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dic
     report["texels_per_metre"] = atlas.texels_per_metre
     report["atlas_utilisation"] = atlas.utilisation
     report["images"] = f"zero placeholders ({size}, {size}, 3) uint8; bake(size={size}) fills them"
-    dropped = sorted({kind for m in scan.materials for kind in m.maps})
+    dropped = scan.map_kinds
     if dropped:
         report["maps_left_out"] = dropped
         log.warning("%s: the input's %s maps are left out: they are drawn in the input's UV layout, not the new "
