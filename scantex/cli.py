@@ -212,7 +212,7 @@ def _enhance_capture(args, config, capture) -> int:
     from scantex.io import load_scan
     from scantex.io.atomic import atomic_dir, check_output
     from scantex.pipeline.enhance import enhance
-    from scantex.pipeline.outputs import remove_work_dir, work_dir_for, write_outputs
+    from scantex.pipeline.outputs import remove_work_dir, usd_input, work_dir_for, write_outputs
 
     if capture.kind != "file" or capture.photos is not None:
         _echo(args, capture.describe())
@@ -271,8 +271,6 @@ def _enhance_capture(args, config, capture) -> int:
     kept = shading_summary(result.input_scan, result.scan)
     if kept:
         _echo(args, kept)
-    from scantex.pipeline.outputs import usd_input
-
     usdz = ", enhanced.usdz" if usd_input(result) else ""
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb{usdz}, "
                 f"metrics.json, config.json, report.html)")
