@@ -34,10 +34,15 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   see it, not every photo of the capture (a room's hundred photos see a few per cent of it each);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
+
+The photos' samples and their blend run compiled, point by point (:mod:`scantex.photos.compiled`, numba),
+where numba is installed and the colour transforms are affine; the numpy path below, photo by photo, is its
+twin (the same colours) and runs elsewhere.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
@@ -136,7 +141,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                       fallback: SurfaceColour, settings: ProjectiveSettings = ProjectiveSettings(),
                       faces: np.ndarray | None = None,
                       recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                      threads: int | None = None, through: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
+                      threads: int | None = None, through: np.ndarray | None = None,
+                      transforms: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -161,6 +167,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             photo's usable pixel gives them a colour, they take the mean of the photos' pixels they project to
             where no surface of the mesh is in front of them: what the photos show there is what lies behind
             a fragment the scene does not have, as a held-out photo will show it. ``None``: the fallback.
+        transforms: the ``(G, 4, 3)`` affine transforms (:func:`fit_photo_transforms`'s) that ``canonicalise``
+            undoes and ``recorded`` applies, when they are such: the compiled blend
+            (:mod:`scantex.photos.compiled`) then applies them itself. It runs where numba is installed and
+            ``canonicalise`` is ``None`` or given with its ``transforms``; elsewhere the same blend runs in numpy.
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
@@ -225,8 +235,47 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
 
     to_recorded = recorded if recorded is not None or canonicalise is not None else (lambda rgb, group: rgb)
+    tables = None
+    if sources and (canonicalise is None or transforms is not None):
+        from scantex.photos import compiled
+
+        if compiled.available():
+            tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None)
+    report["compiled"] = tables is not None
+
     tallying = threading.Lock()  # the report's counts, from calls in several threads
     threads = _WORKERS if threads is None else threads
+
+    def compiled_blend(local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, without: int | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blend, compiled: ``(colour (n, 3), total weight (n,), largest feather (n,))``; the points in
+        ``threads`` parts side by side (the kernel releases the interpreter lock)."""
+        from scantex.photos import compiled
+
+        def part(span: slice):
+            return compiled.blend(tables, local[span], unit[span], face_ids[span],
+                                  depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
+                                  clip_level=settings.clip_level, overshoot=settings.overshoot,
+                                  consistency=settings.consistency, rounds=settings.consistency_rounds,
+                                  without=without, censors=settings.overshoot > 0 and to_recorded is not None)
+
+        n = len(local)
+        parts = max(1, min(threads, n // 4096))
+        bounds = np.linspace(0, n, parts + 1).astype(int)
+        spans = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+        if parts > 1:
+            with ThreadPoolExecutor(parts) as pool:
+                results = list(pool.map(part, spans))
+        else:
+            results = [part(spans[0])]
+        out, total, alpha = (np.concatenate([r[k] for r in results]) for k in range(3))
+        tally = sum(r[3] for r in results)
+        with tallying:
+            counts = report["clipped"]
+            counts["samples"] += int(tally[0])
+            counts["clipped"] += int(tally[1])
+            counts["gave_way"] += int(tally[2])
+        return out, total, alpha
 
     def colour(points, normals, face_ids, bary, without: int | None = None, coverage: bool = False):
         n = len(points)
@@ -286,33 +335,41 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     return [x for x in pool.map(job, asked) if x is not None]
             return [x for x in map(job, asked) if x is not None]
 
-        seen_by: list[_Samples] = each_photo(sample)
-        best = np.full(n, -np.inf, np.float32)
-        for x in seen_by:
-            best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
-        # second pass: the softmax of the quality (relative to each point's best view), feathered
-        alpha = np.zeros(n, np.float32)
-        weights = []
-        for x in seen_by:
-            weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
-            alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
-        gave_way = 0
-        if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
-            out, total, weights, gave_way = _censored_mean(n, seen_by, weights, to_recorded, settings.overshoot)
+        def numpy_blend() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """The blend in numpy, photo by photo: ``(colour (n, 3), total weight (n,), largest feather (n,))``."""
+            seen_by: list[_Samples] = each_photo(sample)
+            best = np.full(n, -np.inf, np.float32)
+            for x in seen_by:
+                best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
+            # second pass: the softmax of the quality (relative to each point's best view), feathered
+            alpha = np.zeros(n, np.float32)
+            weights = []
+            for x in seen_by:
+                weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
+                alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
+            gave_way = 0
+            if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
+                out, total, weights, gave_way = _censored_mean(n, seen_by, weights, to_recorded, settings.overshoot)
+            else:
+                out, total = _weighted_mean(n, seen_by, weights)
+            with tallying:
+                tally = report["clipped"]
+                tally["samples"] += sum(len(x.idx) for x in seen_by)
+                tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
+                tally["gave_way"] += gave_way
+            if settings.consistency > 0:
+                # photo-consistency: each round reweights every sample by its distance from the last blend
+                scale = np.float32(1.0 / settings.consistency ** 2)
+                for _ in range(settings.consistency_rounds):
+                    robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
+                              for x, w in zip(seen_by, weights)]
+                    out, _ = _weighted_mean(n, seen_by, robust)
+            return out, total, alpha
+
+        if tables is not None:
+            out, total, alpha = compiled_blend(points - origin, normals, face_ids, without)
         else:
-            out, total = _weighted_mean(n, seen_by, weights)
-        with tallying:
-            tally = report["clipped"]
-            tally["samples"] += sum(len(x.idx) for x in seen_by)
-            tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
-            tally["gave_way"] += gave_way
-        if settings.consistency > 0:
-            # photo-consistency: each round reweights every sample by its distance from the last blend
-            scale = np.float32(1.0 / settings.consistency ** 2)
-            for _ in range(settings.consistency_rounds):
-                robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
-                          for x, w in zip(seen_by, weights)]
-                out, _ = _weighted_mean(n, seen_by, robust)
+            out, total, alpha = numpy_blend()
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
         if loose.size:
@@ -544,9 +601,66 @@ def _sums(n: int, idx: np.ndarray, rgb: np.ndarray, weight: np.ndarray) -> tuple
 
 
 def _replace_sharpness(s: _Source, value: float) -> _Source:
-    import dataclasses
-
     return dataclasses.replace(s, log_sharpness=value)
+
+
+def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray | None, n_faces: int | None):
+    """The sources as :mod:`scantex.photos.compiled` reads them (a :class:`~scantex.photos.compiled.PhotoTables`):
+    their arrays end to end, their poses stacked in float64 about ``origin``; ``transforms`` ``None``: the
+    photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling.
+
+    Each photo's image and feather weights are kept once: copied into the tables, its source's become views of
+    the copies (``sources`` is changed in place), one photo at a time, so that they are not held twice (a room's
+    hundred photos hold 120 MB of each); the working view's usable pixels and depth (the caller's) are
+    copied as one array of the usable pixels' depth."""
+    from scantex.photos.compiled import PhotoTables
+
+    def packed(name: str, dtype) -> tuple[np.ndarray, np.ndarray]:
+        """``(the sources' arrays ``name`` end to end, where each starts)``, the sources' arrays then views."""
+        sizes = [getattr(s, name).size for s in sources]
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        flat = np.empty(sum(sizes), dtype)
+        for k, (start, size) in enumerate(zip(starts, sizes)):
+            own = getattr(sources[k], name)
+            flat[start:start + size] = own.reshape(-1)
+            sources[k] = dataclasses.replace(sources[k], **{name: flat[start:start + size].reshape(own.shape)})
+        return flat, starts
+
+    def stacked(values) -> np.ndarray:
+        return np.ascontiguousarray(np.stack(values), np.float64)
+
+    canonical = transforms is not None
+    if not canonical:
+        transforms = np.concatenate([np.eye(3), np.zeros((1, 3))])[None]
+        groups = np.zeros(len(sources), np.int64)
+    else:
+        groups = np.array([s.group for s in sources], np.int64)
+    transforms = np.asarray(transforms, np.float64)
+    seen_faces = np.zeros((0, len(sources)), bool)
+    if n_faces is not None and all(s.faces is not None for s in sources):
+        seen_faces = np.ascontiguousarray(np.stack([s.faces for s in sources], axis=1))
+        for k in range(len(sources)):  # held once too
+            sources[k] = dataclasses.replace(sources[k], faces=seen_faces[:, k])
+    pixels, pixel_start = packed("pixels", np.uint32)
+    feather, view_start = packed("feather", np.float32)
+    # the usable pixels' depth, NaN elsewhere (a depth test nothing passes): one array, not two
+    usable_depth = np.full(feather.size, np.nan, np.float32)
+    for s, start in zip(sources, view_start):
+        np.copyto(usable_depth[start:start + s.valid.size].reshape(s.valid.shape), s.depth, where=s.valid)
+    return PhotoTables(
+        seen_faces=seen_faces,
+        rotation_t=stacked([s.rotation_t for s in sources]), translation=stacked([s.translation for s in sources]),
+        intrinsics_t=stacked([s.intrinsics_t for s in sources]),
+        to_view=stacked([s.to_view[:2] for s in sources]),
+        centre=stacked([s.centre - origin for s in sources]),
+        focal=np.array([s.camera.K[0, 0] for s in sources], np.float64),
+        log_sharpness=np.array([s.log_sharpness for s in sources], np.float64), group=groups,
+        pixel_start=pixel_start, widths=np.array([s.camera.width for s in sources], np.int64),
+        heights=np.array([s.camera.height for s in sources], np.int64), pixels=pixels,
+        view_start=view_start, view_widths=np.array([s.valid.shape[1] for s in sources], np.int64),
+        view_heights=np.array([s.valid.shape[0] for s in sources], np.int64), depth=usable_depth, feather=feather, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
+        offset=np.ascontiguousarray(transforms[:, 3]), gain=np.ascontiguousarray(transforms[:, :3]),
+        canonical=canonical)
 
 
 def _packed(image: np.ndarray) -> np.ndarray:

@@ -392,7 +392,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     from scantex.photos.texturing import ProjectiveSettings, loose_fragments, projective_colour, recorded_transforms
 
     report: dict = {}
-    recorded = None
+    recorded = transforms = None
     if fitted is None:
         canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts, pc.pair_weight)
         recorded = recorded_transforms(transforms)
@@ -432,7 +432,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     report["loose_fragment_faces"] = int(through.sum()) if through is not None else 0
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
                                         levelled if level else fallback, settings, faces=welded,
-                                        recorded=recorded, threads=threads, through=through)
+                                        recorded=recorded, threads=threads, through=through, transforms=transforms)
     if level:
         from scantex.photos.texturing import MAX_FALLBACK_STEP, fallback_offsets
 
