@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -95,3 +97,16 @@ def test_the_points_split_across_threads_give_the_same_colours(capture):
     one, _ = projective_colour(photos, views, range(4), inverse_transforms(transforms), grey, threads=1, **kwargs)
     four, _ = projective_colour(photos, views, range(4), inverse_transforms(transforms), grey, threads=4, **kwargs)
     np.testing.assert_array_equal(four(points, normals, f, b), one(points, normals, f, b))
+
+
+def test_without_numba_the_numpy_path_runs(capture, monkeypatch):
+    scan, photos, views, transforms, (points, normals, f, b) = capture
+    monkeypatch.setitem(sys.modules, "numba", None)  # as if it were not installed
+    compiled._kernel.cache_clear()
+    try:
+        assert not compiled.available()
+        colour, report = projective_colour(photos, views, range(4), None, grey)
+        assert not report["compiled"]
+        assert np.isfinite(colour(points, normals, f, b)).all()
+    finally:
+        compiled._kernel.cache_clear()
