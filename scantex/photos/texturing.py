@@ -187,11 +187,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     origin = (np.mean([photos.cameras[v.index].center for v in views], axis=0) if len(views)
               else np.zeros(3))
 
-    def source(view: PhotoView, group: int) -> _Source:
-        """One training photo, ready to sample: its image at the sampling resolution, packed, its feather
-        weights, sharpness and pose, and the faces it may see."""
+    def sampling_camera(view: PhotoView) -> Camera:
+        """The photo's camera at the resolution it is sampled at."""
         cam = photos.cameras[view.index]
-        image = photos.load_image(view.index)
         side = max(cam.width, cam.height)
         if settings.max_side:
             side = min(side, settings.max_side)
@@ -203,10 +201,28 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             from scantex.photos.training import working_camera
 
             cam = working_camera(cam, side)
+        return cam
+
+    # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
+    # blend reads them so, the numpy path photo by photo)
+    cameras = [sampling_camera(view) for view in views]
+    pixel_start = _starts([cam.width * cam.height for cam in cameras])
+    view_start = _starts([view.valid.size for view in views])
+    pixels = np.empty(int(sum(cam.width * cam.height for cam in cameras)), np.uint32)
+    feathers = np.empty(int(sum(view.valid.size for view in views)), np.float32)
+
+    def source(k: int) -> _Source:
+        """Training photo ``k``, ready to sample: its image at the sampling resolution, packed, its feather
+        weights, sharpness and pose, and the faces it may see."""
+        view, cam = views[k], cameras[k]
+        image = photos.load_image(view.index)
+        if image.shape[:2] != (cam.height, cam.width):
             image = np.asarray(Image.fromarray(image).resize((cam.width, cam.height), Image.Resampling.BOX))
+        packed = _packed(image, pixels[pixel_start[k]:pixel_start[k] + cam.width * cam.height])
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
-        feather = np.clip(distance / max(settings.feather_px, 1e-6), 0, 1).astype(np.float32)
+        feather = feathers[view_start[k]:view_start[k] + view.valid.size].reshape(view.valid.shape)
+        np.clip(distance / max(settings.feather_px, 1e-6), 0, 1, out=feather, casting="same_kind")
         sharpness = float(np.log(photo_sharpness(view.image) + 1e-8))
         if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
             raise ValueError(f"photo {view.index}: its working view was made at another pose")
@@ -217,14 +233,14 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
             seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
         to_view = to_view.astype(np.float32)
-        return _Source(cam, _packed(image), to_view, view.camera.center, view.valid, view.depth,
-                       feather, sharpness, int(group), seen,
+        return _Source(cam, packed, to_view, view.camera.center, view.valid, view.depth,
+                       feather, sharpness, int(groups[k]), seen,
                        np.ascontiguousarray(cam.R.T, np.float32), (cam.R @ origin + cam.t).astype(np.float32),
                        np.ascontiguousarray(cam.K.T, np.float32), np.ascontiguousarray(to_view[:2, :2].T))
 
     # the photos read and prepared side by side (decoding and numpy release the interpreter lock)
     with ThreadPoolExecutor(max(1, min(_WORKERS, len(views)))) as pool:
-        sources = list(pool.map(source, views, groups))
+        sources = list(pool.map(source, range(len(views))))
     if sources:
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
@@ -240,7 +256,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         from scantex.photos import compiled
 
         if compiled.available():
-            tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None)
+            tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None,
+                             pixels, pixel_start, feathers, view_start)
     report["compiled"] = tables is not None
 
     tallying = threading.Lock()  # the report's counts, from calls in several threads
@@ -604,27 +621,17 @@ def _replace_sharpness(s: _Source, value: float) -> _Source:
     return dataclasses.replace(s, log_sharpness=value)
 
 
-def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray | None, n_faces: int | None):
+def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray | None, n_faces: int | None,
+            pixels: np.ndarray, pixel_start: np.ndarray, feathers: np.ndarray, view_start: np.ndarray):
     """The sources as :mod:`scantex.photos.compiled` reads them (a :class:`~scantex.photos.compiled.PhotoTables`):
     their arrays end to end, their poses stacked in float64 about ``origin``; ``transforms`` ``None``: the
-    photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling.
+    photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling. ``pixels`` and
+    ``feathers``: the sources' packed images and feather weights end to end (each source's a view of its part),
+    each photo's part starting at ``pixel_start`` and ``view_start``.
 
-    Each photo's image and feather weights are kept once: copied into the tables, its source's become views of
-    the copies (``sources`` is changed in place), one photo at a time, so that they are not held twice (a room's
-    hundred photos hold 120 MB of each); the working view's usable pixels and depth (the caller's) are
-    copied as one array of the usable pixels' depth."""
+    The working views' usable pixels and depth (the caller's) are copied as one array of the usable pixels'
+    depth; the faces each photo may see are held once (``sources`` is changed in place: theirs become views)."""
     from scantex.photos.compiled import PhotoTables
-
-    def packed(name: str, dtype) -> tuple[np.ndarray, np.ndarray]:
-        """``(the sources' arrays ``name`` end to end, where each starts)``, the sources' arrays then views."""
-        sizes = [getattr(s, name).size for s in sources]
-        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        flat = np.empty(sum(sizes), dtype)
-        for k, (start, size) in enumerate(zip(starts, sizes)):
-            own = getattr(sources[k], name)
-            flat[start:start + size] = own.reshape(-1)
-            sources[k] = dataclasses.replace(sources[k], **{name: flat[start:start + size].reshape(own.shape)})
-        return flat, starts
 
     def stacked(values) -> np.ndarray:
         return np.ascontiguousarray(np.stack(values), np.float64)
@@ -641,10 +648,8 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         seen_faces = np.ascontiguousarray(np.stack([s.faces for s in sources], axis=1))
         for k in range(len(sources)):  # held once too
             sources[k] = dataclasses.replace(sources[k], faces=seen_faces[:, k])
-    pixels, pixel_start = packed("pixels", np.uint32)
-    feather, view_start = packed("feather", np.float32)
     # the usable pixels' depth, NaN elsewhere (a depth test nothing passes): one array, not two
-    usable_depth = np.full(feather.size, np.nan, np.float32)
+    usable_depth = np.full(feathers.size, np.nan, np.float32)
     for s, start in zip(sources, view_start):
         np.copyto(usable_depth[start:start + s.valid.size].reshape(s.valid.shape), s.depth, where=s.valid)
     return PhotoTables(
@@ -658,18 +663,27 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         pixel_start=pixel_start, widths=np.array([s.camera.width for s in sources], np.int64),
         heights=np.array([s.camera.height for s in sources], np.int64), pixels=pixels,
         view_start=view_start, view_widths=np.array([s.valid.shape[1] for s in sources], np.int64),
-        view_heights=np.array([s.valid.shape[0] for s in sources], np.int64), depth=usable_depth, feather=feather, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
+        view_heights=np.array([s.valid.shape[0] for s in sources], np.int64), depth=usable_depth,
+        feather=feathers, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
         offset=np.ascontiguousarray(transforms[:, 3]), gain=np.ascontiguousarray(transforms[:, :3]),
         canonical=canonical)
 
 
-def _packed(image: np.ndarray) -> np.ndarray:
+def _packed(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``(H * W,) uint32``: an ``(H, W, 3) uint8`` image with each pixel's bytes in one word (a sample
-    then gathers one word per corner instead of a row of three bytes: about twice as fast)."""
+    then gathers one word per corner instead of a row of three bytes: about twice as fast), written into
+    ``out`` when given."""
     H, W = image.shape[:2]
-    words = np.zeros((H * W, 4), np.uint8)
-    words[:, :3] = image.reshape(-1, 3)
-    return words.view(np.uint32).reshape(-1)
+    words = np.empty(H * W, np.uint32) if out is None else out
+    channels = words.view(np.uint8).reshape(-1, 4)
+    channels[:, :3] = image.reshape(-1, 3)
+    channels[:, 3] = 0
+    return words
+
+
+def _starts(sizes) -> np.ndarray:
+    """``(n,) int64``: where each of parts of ``sizes`` starts when they are laid end to end."""
+    return np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)[:-1]]).astype(np.int64)
 
 
 def _bilinear(pixels: np.ndarray, W: int, H: int, pix: np.ndarray) -> np.ndarray:
