@@ -87,11 +87,16 @@ def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.nd
         # mostly empty: the bathroom's 8192^2 is 14 % covered, its boxes' cells 18 %); else one ray a texel
         # (a ray that misses costs little, picking the others more)
         at = np.flatnonzero(reached) if reached.mean() <= SPARSE_STRIP else None
+        # each ray's origin written column by column (np.stack of the columns took 0.4 s of the bolster's bake)
+        origins = np.empty(((y1 - y0) * width if at is None else len(at), 3))
         if at is None:
-            gy, gx = np.meshgrid(np.arange(y0, y1, dtype=np.float64), xs, indexing="ij")
-            origins = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+            grid = origins.reshape(y1 - y0, width, 3)  # [rows, width, 3], a view
+            grid[:, :, 0] = xs
+            grid[:, :, 1] = np.arange(y0, y1, dtype=np.float64)[:, None]
         else:
-            origins = np.stack([at % width, at // width + y0, np.ones(len(at))], axis=1).astype(np.float64)
+            origins[:, 0] = at % width
+            origins[:, 1] = at // width + y0
+        origins[:, 2] = 1.0
         hits = caster.intersect(origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape))
         hit = np.flatnonzero(hits.face_id >= 0)
         fid = np.full((y1 - y0) * width, -1, np.int32)

@@ -101,30 +101,34 @@ def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray,
     rendered[test] = True
     rendered[train] = render_train
 
-    def view(i: int) -> tuple:
-        """View ``i``'s image, alpha, face ids, depths and valid pixels (empty where it is not rendered)."""
+    # every view's arrays, filled as each view is rendered; an unrendered one stays empty (no pixel valid).
+    # Written in place: stacking the views' arrays took longer than rendering the five a photo-mode run renders
+    n = len(cameras)
+    H, W = (cameras[0].height, cameras[0].width) if n else (0, 0)
+    images, alpha = np.zeros((n, H, W, 3), np.float32), np.zeros((n, H, W), np.float32)
+    fids, depths = np.full((n, H, W), -1, np.int32), np.full((n, H, W), np.inf, np.float32)
+    valids = np.zeros((n, H, W), bool)
+
+    def view(i: int) -> None:
+        """Renders view ``i`` into the arrays: its image, alpha, face ids, depths and valid pixels."""
         cam = cameras[i]
-        H, W = cam.height, cam.width
-        if not rendered[i]:
-            return (np.zeros((H, W, 3), np.float32), np.zeros((H, W), np.float32), np.full((H, W), -1, np.int32),
-                    np.full((H, W), np.inf, np.float32), np.zeros((H, W), bool))
+        if (cam.height, cam.width) != (H, W):
+            raise ValueError(f"view {i} is {cam.width}x{cam.height}, the first {W}x{H}: views share one size")
         g = cast_gbuffer(caster, cam.scaled(s) if s > 1 else cam)
         rgb = render_gbuffer(scan, g)
         _, all_usable, mean_depth, spread = pixel_footprints(g.face_id, g.depth, s, usable)
         # a pixel is a clean sample of one surface when all its sub-samples hit usable faces at
         # nearly the same depth (no silhouette, no hole border)
-        valid = all_usable & (spread < 0.02 * mean_depth)
-        return (downsample(rgb, s), downsample(g.mask.astype(np.float32)[..., None], s)[..., 0],
-                g.face_id.reshape(H, s, W, s)[:, s // 2, :, s // 2], mean_depth, valid)
+        valids[i] = all_usable & (spread < 0.02 * mean_depth)
+        images[i], alpha[i] = downsample(rgb, s), downsample(g.mask.astype(np.float32)[..., None], s)[..., 0]
+        fids[i], depths[i] = g.face_id.reshape(H, s, W, s)[:, s // 2, :, s // 2], mean_depth
 
     # the views side by side (Embree and numpy release the interpreter lock)
-    rows = []
-    for i, row in enumerate(side_by_side(view, range(len(cameras)), PAIR_THREADS)):
-        rows.append(row)
-        update(i + 1, len(cameras))
-    images, alpha, fids, depths, valids = zip(*rows) if rows else ([], [], [], [], [])
-    views = ViewSet(tuple(cameras), np.stack(images), np.stack(alpha), train, test, rendered=rendered)
-    return TrainingViews(views, np.stack(fids), np.stack(depths), np.stack(valids))
+    drawn = np.flatnonzero(rendered)
+    for k, _ in enumerate(side_by_side(view, drawn, PAIR_THREADS)):
+        update(k + 1, len(drawn))
+    views = ViewSet(tuple(cameras), images, alpha, train, test, rendered=rendered)
+    return TrainingViews(views, fids, depths, valids)
 
 
 def gather_rays(tv: TrainingViews, chart_of_face: np.ndarray, indices: np.ndarray):
