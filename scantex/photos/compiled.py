@@ -24,6 +24,152 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
+def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
+           log_sharpness, photo_group, pixel_start, widths, heights, pixels, view_start, view_widths,
+           view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature,
+           clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
+    """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
+    n, P = len(local), len(rotation_t)
+    quality = np.empty(P, np.float64)
+    weight = np.empty(P, np.float64)
+    before = np.empty(P, np.float64)
+    rgb = np.empty((P, 3), np.float64)
+    raw = np.empty((P, 3), np.float64)
+    clipped = np.empty(P, np.bool_)
+    group = np.empty(P, np.int64)
+    for i in range(n):
+        f = face_ids[i]
+        m = 0  # samples of point i
+        for p in range(P):
+            if p == without or (seen_faces.shape[0] > 0 and not seen_faces[f, p]):
+                continue
+            # the point in the camera's frame, its pixel at the sampling resolution and at the working one
+            cx = cy = cz = 0.0
+            for k in range(3):
+                cx += local[i, k] * rotation_t[p, k, 0]
+                cy += local[i, k] * rotation_t[p, k, 1]
+                cz += local[i, k] * rotation_t[p, k, 2]
+            cx += translation[p, 0]
+            cy += translation[p, 1]
+            cz += translation[p, 2]
+            if not cz > 0:
+                continue
+            hx = cx * intrinsics_t[p, 0, 0] + cy * intrinsics_t[p, 1, 0] + cz * intrinsics_t[p, 2, 0]
+            hy = cx * intrinsics_t[p, 0, 1] + cy * intrinsics_t[p, 1, 1] + cz * intrinsics_t[p, 2, 1]
+            hz = cx * intrinsics_t[p, 0, 2] + cy * intrinsics_t[p, 1, 2] + cz * intrinsics_t[p, 2, 2]
+            fx, fy = hx / hz, hy / hz
+            vx = np.rint(fx * to_view[p, 0, 0] + fy * to_view[p, 0, 1] + to_view[p, 0, 2])
+            vy = np.rint(fx * to_view[p, 1, 0] + fy * to_view[p, 1, 1] + to_view[p, 1, 2])
+            w, h = view_widths[p], view_heights[p]
+            if not (vx >= 0 and vx < w and vy >= 0 and vy < h):
+                continue
+            at = view_start[p] + int(vy) * w + int(vx)
+            if not abs(depth[at] - cz) < depth_tolerance * cz:  # an unusable pixel's depth is NaN
+                continue
+            # view quality: log cos(angle) + log(pixels per metre) + log(relative sharpness)
+            dx, dy, dz = local[i, 0] - centre[p, 0], local[i, 1] - centre[p, 1], local[i, 2] - centre[p, 2]
+            distance = np.sqrt(cx * cx + cy * cy + cz * cz)
+            cos = abs(unit[i, 0] * dx + unit[i, 1] * dy + unit[i, 2] * dz) / distance
+            quality[m] = np.log(max(cos, 1e-3)) + np.log(focal[p] / cz) + log_sharpness[p]
+            weight[m] = feather[at]
+            # the photo's colour there, bilinear
+            W, H = widths[p], heights[p]
+            x = min(max(fx, 0.0), W - 1.001)
+            y = min(max(fy, 0.0), H - 1.001)
+            x0, y0 = int(x), int(y)
+            ax, ay = x - x0, y - y0
+            corner = pixel_start[p] + y0 * W + x0
+            a, b, c, d = pixels[corner], pixels[corner + 1], pixels[corner + W], pixels[corner + W + 1]
+            top = 0.0
+            for k in range(3):
+                s = 8 * k
+                va, vb = float((a >> s) & 255), float((b >> s) & 255)
+                vc, vd = float((c >> s) & 255), float((d >> s) & 255)
+                upper = va + ax * (vb - va)
+                lower = vc + ax * (vd - vc)
+                raw[m, k] = (upper + ay * (lower - upper)) / 255.0
+                top = max(top, raw[m, k])
+            clipped[m] = top >= clip_level
+            # brought to the canonical appearance: (rgb - offset) @ inverse
+            g = photo_group[p]
+            group[m] = g
+            for k in range(3):
+                rgb[m, k] = ((raw[m, 0] - offset[g, 0]) * inverse[g, 0, k] + (raw[m, 1] - offset[g, 1]) * inverse[g, 1, k]
+                             + (raw[m, 2] - offset[g, 2]) * inverse[g, 2, k])
+            if clipped[m] and canonical:
+                # the clipped channels raised to the brightest of their canonical values
+                highest = -np.inf
+                for k in range(3):
+                    if raw[m, k] >= clip_level:
+                        highest = max(highest, rgb[m, k])
+                for k in range(3):
+                    if raw[m, k] >= clip_level:
+                        rgb[m, k] = max(rgb[m, k], highest)
+            m += 1
+        tally[0] += m
+        if m == 0:
+            out[i, 0] = out[i, 1] = out[i, 2] = 0.0
+            total[i] = 0.0
+            alpha[i] = 0.0
+            continue
+        best, reach, any_clipped = -np.inf, 0.0, False
+        for j in range(m):
+            best = max(best, quality[j])
+            reach = max(reach, weight[j])
+            any_clipped = any_clipped or clipped[j]
+        alpha[i] = reach
+        for j in range(m):
+            weight[j] *= np.exp((quality[j] - best) / temperature)
+        if any_clipped:
+            tally[1] += np.sum(clipped[:m])
+        if censors and any_clipped:
+            # the clipped samples give way where the unclipped ones say their photo overshot its white point
+            support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+            for j in range(m):
+                if not clipped[j]:
+                    support += weight[j]
+                    s0 += weight[j] * rgb[j, 0]
+                    s1 += weight[j] * rgb[j, 1]
+                    s2 += weight[j] * rgb[j, 2]
+            if support > 0:
+                u0, u1, u2 = s0 / max(support, 1e-12), s1 / max(support, 1e-12), s2 / max(support, 1e-12)
+                for j in range(m):
+                    if clipped[j]:
+                        g = group[j]
+                        predicted = -np.inf
+                        for k in range(3):
+                            predicted = max(predicted, u0 * gain[g, 0, k] + u1 * gain[g, 1, k] + u2 * gain[g, 2, k]
+                                            + offset[g, k])
+                        scale = min(max(1.0 - (predicted - 1.0) / overshoot, 1e-3), 1.0)
+                        before[j] = weight[j]
+                        weight[j] *= scale
+                        if weight[j] < 0.5 * before[j]:
+                            tally[2] += 1
+        support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+        for j in range(m):
+            support += weight[j]
+            s0 += weight[j] * rgb[j, 0]
+            s1 += weight[j] * rgb[j, 1]
+            s2 += weight[j] * rgb[j, 2]
+        total[i] = support
+        norm = max(support, 1e-12)
+        o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
+        # photo-consistency: each round reweights every sample by its distance from the last blend
+        for _ in range(rounds if consistency > 0 else 0):
+            inv_scale = 1.0 / (consistency * consistency)
+            support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+            for j in range(m):
+                r = (rgb[j, 0] - o0) ** 2 + (rgb[j, 1] - o1) ** 2 + (rgb[j, 2] - o2) ** 2
+                robust = weight[j] / (1.0 + inv_scale * r)
+                support += robust
+                s0 += robust * rgb[j, 0]
+                s1 += robust * rgb[j, 1]
+                s2 += robust * rgb[j, 2]
+            norm = max(support, 1e-12)
+            o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
+        out[i, 0], out[i, 1], out[i, 2] = o0, o1, o2
+
+
 @functools.cache
 def _kernel():
     """The compiled blend (compiled once, cached on disk by numba), or ``None`` where numba is missing."""
@@ -32,153 +178,11 @@ def _kernel():
     except ImportError as error:  # an optional speed-up: the numpy path is the same blend
         log.info("numba is not installed (%s): projective texturing runs in numpy", error)
         return None
-
-    @numba.njit(nogil=True, cache=True, error_model="numpy")
-    def blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
-              log_sharpness, photo_group, pixel_start, widths, heights, pixels, view_start, view_widths,
-              view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature,
-              clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
-        n, P = len(local), len(rotation_t)
-        quality = np.empty(P, np.float64)
-        weight = np.empty(P, np.float64)
-        before = np.empty(P, np.float64)
-        rgb = np.empty((P, 3), np.float64)
-        raw = np.empty((P, 3), np.float64)
-        clipped = np.empty(P, np.bool_)
-        group = np.empty(P, np.int64)
-        for i in range(n):
-            f = face_ids[i]
-            m = 0  # samples of point i
-            for p in range(P):
-                if p == without or (seen_faces.shape[0] > 0 and not seen_faces[f, p]):
-                    continue
-                # the point in the camera's frame, its pixel at the sampling resolution and at the working one
-                cx = cy = cz = 0.0
-                for k in range(3):
-                    cx += local[i, k] * rotation_t[p, k, 0]
-                    cy += local[i, k] * rotation_t[p, k, 1]
-                    cz += local[i, k] * rotation_t[p, k, 2]
-                cx += translation[p, 0]
-                cy += translation[p, 1]
-                cz += translation[p, 2]
-                if not cz > 0:
-                    continue
-                hx = cx * intrinsics_t[p, 0, 0] + cy * intrinsics_t[p, 1, 0] + cz * intrinsics_t[p, 2, 0]
-                hy = cx * intrinsics_t[p, 0, 1] + cy * intrinsics_t[p, 1, 1] + cz * intrinsics_t[p, 2, 1]
-                hz = cx * intrinsics_t[p, 0, 2] + cy * intrinsics_t[p, 1, 2] + cz * intrinsics_t[p, 2, 2]
-                fx, fy = hx / hz, hy / hz
-                vx = np.rint(fx * to_view[p, 0, 0] + fy * to_view[p, 0, 1] + to_view[p, 0, 2])
-                vy = np.rint(fx * to_view[p, 1, 0] + fy * to_view[p, 1, 1] + to_view[p, 1, 2])
-                w, h = view_widths[p], view_heights[p]
-                if not (vx >= 0 and vx < w and vy >= 0 and vy < h):
-                    continue
-                at = view_start[p] + int(vy) * w + int(vx)
-                if not abs(depth[at] - cz) < depth_tolerance * cz:  # an unusable pixel's depth is NaN
-                    continue
-                # view quality: log cos(angle) + log(pixels per metre) + log(relative sharpness)
-                dx, dy, dz = local[i, 0] - centre[p, 0], local[i, 1] - centre[p, 1], local[i, 2] - centre[p, 2]
-                distance = np.sqrt(cx * cx + cy * cy + cz * cz)
-                cos = abs(unit[i, 0] * dx + unit[i, 1] * dy + unit[i, 2] * dz) / distance
-                quality[m] = np.log(max(cos, 1e-3)) + np.log(focal[p] / cz) + log_sharpness[p]
-                weight[m] = feather[at]
-                # the photo's colour there, bilinear
-                W, H = widths[p], heights[p]
-                x = min(max(fx, 0.0), W - 1.001)
-                y = min(max(fy, 0.0), H - 1.001)
-                x0, y0 = int(x), int(y)
-                ax, ay = x - x0, y - y0
-                corner = pixel_start[p] + y0 * W + x0
-                a, b, c, d = pixels[corner], pixels[corner + 1], pixels[corner + W], pixels[corner + W + 1]
-                top = 0.0
-                for k in range(3):
-                    s = 8 * k
-                    va, vb = float((a >> s) & 255), float((b >> s) & 255)
-                    vc, vd = float((c >> s) & 255), float((d >> s) & 255)
-                    upper = va + ax * (vb - va)
-                    lower = vc + ax * (vd - vc)
-                    raw[m, k] = (upper + ay * (lower - upper)) / 255.0
-                    top = max(top, raw[m, k])
-                clipped[m] = top >= clip_level
-                # brought to the canonical appearance: (rgb - offset) @ inverse
-                g = photo_group[p]
-                group[m] = g
-                for k in range(3):
-                    rgb[m, k] = ((raw[m, 0] - offset[g, 0]) * inverse[g, 0, k] + (raw[m, 1] - offset[g, 1]) * inverse[g, 1, k]
-                                 + (raw[m, 2] - offset[g, 2]) * inverse[g, 2, k])
-                if clipped[m] and canonical:
-                    # the clipped channels raised to the brightest of their canonical values
-                    highest = -np.inf
-                    for k in range(3):
-                        if raw[m, k] >= clip_level:
-                            highest = max(highest, rgb[m, k])
-                    for k in range(3):
-                        if raw[m, k] >= clip_level:
-                            rgb[m, k] = max(rgb[m, k], highest)
-                m += 1
-            tally[0] += m
-            if m == 0:
-                out[i, 0] = out[i, 1] = out[i, 2] = 0.0
-                total[i] = 0.0
-                alpha[i] = 0.0
-                continue
-            best, reach, any_clipped = -np.inf, 0.0, False
-            for j in range(m):
-                best = max(best, quality[j])
-                reach = max(reach, weight[j])
-                any_clipped = any_clipped or clipped[j]
-            alpha[i] = reach
-            for j in range(m):
-                weight[j] *= np.exp((quality[j] - best) / temperature)
-            if any_clipped:
-                tally[1] += np.sum(clipped[:m])
-            if censors and any_clipped:
-                # the clipped samples give way where the unclipped ones say their photo overshot its white point
-                support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
-                for j in range(m):
-                    if not clipped[j]:
-                        support += weight[j]
-                        s0 += weight[j] * rgb[j, 0]
-                        s1 += weight[j] * rgb[j, 1]
-                        s2 += weight[j] * rgb[j, 2]
-                if support > 0:
-                    u0, u1, u2 = s0 / max(support, 1e-12), s1 / max(support, 1e-12), s2 / max(support, 1e-12)
-                    for j in range(m):
-                        if clipped[j]:
-                            g = group[j]
-                            predicted = -np.inf
-                            for k in range(3):
-                                predicted = max(predicted, u0 * gain[g, 0, k] + u1 * gain[g, 1, k] + u2 * gain[g, 2, k]
-                                                + offset[g, k])
-                            scale = min(max(1.0 - (predicted - 1.0) / overshoot, 1e-3), 1.0)
-                            before[j] = weight[j]
-                            weight[j] *= scale
-                            if weight[j] < 0.5 * before[j]:
-                                tally[2] += 1
-            support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
-            for j in range(m):
-                support += weight[j]
-                s0 += weight[j] * rgb[j, 0]
-                s1 += weight[j] * rgb[j, 1]
-                s2 += weight[j] * rgb[j, 2]
-            total[i] = support
-            norm = max(support, 1e-12)
-            o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
-            # photo-consistency: each round reweights every sample by its distance from the last blend
-            for _ in range(rounds if consistency > 0 else 0):
-                inv_scale = 1.0 / (consistency * consistency)
-                support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
-                for j in range(m):
-                    r = (rgb[j, 0] - o0) ** 2 + (rgb[j, 1] - o1) ** 2 + (rgb[j, 2] - o2) ** 2
-                    robust = weight[j] / (1.0 + inv_scale * r)
-                    support += robust
-                    s0 += robust * rgb[j, 0]
-                    s1 += robust * rgb[j, 1]
-                    s2 += robust * rgb[j, 2]
-                norm = max(support, 1e-12)
-                o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
-            out[i, 0], out[i, 1], out[i, 2] = o0, o1, o2
-
-    return blend
+    try:
+        return numba.njit(nogil=True, cache=True, error_model="numpy")(_blend)
+    except RuntimeError as error:  # no folder numba may keep its cache in (a read-only install, no home)
+        log.warning("the compiled blend cannot be cached (%s): it is compiled again in each run", error)
+        return numba.njit(nogil=True, error_model="numpy")(_blend)
 
 
 def available() -> bool:

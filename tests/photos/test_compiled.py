@@ -110,3 +110,27 @@ def test_without_numba_the_numpy_path_runs(capture, monkeypatch):
         assert np.isfinite(colour(points, normals, f, b)).all()
     finally:
         compiled._kernel.cache_clear()
+
+
+def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, monkeypatch):
+    """A read-only install with no home folder: numba refuses ``cache=True``; the blend is compiled uncached."""
+    import numba
+
+    njit = numba.njit
+
+    def refusing(*args, **kwargs):
+        if kwargs.get("cache"):
+            raise RuntimeError("cannot cache function '_blend': no locator available")
+        return njit(*args, **kwargs)
+
+    scan, photos, views, transforms, (points, normals, f, b) = capture
+    monkeypatch.setattr(numba, "njit", refusing)
+    compiled._kernel.cache_clear()
+    try:
+        uncached, report = projective_colour(photos, views, range(4), None, grey)
+        assert report["compiled"]
+        got = uncached(points[:500], normals[:500], f[:500], b[:500])
+    finally:
+        compiled._kernel.cache_clear()
+    cached, _ = projective_colour(photos, views, range(4), None, grey)
+    np.testing.assert_array_equal(got, cached(points[:500], normals[:500], f[:500], b[:500]))
