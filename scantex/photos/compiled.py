@@ -32,7 +32,6 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
     n, P = len(local), len(rotation_t)
     quality = np.empty(P, np.float64)
     weight = np.empty(P, np.float64)
-    before = np.empty(P, np.float64)
     rgb = np.empty((P, 3), np.float64)
     raw = np.empty((P, 3), np.float64)
     clipped = np.empty(P, np.bool_)
@@ -141,10 +140,9 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
                             predicted = max(predicted, u0 * gain[g, 0, k] + u1 * gain[g, 1, k] + u2 * gain[g, 2, k]
                                             + offset[g, k])
                         scale = min(max(1.0 - (predicted - 1.0) / overshoot, 1e-3), 1.0)
-                        before[j] = weight[j]
-                        weight[j] *= scale
-                        if weight[j] < 0.5 * before[j]:
+                        if scale < 0.5:  # the sample keeps less than half its weight
                             tally[2] += 1
+                        weight[j] *= scale
         support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
         for j in range(m):
             support += weight[j]
@@ -240,5 +238,5 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
               t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
               t.gain, float(depth_tolerance), float(temperature), float(clip_level), float(overshoot),
               float(consistency), int(rounds), -1 if without is None else int(without), bool(censors),
-              tables.canonical, out, total, alpha, tally)
+              t.canonical, out, total, alpha, tally)
     return out.astype(np.float32), total.astype(np.float32), alpha.astype(np.float32), tally

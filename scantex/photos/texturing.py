@@ -206,10 +206,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
     # blend reads them so, the numpy path photo by photo)
     cameras = [sampling_camera(view) for view in views]
-    pixel_start = _starts([cam.width * cam.height for cam in cameras])
-    view_start = _starts([view.valid.size for view in views])
-    pixels = np.empty(int(sum(cam.width * cam.height for cam in cameras)), np.uint32)
-    feathers = np.empty(int(sum(view.valid.size for view in views)), np.float32)
+    pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
+    pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
+    pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)
 
     def source(k: int) -> _Source:
         """Training photo ``k``, ready to sample: its image at the sampling resolution, packed, its feather
@@ -218,10 +217,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         image = photos.load_image(view.index)
         if image.shape[:2] != (cam.height, cam.width):
             image = np.asarray(Image.fromarray(image).resize((cam.width, cam.height), Image.Resampling.BOX))
-        packed = _packed(image, pixels[pixel_start[k]:pixel_start[k] + cam.width * cam.height])
+        packed = _packed(image, pixels[pixel_start[k]:pixel_start[k] + pixel_sizes[k]])
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
-        feather = feathers[view_start[k]:view_start[k] + view.valid.size].reshape(view.valid.shape)
+        feather = feathers[view_start[k]:view_start[k] + view_sizes[k]].reshape(view.valid.shape)
         np.clip(distance / max(settings.feather_px, 1e-6), 0, 1, out=feather, casting="same_kind")
         sharpness = float(np.log(photo_sharpness(view.image) + 1e-8))
         if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
@@ -299,11 +298,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         if not sources or n == 0:
             rgb = np.asarray(fallback(points, normals, face_ids, bary), np.float32)
             return (rgb, np.zeros(n, np.float32)) if coverage else rgb
-        # first pass: each photo's samples of the points it sees, their quality and feather weight, the
-        # photos side by side on the cores (numpy releases the interpreter lock in the array work)
         local = (points - origin).astype(np.float32)
-        unit = normals.astype(np.float32)
-        facing = np.einsum("ij,ij->i", unit, local)  # n . (X - origin): the view angle needs n . (X - C)
 
         def project(s: _Source, at: np.ndarray):
             """Points ``at`` (about the origin) in the photo's camera frame, at its sampling resolution's pixels
@@ -315,35 +310,6 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 pix = full @ s.to_view_t + s.to_view[:2, 2]  # the same projection at the working size
             return cam, full, pix
 
-        def sample(s: _Source):
-            sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
-            if sub is not None and sub.size == 0:
-                return None
-            # np.take: numpy's fancy indexing of rows is several times slower
-            cam, full, pix = project(s, local if sub is None else np.take(local, sub, axis=0))
-            z = cam[:, 2]
-            idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
-            if idx.size == 0:
-                return None
-            seen = np.take(cam, idx, axis=0)
-            distance = np.sqrt(np.einsum("ij,ij->i", seen, seen))  # |X - C|
-            z, full = z[idx], np.take(full, idx, axis=0)
-            if sub is not None:
-                idx = sub[idx]
-            centre = (s.centre - origin).astype(np.float32)
-            cos = np.abs(facing[idx] - np.take(unit, idx, axis=0) @ centre) / distance
-            quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
-                + np.float32(s.log_sharpness)
-            rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full)
-            # the channels' maximum column by column: numpy's max over a row of three is 20x slower
-            clipped = np.maximum(np.maximum(rgb[:, 0], rgb[:, 1]), rgb[:, 2]) >= np.float32(settings.clip_level)
-            if canonicalise is not None:
-                recorded_rgb = rgb
-                rgb = canonicalise(rgb, np.full(len(idx), s.group))
-                if clipped.any():
-                    _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
-            return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
-
         asked = [s for k, s in enumerate(sources) if k != without]
 
         def each_photo(job):
@@ -354,6 +320,40 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
         def numpy_blend() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             """The blend in numpy, photo by photo: ``(colour (n, 3), total weight (n,), largest feather (n,))``."""
+            # first pass: each photo's samples of the points it sees, their quality and feather weight, the
+            # photos side by side on the cores (numpy releases the interpreter lock in the array work)
+            unit = normals.astype(np.float32)
+            facing = np.einsum("ij,ij->i", unit, local)  # n . (X - origin): the view angle needs n . (X - C)
+
+            def sample(s: _Source):
+                sub = np.flatnonzero(s.faces[face_ids]) if s.faces is not None else None  # the faces it sees
+                if sub is not None and sub.size == 0:
+                    return None
+                # np.take: numpy's fancy indexing of rows is several times slower
+                cam, full, pix = project(s, local if sub is None else np.take(local, sub, axis=0))
+                z = cam[:, 2]
+                idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
+                if idx.size == 0:
+                    return None
+                seen = np.take(cam, idx, axis=0)
+                distance = np.sqrt(np.einsum("ij,ij->i", seen, seen))  # |X - C|
+                z, full = z[idx], np.take(full, idx, axis=0)
+                if sub is not None:
+                    idx = sub[idx]
+                centre = (s.centre - origin).astype(np.float32)
+                cos = np.abs(facing[idx] - np.take(unit, idx, axis=0) @ centre) / distance
+                quality = np.log(np.maximum(cos, np.float32(1e-3))) + np.log(np.float32(s.camera.K[0, 0]) / z) \
+                    + np.float32(s.log_sharpness)
+                rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full)
+                # the channels' maximum column by column: numpy's max over a row of three is 20x slower
+                clipped = np.maximum(np.maximum(rgb[:, 0], rgb[:, 1]), rgb[:, 2]) >= np.float32(settings.clip_level)
+                if canonicalise is not None:
+                    recorded_rgb = rgb
+                    rgb = canonicalise(rgb, np.full(len(idx), s.group))
+                    if clipped.any():
+                        _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
+                return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
+
             seen_by: list[_Samples] = each_photo(sample)
             best = np.full(n, -np.inf, np.float32)
             for x in seen_by:
