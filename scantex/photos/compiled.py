@@ -15,7 +15,6 @@ The kernel releases the interpreter lock: chunks of points blend on threads side
 
 from __future__ import annotations
 
-import functools
 import logging
 from dataclasses import dataclass
 
@@ -168,19 +167,11 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
         out[i, 0], out[i, 1], out[i, 2] = o0, o1, o2
 
 
-@functools.cache
 def _kernel():
-    """The compiled blend (compiled once, cached on disk by numba), or ``None`` where numba is missing."""
-    try:
-        import numba
-    except ImportError as error:  # an optional speed-up: the numpy path is the same blend
-        log.info("numba is not installed (%s): projective texturing runs in numpy", error)
-        return None
-    try:
-        return numba.njit(nogil=True, cache=True, error_model="numpy")(_blend)
-    except RuntimeError as error:  # no folder numba may keep its cache in (a read-only install, no home)
-        log.warning("the compiled blend cannot be cached (%s): it is compiled again in each run", error)
-        return numba.njit(nogil=True, error_model="numpy")(_blend)
+    """The compiled blend (:func:`scantex.jit.compiled`), or ``None`` where numba is missing."""
+    from scantex.jit import compiled
+
+    return compiled(_blend)
 
 
 def available() -> bool:

@@ -204,12 +204,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         key = (x.tobytes(), id(image), m)
         if last.get("key") != key:
             c = perturbed_camera(cam, x, depth_scale)
-            local = points[:m] @ np.ascontiguousarray(c.R.T) + c.t  # contiguous: see Camera.project
-            with np.errstate(divide="ignore", invalid="ignore"):
-                pix = local @ np.ascontiguousarray(c.K.T)
-                pix = pix[:, :2] / pix[:, 2:3]
-            pix[local[:, 2] <= 0] = np.nan
-            last.update(key=key, value=(local, pix, *_bilinear_rgb(image, pix)))
+            last.update(key=key, value=_observe(points[:m], c.R, c.t, c.K, image))
         return last["value"]
 
     def exposure_fit(ok, values):
@@ -240,29 +235,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
         fit's steps are kept by the actual cost)."""
         local, pix, observed, grad = observe(x, image, m)
         ok = np.isfinite(observed).all(axis=1) & np.isfinite(pix).all(axis=1)
-        K = cam.K * np.array([[1 + x[6], 1 + x[6], 1], [1, 1 + x[6], 1], [1, 1, 1]])
-        X, Y, Z = local[:, 0], local[:, 1], np.where(ok, local[:, 2], 1.0)
-        # d pixel / d camera-frame point: u's row (a, b, c), v's (0, e, g)
-        a, b, c = K[0, 0] / Z, K[0, 1] / Z, -(K[0, 0] * X + K[0, 1] * Y) / Z ** 2
-        e, g = K[1, 1] / Z, -K[1, 1] * Y / Z ** 2
-        # d camera-frame point / d (rotation vector, translation): e_k x p for the rotation (p the rotated
-        # point before the translation), depth_scale e_k for the translation (in units of depth_scale)
-        px, py, pz = (local - x[3:6] * depth_scale).T
-        dpix = np.empty((m, 2, 7))
-        dpix[:, 0, 0] = -b * pz + c * py
-        dpix[:, 0, 1] = a * pz - c * px
-        dpix[:, 0, 2] = -a * py + b * px
-        dpix[:, 1, 0] = -e * pz + g * py
-        dpix[:, 1, 1] = -g * px
-        dpix[:, 1, 2] = e * px
-        dpix[:, 0, 3:6] = depth_scale * np.stack([a, b, c], axis=1)
-        dpix[:, 1, 3] = 0
-        dpix[:, 1, 4:6] = depth_scale * np.stack([e, g], axis=1)
-        centred = np.nan_to_num(pix) - cam.K[:2, 2]
-        dpix[:, :, 6] = centred / (1 + x[6])  # the focal scales the pixel's offset from the principal point
-        # (m, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
-        dobs = (grad[:, :, :1] * dpix[:, None, 0, :] + grad[:, :, 1:] * dpix[:, None, 1, :]).reshape(m, 21)
-        dobs[~ok] = 0
+        dobs = _motion_gradients(local, pix, grad, ok, cam.K, x, depth_scale)
         # (I - H): the part the exposure fit cannot absorb (each channel's fit is the same projection)
         out = dobs - design[:m] @ exposure_fit(ok, dobs)
         out[~ok] = 0
@@ -524,3 +497,136 @@ def _rgb_to_grey_image(rgb: np.ndarray, ys: np.ndarray, xs: np.ndarray, shape) -
     out = np.zeros(shape, np.float32)
     out[ys, xs] = rgb @ np.array([0.299, 0.587, 0.114], np.float32)
     return out
+
+
+def _observe(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, intrinsics: np.ndarray,
+             image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``points (m, 3)`` seen by the camera ``rotation``, ``translation``, ``intrinsics`` in ``image (H, W, 3)``:
+    ``(camera-frame points (m, 3), pixels (m, 2) (NaN behind the camera), colours (m, 3) NaN off the image,
+    their image gradients (m, 3, 2) 0 there)``; compiled (:mod:`scantex.jit`), or in numpy where numba is
+    missing (:func:`_observe_numpy`, its twin)."""
+    from scantex import jit
+
+    kernel = jit.compiled(_observe_kernel)
+    if kernel is None:
+        return _observe_numpy(points, rotation, translation, intrinsics, image)
+    m = len(points)
+    local, pix, colours = np.empty((m, 3)), np.empty((m, 2)), np.empty((m, 3))
+    gradients = np.empty((m, 3, 2))
+    kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(rotation, np.float64),
+           np.ascontiguousarray(translation, np.float64), np.ascontiguousarray(intrinsics, np.float64),
+           np.ascontiguousarray(image, np.float32), local, pix, colours, gradients)
+    return local, pix, colours, gradients
+
+
+def _observe_numpy(points, rotation, translation, intrinsics, image):
+    local = points @ np.ascontiguousarray(rotation.T) + translation  # contiguous: see Camera.project
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pix = local @ np.ascontiguousarray(intrinsics.T)
+        pix = pix[:, :2] / pix[:, 2:3]
+    pix[local[:, 2] <= 0] = np.nan
+    return (local, pix, *_bilinear_rgb(image, pix))
+
+
+def _observe_kernel(points, rotation, translation, intrinsics, image, local, pix, colours, gradients):
+    """:func:`_observe`'s kernel, point by point: its outputs filled in."""
+    H, W = image.shape[0], image.shape[1]
+    for i in range(points.shape[0]):
+        p0, p1, p2 = points[i, 0], points[i, 1], points[i, 2]
+        x = rotation[0, 0] * p0 + rotation[0, 1] * p1 + rotation[0, 2] * p2 + translation[0]
+        y = rotation[1, 0] * p0 + rotation[1, 1] * p1 + rotation[1, 2] * p2 + translation[1]
+        z = rotation[2, 0] * p0 + rotation[2, 1] * p1 + rotation[2, 2] * p2 + translation[2]
+        local[i, 0], local[i, 1], local[i, 2] = x, y, z
+        hz = intrinsics[2, 0] * x + intrinsics[2, 1] * y + intrinsics[2, 2] * z
+        u = (intrinsics[0, 0] * x + intrinsics[0, 1] * y + intrinsics[0, 2] * z) / hz
+        v = (intrinsics[1, 0] * x + intrinsics[1, 1] * y + intrinsics[1, 2] * z) / hz
+        if not z > 0:
+            u = v = np.nan
+        pix[i, 0], pix[i, 1] = u, v
+        if not (u >= 0 and u <= W - 1 and v >= 0 and v <= H - 1):  # off the image, or NaN
+            for c in range(3):
+                colours[i, c] = np.nan
+                gradients[i, c, 0] = gradients[i, c, 1] = 0.0
+            continue
+        # the cell as _bilinear_cells takes it: its corner clamped inside the image
+        cx, cy = min(u, W - 1.001), min(v, H - 1.001)
+        x0, y0 = int(cx), int(cy)
+        fx, fy = cx - x0, cy - y0
+        for c in range(3):
+            a, b = np.float64(image[y0, x0, c]), np.float64(image[y0, x0 + 1, c])
+            e, d = np.float64(image[y0 + 1, x0, c]), np.float64(image[y0 + 1, x0 + 1, c])
+            top, bottom = a + fx * (b - a), e + fx * (d - e)
+            colours[i, c] = top + fy * (bottom - top)
+            gradients[i, c, 0] = (1 - fy) * (b - a) + fy * (d - e)
+            gradients[i, c, 1] = bottom - top
+
+
+def _motion_gradients(local: np.ndarray, pix: np.ndarray, gradients: np.ndarray, ok: np.ndarray,
+                      intrinsics: np.ndarray, x: np.ndarray, depth_scale: float) -> np.ndarray:
+    """``(m, 21)``: d colour / d correction ``x`` (3 channels x 7 parameters; 0 where not ``ok``) of points seen
+    at ``local (m, 3)`` (the perturbed camera's frame), ``pix (m, 2)`` with image gradients ``gradients (m, 3, 2)``
+    (:func:`_observe`), for the recorded camera's ``intrinsics`` (see ``align_camera``'s Jacobian); compiled, or
+    in numpy where numba is missing (:func:`_motion_gradients_numpy`, its twin)."""
+    from scantex import jit
+
+    kernel = jit.compiled(_motion_gradients_kernel)
+    if kernel is None:
+        return _motion_gradients_numpy(local, pix, gradients, ok, intrinsics, x, depth_scale)
+    out = np.empty((len(local), 21))
+    kernel(local, pix, gradients, np.ascontiguousarray(ok), np.ascontiguousarray(intrinsics, np.float64),
+           np.ascontiguousarray(x, np.float64), float(depth_scale), out)
+    return out
+
+
+def _motion_gradients_numpy(local, pix, gradients, ok, intrinsics, x, depth_scale):
+    m = len(local)
+    K = intrinsics * np.array([[1 + x[6], 1 + x[6], 1], [1, 1 + x[6], 1], [1, 1, 1]])
+    X, Y, Z = local[:, 0], local[:, 1], np.where(ok, local[:, 2], 1.0)
+    # d pixel / d camera-frame point: u's row (a, b, c), v's (0, e, g)
+    a, b, c = K[0, 0] / Z, K[0, 1] / Z, -(K[0, 0] * X + K[0, 1] * Y) / Z ** 2
+    e, g = K[1, 1] / Z, -K[1, 1] * Y / Z ** 2
+    # d camera-frame point / d (rotation vector, translation): e_k x p for the rotation (p the rotated
+    # point before the translation), depth_scale e_k for the translation (in units of depth_scale)
+    px, py, pz = (local - x[3:6] * depth_scale).T
+    dpix = np.empty((m, 2, 7))
+    dpix[:, 0, 0] = -b * pz + c * py
+    dpix[:, 0, 1] = a * pz - c * px
+    dpix[:, 0, 2] = -a * py + b * px
+    dpix[:, 1, 0] = -e * pz + g * py
+    dpix[:, 1, 1] = -g * px
+    dpix[:, 1, 2] = e * px
+    dpix[:, 0, 3:6] = depth_scale * np.stack([a, b, c], axis=1)
+    dpix[:, 1, 3] = 0
+    dpix[:, 1, 4:6] = depth_scale * np.stack([e, g], axis=1)
+    centred = np.nan_to_num(pix) - intrinsics[:2, 2]
+    dpix[:, :, 6] = centred / (1 + x[6])  # the focal scales the pixel's offset from the principal point
+    # (m, 3 channels x 7 parameters): each channel's gradient along the pixel's motion
+    dobs = (gradients[:, :, :1] * dpix[:, None, 0, :] + gradients[:, :, 1:] * dpix[:, None, 1, :]).reshape(m, 21)
+    dobs[~ok] = 0
+    return dobs
+
+
+def _motion_gradients_kernel(local, pix, gradients, ok, intrinsics, x, depth_scale, out):
+    """:func:`_motion_gradients`'s kernel, point by point: ``out`` filled in."""
+    s = 1 + x[6]
+    k00, k01, k11 = intrinsics[0, 0] * s, intrinsics[0, 1] * s, intrinsics[1, 1] * s
+    d0 = np.empty(7)
+    d1 = np.empty(7)
+    for i in range(local.shape[0]):
+        if not ok[i]:
+            out[i, :] = 0.0
+            continue
+        X, Y, Z = local[i, 0], local[i, 1], local[i, 2]
+        a, b, c = k00 / Z, k01 / Z, -(k00 * X + k01 * Y) / Z ** 2
+        e, g = k11 / Z, -k11 * Y / Z ** 2
+        px, py, pz = X - x[3] * depth_scale, Y - x[4] * depth_scale, Z - x[5] * depth_scale
+        d0[0], d0[1], d0[2] = -b * pz + c * py, a * pz - c * px, -a * py + b * px
+        d1[0], d1[1], d1[2] = -e * pz + g * py, -g * px, e * px
+        d0[3], d0[4], d0[5] = depth_scale * a, depth_scale * b, depth_scale * c
+        d1[3], d1[4], d1[5] = 0.0, depth_scale * e, depth_scale * g
+        d0[6] = (pix[i, 0] - intrinsics[0, 2]) / s
+        d1[6] = (pix[i, 1] - intrinsics[1, 2]) / s
+        for ch in range(3):
+            gx, gy = gradients[i, ch, 0], gradients[i, ch, 1]
+            for k in range(7):
+                out[i, 7 * ch + k] = gx * d0[k] + gy * d1[k]

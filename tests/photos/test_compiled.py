@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from scantex import jit
 from scantex.photos import compiled
 from scantex.photos.texturing import ProjectiveSettings, inverse_transforms, projective_colour, recorded_transforms
 from scantex.photos.training import VisibilitySettings, prepare_photos
@@ -102,14 +103,14 @@ def test_the_points_split_across_threads_give_the_same_colours(capture):
 def test_without_numba_the_numpy_path_runs(capture, monkeypatch):
     scan, photos, views, transforms, (points, normals, f, b) = capture
     monkeypatch.setitem(sys.modules, "numba", None)  # as if it were not installed
-    compiled._kernel.cache_clear()
+    jit.compiled.cache_clear()
     try:
         assert not compiled.available()
         colour, report = projective_colour(photos, views, range(4), None, grey)
         assert not report["compiled"]
         assert np.isfinite(colour(points, normals, f, b)).all()
     finally:
-        compiled._kernel.cache_clear()
+        jit.compiled.cache_clear()
 
 
 def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, monkeypatch):
@@ -125,12 +126,12 @@ def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, mon
 
     scan, photos, views, transforms, (points, normals, f, b) = capture
     monkeypatch.setattr(numba, "njit", refusing)
-    compiled._kernel.cache_clear()
+    jit.compiled.cache_clear()
     try:
         uncached, report = projective_colour(photos, views, range(4), None, grey)
         assert report["compiled"]
         got = uncached(points[:500], normals[:500], f[:500], b[:500])
     finally:
-        compiled._kernel.cache_clear()
+        jit.compiled.cache_clear()
     cached, _ = projective_colour(photos, views, range(4), None, grey)
     np.testing.assert_array_equal(got, cached(points[:500], normals[:500], f[:500], b[:500]))

@@ -205,3 +205,28 @@ def test_the_corrections_are_summed_up_in_one_line():
     assert "1 kept as recorded" in text
     assert "consensus" in corrections_summary("consensus", [moved])
     assert corrections_summary("off", [moved]) is None and corrections_summary("input", []) is None
+
+
+def test_the_compiled_observation_is_the_numpy_one():
+    """The fit's compiled projection, lookup and motion gradients against their numpy twins: points inside the
+    image, off its sides, on its last pixel and behind the camera."""
+    from scantex.photos.poses import _motion_gradients, _motion_gradients_numpy, _observe, _observe_numpy
+
+    rng = np.random.default_rng(3)
+    image = rng.random((48, 64, 3)).astype(np.float32)
+    cam = perturbed_camera(Camera.look_at((0, -3, 0.2), (0, 0, 0), width=64, height=48),
+                           np.array([0.01, -0.02, 0.005, 0.01, 0.0, -0.02, 0.03]), 3.0)
+    points = np.concatenate([rng.uniform(-1.5, 1.5, (300, 3)) * [1, 0.1, 1],
+                             [[0.0, -4.0, 0.0], [0.0, -3.0, 0.2]]])  # behind the camera, at its centre
+    fast = _observe(points, cam.R, cam.t, cam.K, image)
+    slow = _observe_numpy(points, cam.R, cam.t, cam.K, image)
+    off = np.isnan(slow[2]).any(axis=1)
+    assert 20 < off.sum() < 250 and off[-2:].all()  # the test covers both cases
+    for a, b in zip(fast, slow):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    ok = ~off & np.isfinite(slow[1]).all(axis=1)
+    # numpy takes the image's differences in float32, the kernel in float64: a pixel's motion (tens of pixels a
+    # unit of correction) scales that rounding
+    x = np.array([0.01, -0.02, 0.005, 0.01, 0.0, -0.02, 0.03])
+    np.testing.assert_allclose(_motion_gradients(*fast[:2], fast[3], ok, cam.K, x, 3.0),
+                               _motion_gradients_numpy(*slow[:2], slow[3], ok, cam.K, x, 3.0), rtol=1e-5, atol=1e-5)
