@@ -1,9 +1,10 @@
 """The texel map: for every texel of an atlas, the face and barycentrics it shows.
 
-Made by rasterising the UV triangles into texel space. The fast path casts one ray per texel centre
+Made by rasterising the UV triangles into texel space. The fast path is a compiled scan-conversion
+(:mod:`scantex.jit`: each triangle's texel box, its texel centres tested by their barycentrics; 0.05 s for the
+bolster's 4096^2 atlas, where Embree took 1.1 s of CPU). Where numba is missing, one ray is cast per texel centre
 at the UV triangles laid flat in a plane (Embree as a 2D rasteriser: about 4x faster than numpy
-scan-conversion on this machine); :func:`texel_map_reference` is the slow, obviously correct twin
-the tests compare against.
+scan-conversion). :func:`texel_map_reference` is the slow, obviously correct twin the tests compare both with.
 """
 
 from __future__ import annotations
@@ -62,8 +63,14 @@ def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.nd
     bottom. Memory is bounded by one strip whatever the atlas size (the whole map of an 8192^2 atlas
     is 0.8 GB). Arguments as :func:`texel_map`; ``rows`` defaults to :data:`ROWS_PER_STRIP`.
     """
+    from scantex import jit
+
     rows = rows or ROWS_PER_STRIP
     selected = np.arange(len(triangle_uvs)) if faces is None else np.asarray(faces)
+    kernel = jit.compiled(_rasterise) if selected.size else None
+    if kernel is not None:
+        yield from _rasterised_strips(kernel, triangle_uvs, width, height, selected, rows)
+        return
     caster = None
     if selected.size:
         pix = uv_to_pixel(triangle_uvs[selected], width, height)  # [f, 3, 2]
@@ -107,6 +114,54 @@ def texel_strips(triangle_uvs: np.ndarray, width: int, height: int, faces: np.nd
             bary = np.zeros(((y1 - y0) * width, 2), np.float32)
             bary[at] = hits.bary
         yield y0, TexelMap(fid.reshape(y1 - y0, width), bary.reshape(y1 - y0, width, 2))
+
+
+def _rasterised_strips(kernel, triangle_uvs: np.ndarray, width: int, height: int, selected: np.ndarray,
+                       rows: int) -> Iterator[tuple[int, TexelMap]]:
+    """:func:`texel_strips` by the compiled scan-conversion ``kernel`` (:func:`_rasterise`)."""
+    pix = np.ascontiguousarray(uv_to_pixel(triangle_uvs[selected], width, height), np.float64)  # [f, 3, 2]
+    with np.errstate(invalid="ignore"):
+        top, bottom = pix[:, :, 1].min(axis=1), pix[:, :, 1].max(axis=1)  # NaN for a face without finite UVs
+    names = selected.astype(np.int32)
+    for y0 in range(0, height, rows):
+        y1 = min(y0 + rows, height)
+        drawn = np.flatnonzero((bottom >= y0 - 1) & (top <= y1))  # NaN compares false: left out
+        face_id = np.full((y1 - y0) * width, -1, np.int32)
+        bary = np.zeros(((y1 - y0) * width, 2), np.float32)
+        kernel(pix, drawn, names, y0, y1, width, face_id, bary)
+        yield y0, TexelMap(face_id.reshape(y1 - y0, width), bary.reshape(y1 - y0, width, 2))
+
+
+def _rasterise(pix, drawn, names, y0, y1, width, face_id, bary):
+    """The kernel of :func:`_rasterised_strips`: triangles ``pix[drawn]`` (``(f, 3, 2)`` corner pixels, integers at
+    texel centres) drawn into atlas rows ``y0 .. y1`` (``face_id``, ``bary``: ``((y1 - y0) * width, ...)``), each
+    texel centre inside a triangle getting its name and barycentrics ``(u, v)`` (the point is ``(1-u-v) p0 + u p1
+    + v p2``). A texel on an edge is inside (within rounding: a centre on the edge two triangles share is drawn
+    by one of them, never by neither); where triangles overlap, the later one drawn wins."""
+    eps = 1e-7
+    for j in range(drawn.shape[0]):
+        f = drawn[j]
+        ax, ay = pix[f, 0, 0], pix[f, 0, 1]
+        bx, by = pix[f, 1, 0], pix[f, 1, 1]
+        cx, cy = pix[f, 2, 0], pix[f, 2, 1]
+        det = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+        if not (det != 0 and np.isfinite(det)):  # degenerate, or not finite
+            continue
+        x_lo = max(int(np.ceil(min(ax, bx, cx) - eps)), 0)
+        x_hi = min(int(np.floor(max(ax, bx, cx) + eps)), width - 1)
+        y_lo = max(int(np.ceil(min(ay, by, cy) - eps)), y0)
+        y_hi = min(int(np.floor(max(ay, by, cy) + eps)), y1 - 1)
+        for y in range(y_lo, y_hi + 1):
+            dy = y - ay
+            for x in range(x_lo, x_hi + 1):
+                dx = x - ax
+                u = (dx * (cy - ay) - (cx - ax) * dy) / det
+                v = ((bx - ax) * dy - dx * (by - ay)) / det
+                if u >= -eps and v >= -eps and u + v <= 1 + eps:
+                    at = (y - y0) * width + x
+                    face_id[at] = names[f]
+                    bary[at, 0] = u
+                    bary[at, 1] = v
 
 
 def _in_boxes(lo: np.ndarray, hi: np.ndarray, y0: int, y1: int, width: int, block: int = BOX_BLOCK) -> np.ndarray:

@@ -278,9 +278,13 @@ def test_streamed_bake_is_the_untiled_bake(rows, chunk, cube, wall, monkeypatch)
         assert all(d2 >= d1 for (d1, _), (d2, _) in zip(progress, progress[1:]))
 
 
-def test_streamed_texel_map_and_mask_match_the_reference(wall, monkeypatch):
+@pytest.mark.parametrize("path", ["compiled", "embree"])
+def test_streamed_texel_map_and_mask_match_the_reference(wall, monkeypatch, path):
     import scantex.atlas.texelmap
+    from scantex import jit
 
+    if path == "embree":  # where numba is missing
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
     monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", 5)
     ref = texel_map_reference(wall.triangle_uvs, 50, 37)
     tmap = texel_map(wall.triangle_uvs, 50, 37)
@@ -290,22 +294,29 @@ def test_streamed_texel_map_and_mask_match_the_reference(wall, monkeypatch):
 
 def test_a_mostly_empty_atlas_casts_only_where_triangles_reach(monkeypatch):
     """Strips that triangles' boxes reach sparsely cast rays only there: the same map as a ray at every texel,
-    and the reference rasteriser's."""
+    and the reference rasteriser's (Embree's path, where numba is missing), and the compiled path's."""
     import scantex.atlas.texelmap
+    from scantex import jit
 
     rng = np.random.default_rng(3)
     corner = rng.random((40, 1, 2)) * 0.9
     triangle_uvs = corner + rng.random((40, 3, 2)) * 0.06  # small charts scattered over the square
     monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", 16)
+    compiled = texel_map(triangle_uvs, 160, 120)
     maps = {}
-    for name, share in (("every texel", 0.0), ("where boxes reach", 1.0)):
-        monkeypatch.setattr(scantex.atlas.texelmap, "SPARSE_STRIP", share)
-        maps[name] = texel_map(triangle_uvs, 160, 120)
+    with monkeypatch.context() as m:
+        m.setattr(jit, "compiled", lambda function: None)
+        for name, share in (("every texel", 0.0), ("where boxes reach", 1.0)):
+            m.setattr(scantex.atlas.texelmap, "SPARSE_STRIP", share)
+            maps[name] = texel_map(triangle_uvs, 160, 120)
     dense, sparse = maps["every texel"], maps["where boxes reach"]
     assert np.array_equal(dense.face_id, sparse.face_id) and np.array_equal(dense.bary, sparse.bary)
     assert 0.01 < sparse.mask.mean() < 0.5
     ref = texel_map_reference(triangle_uvs, 160, 120)
     assert (ref.face_id == sparse.face_id).mean() > 0.999
+    assert (ref.face_id == compiled.face_id).mean() > 0.999
+    both = (ref.face_id == compiled.face_id) & ref.mask
+    np.testing.assert_allclose(compiled.bary[both], ref.bary[both], atol=1e-6)
 
 
 def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):

@@ -146,10 +146,15 @@ def test_vertex_colour_render():
     assert seen.any() and np.allclose(img[seen], [1, 0, 0], atol=1e-5)
 
 
+@pytest.mark.parametrize("path", ["compiled", "embree"])
 @pytest.mark.parametrize("size", [(64, 48), (33, 17)])
-def test_texel_map_matches_reference(size):
+def test_texel_map_matches_reference(size, path, monkeypatch):
+    """The compiled scan-conversion, and Embree where numba is missing, against the reference rasteriser."""
+    from scantex import jit
     from scantex.atlas.texelmap import texel_map, texel_map_reference
 
+    if path == "embree":
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
     wall = grid_wall(n=9)
     tri = wall.triangle_uvs * 0.9 + 0.05
     fast = texel_map(tri, *size)
