@@ -169,10 +169,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     mask = g.mask
     usable = ndimage.binary_erosion(mask, iterations=3) & ~ndimage.binary_dilation(
         contour_map(mask, g.depth), iterations=3)
-    _, directions = cam.pixel_rays()
-    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    cos = np.abs(np.einsum("ij,ij->i", d, g.normal.reshape(-1, 3))).reshape(mask.shape)
-    usable &= cos > 0.3
+    usable &= cam.ray_cosines(g.normal) > 0.3
     if faces is not None:
         usable &= faces[np.where(mask, g.face_id, 0)]
     ys, xs = np.nonzero(usable)

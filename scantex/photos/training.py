@@ -154,10 +154,8 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
         near_edge = contours
     near_edge &= any_hit
 
-    _, directions = cam.pixel_rays()
-    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     n = np.take(scan.face_normals, np.where(centre >= 0, centre, 0).reshape(-1), axis=0)  # take: faster than [rows]
-    cos = np.abs(np.einsum("ij,ij->i", d, n)).reshape(H, W)
+    cos = cam.ray_cosines(n)
     grazing = any_hit & (cos < np.cos(np.radians(settings.max_angle_deg)))
 
     hidden = photos.hidden[i]
@@ -204,8 +202,6 @@ def _footprints(caster: RayCaster, cam: Camera, s: int):
     in depth (the visibility test's limit is 2 %), and the mean depth is taken as the centre sample's (off
     by under 1 %). Walls and floors need a few per cent of the rays a full supersampled cast takes.
     """
-    from scipy import ndimage
-
     H, W = cam.height, cam.width
     fine, c = cam.scaled(s), s // 2
     ys, xs = np.divmod(np.arange(H * W), W)
@@ -219,11 +215,7 @@ def _footprints(caster: RayCaster, cam: Camera, s: int):
     spread = np.where(hit, np.float32(0), np.float32(-np.inf))
     if s == 1:
         return face_id, bary, n_hit, all_hit, mean_depth, spread
-    near = ndimage.maximum_filter(np.where(hit, mean_depth, -np.inf), 3)
-    far = ndimage.minimum_filter(np.where(hit, mean_depth, np.inf), 3)
-    mixed = ndimage.maximum_filter(hit, 3) != ndimage.minimum_filter(hit, 3)
-    with np.errstate(invalid="ignore"):
-        ask = np.flatnonzero(mixed | (hit & (near - far > 0.01 * mean_depth)))
+    ask = np.flatnonzero(_changing(hit, mean_depth))
     if ask.size:
         # every sub-sample of those pixels, row by row: an (n * s, s) supersampled image of n pixels
         row, column = np.divmod(np.arange(s * s), s)
@@ -234,6 +226,49 @@ def _footprints(caster: RayCaster, cam: Camera, s: int):
         for out, value in zip((n_hit, all_hit, mean_depth, spread), k):
             out.reshape(-1)[ask] = value.reshape(-1)
     return face_id, bary, n_hit, all_hit, mean_depth, spread
+
+
+def _changing(hit: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """``(H, W) bool``: the pixels among whose 3x3 neighbours (the image's edge repeated) some hit ``hit (H, W)``
+    and some miss, or which hit where their hitting neighbours' ``depth (H, W)`` spans over 1 % of their own;
+    compiled (:mod:`scantex.jit`: one pass, where scipy's four 3x3 filters took 20 ms a VGA photo), or in numpy
+    (:func:`_changing_numpy`, its twin) where numba is missing."""
+    from scantex import jit
+
+    kernel = jit.compiled(_changing_kernel)
+    if kernel is None:
+        return _changing_numpy(hit, depth)
+    out = np.empty(hit.shape, bool)
+    kernel(np.ascontiguousarray(hit), np.ascontiguousarray(depth, np.float32), out)
+    return out
+
+
+def _changing_numpy(hit: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    near = ndimage.maximum_filter(np.where(hit, depth, -np.inf), 3)
+    far = ndimage.minimum_filter(np.where(hit, depth, np.inf), 3)
+    mixed = ndimage.maximum_filter(hit, 3) != ndimage.minimum_filter(hit, 3)
+    with np.errstate(invalid="ignore"):
+        return mixed | (hit & (near - far > 0.01 * depth))
+
+
+def _changing_kernel(hit, depth, out):
+    """:func:`_changing`'s kernel, pixel by pixel: ``out`` filled in."""
+    H, W = hit.shape
+    for y in range(H):
+        for x in range(W):
+            hits = misses = 0
+            near, far = -np.inf, np.inf
+            for v in range(max(y - 1, 0), min(y + 2, H)):
+                for u in range(max(x - 1, 0), min(x + 2, W)):
+                    if hit[v, u]:
+                        hits += 1
+                        near = max(near, depth[v, u])
+                        far = min(far, depth[v, u])
+                    else:
+                        misses += 1
+            out[y, x] = (hits > 0 and misses > 0) or (hit[y, x] and near - far > np.float32(0.01) * depth[y, x])
 
 
 def halved(view: PhotoView) -> PhotoView:

@@ -92,12 +92,29 @@ class Camera:
             directions: ``(H * W, 3) float32`` world directions with unit camera-z component, so a
             hit distance along them is the pixel's depth.
         """
-        # built by broadcasting, no (H*W, 3) float64 temporaries
         A, B, C = self._ray_axes()
-        xs = np.arange(self.width, dtype=np.float32)[None, :, None]
-        ys = np.arange(self.height, dtype=np.float32)[:, None, None]
-        directions = xs * A + (ys * B + C)  # [H, W, 3]
+        xs = np.arange(self.width, dtype=np.float32)[None, :]
+        ys = np.arange(self.height, dtype=np.float32)[:, None]
+        directions = np.empty((self.height, self.width, 3), np.float32)
+        for k in range(3):  # a component at a time: numpy's loops over rows of three are several times slower
+            directions[:, :, k] = xs * A[k] + (ys * B[k] + C[k])
         return self.center.copy(), directions.reshape(-1, 3)
+
+    def ray_cosines(self, normals: np.ndarray) -> np.ndarray:
+        """``(H, W) float32``: the absolute cosine of the angle between each pixel's ray (:meth:`pixel_rays`) and
+        ``normals`` (``(H, W, 3)`` or ``(H * W, 3)`` unit vectors; a zero one gives 0), without the rays'
+        ``(H * W, 3)`` array (a component at a time: several times faster)."""
+        A, B, C = self._ray_axes()
+        xs = np.arange(self.width, dtype=np.float32)[None, :]
+        ys = np.arange(self.height, dtype=np.float32)[:, None]
+        normals = np.asarray(normals).reshape(self.height, self.width, 3)
+        dot = np.zeros((self.height, self.width), np.float32)
+        length = np.zeros((self.height, self.width), np.float32)
+        for k in range(3):
+            d = xs * A[k] + (ys * B[k] + C[k])
+            dot += d * normals[:, :, k]
+            length += d * d
+        return np.abs(dot) / np.sqrt(length)
 
     def _ray_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C)``, ``(3,) float32`` each: R^T K^-1 [x, y, 1] = A x + B y + C, pixel ``(x, y)``'s ray."""
@@ -108,7 +125,11 @@ class Camera:
         """``(N, 3) float32`` directions through pixels ``(x, y)`` (integer columns and rows ``(N,)``): the
         same values, bit for bit, as :meth:`pixel_rays` gives those pixels."""
         A, B, C = self._ray_axes()
-        return np.asarray(x, np.float32)[:, None] * A + (np.asarray(y, np.float32)[:, None] * B + C)
+        x, y = np.asarray(x, np.float32), np.asarray(y, np.float32)
+        directions = np.empty((len(x), 3), np.float32)
+        for k in range(3):  # as pixel_rays: a component at a time (3-6x faster than rows of three)
+            directions[:, k] = x * A[k] + (y * B[k] + C[k])
+        return directions
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels ``(N, 2)`` and depths ``(N,)`` of world points ``(N, 3)``."""

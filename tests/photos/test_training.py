@@ -294,3 +294,16 @@ def test_photo_mode_rays_groups_and_colour_balance(tmp_path, canonical):
     assert len(only_photos) == len(rays) - n and (w[:3] > 0).all()
     with pytest.raises(Exception, match="canonical"):
         photo_mode_rays(synthetic, data, 2, 0.1, "median")
+
+
+def test_the_compiled_changing_pixels_are_the_numpy_ones():
+    """Where a photo's G-buffer is cast supersampled: hit and miss meet, or the depth steps by over 1 %; the
+    compiled pass against scipy's four 3x3 filters, edges and corners included."""
+    from scantex.photos.training import _changing, _changing_numpy
+
+    rng = np.random.default_rng(5)
+    for shape in [(48, 64), (7, 5), (1, 9), (6, 1)]:
+        hit = rng.random(shape) > 0.15
+        depth = np.where(hit, 2 + 0.05 * (rng.random(shape) > 0.9) + 0.001 * rng.random(shape), 0).astype(np.float32)
+        got, expected = _changing(hit, depth), _changing_numpy(hit, depth)
+        assert np.array_equal(got, expected) and 0 < expected.sum() < expected.size

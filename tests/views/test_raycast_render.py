@@ -30,6 +30,20 @@ def test_pixel_rays_reproject_to_their_pixels():
     assert np.allclose(z, 2.5, atol=1e-5)  # directions have unit camera-z: t is depth
 
 
+def test_rays_through_pixels_and_their_cosines_are_the_pixel_rays():
+    cam = Camera.look_at([0, -3, 0.5], [0, 0, 0], width=20, height=10)
+    _, d = cam.pixel_rays()
+    ys, xs = np.divmod(np.arange(200), 20)
+    assert np.array_equal(cam.rays_through(xs, ys), d)  # bit for bit
+    normals = np.random.default_rng(0).normal(size=(200, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals[:5] = 0
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    expected = np.abs(np.einsum("ij,ij->i", unit, normals)).reshape(10, 20)
+    np.testing.assert_allclose(cam.ray_cosines(normals), expected, atol=1e-6)
+    assert not cam.ray_cosines(normals)[0, :5].any()
+
+
 def test_scaled_camera_keeps_pixel_centres_consistent():
     cam = Camera.look_at([0, -3, 0], [0, 0, 0], width=16, height=12)
     big = cam.scaled(2)
