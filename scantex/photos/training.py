@@ -354,10 +354,10 @@ def photo_rays(views: Sequence[PhotoView], groups: Sequence[int]):
 
 def taught_by_photos(views: Sequence[PhotoView], n_faces: int, min_rays: int = 4) -> np.ndarray:
     """``(F,) bool`` faces that at least ``min_rays`` valid photo pixels see."""
-    if not views:
-        return np.zeros(n_faces, bool)
-    hits = np.concatenate([v.face_id[v.valid] for v in views])
-    return np.bincount(hits, minlength=n_faces) >= min_rays
+    counts = np.zeros(n_faces + 1, np.int64)
+    for v in views:  # each photo's counts (the last bin its unusable pixels'): no copy of every photo's hits
+        counts += np.bincount(np.where(v.valid, v.face_id, n_faces).reshape(-1), minlength=n_faces + 1)
+    return counts[:n_faces] >= min_rays
 
 
 def colour_match(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.ndarray:

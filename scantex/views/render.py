@@ -19,11 +19,24 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear lookup of ``image (H, W, C)`` at ``uv (N, 2)``, repeating outside [0, 1].
 
     Returns ``(N, C) float32`` in [0, 1] for uint8 images (values as stored for float images).
-    The four texels are gathered by flat index (``take`` on the ``(H * W, C)`` image), about twice as
-    fast as indexing rows and columns; the arithmetic is :func:`sample_texture_reference`'s, bit for bit.
+    Compiled (:mod:`scantex.jit`: a point at a time, 5-10x faster than numpy's passes over rows of a few
+    channels), or in numpy where numba is missing (the four texels gathered by flat index, ``take`` on the
+    ``(H * W, C)`` image); both do :func:`sample_texture_reference`'s arithmetic, bit for bit.
     """
+    from scantex import jit
+
     H, W = image.shape[:2]
     scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
+    kernel = jit.compiled(_sample_kernel)
+    uv = np.asarray(uv)
+    if kernel is not None and uv.dtype in (np.float32, np.float64) and image.dtype in (np.uint8, np.float32,
+                                                                                       np.float64):
+        texels = np.ascontiguousarray(image).reshape(H * W, -1)
+        out = np.empty((len(uv), texels.shape[1]), np.float32)
+        # the constants in the types numpy's arithmetic takes them in (a Python number adopts the array's type)
+        real, value = uv.dtype.type, np.float32 if image.dtype == np.uint8 else image.dtype.type
+        kernel(texels, np.ascontiguousarray(uv), real(W), real(H), real(1), real(0.5), W, H, value(scale), out)
+        return out
     x0, y0, fx, fy = _texel_corner(uv, W, H)
     x1 = x0 + 1
     x1[x1 == W] = 0
@@ -36,6 +49,27 @@ def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = texels.take(row0 + x0, axis=0) * gx + texels.take(row0 + x1, axis=0) * fx
     bottom = texels.take(row1 + x0, axis=0) * gx + texels.take(row1 + x1, axis=0) * fx
     return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
+
+
+def _sample_kernel(texels, uv, width, height, one, half, W, H, scale, out):
+    """:func:`sample_texture`'s kernel: ``texels (H * W, C)``, ``uv (N, 2)``; ``width``, ``height``, ``one`` and
+    ``half`` the image's size, 1 and 0.5 in the uv's type, ``scale`` in the arithmetic's; ``out (N, C)`` filled
+    in."""
+    one32 = np.float32(1)
+    for i in range(uv.shape[0]):
+        x = uv[i, 0] * width - half
+        y = (one - uv[i, 1]) * height - half
+        fx, fy = np.floor(x), np.floor(y)
+        x0, y0 = int(fx) % W, int(fy) % H
+        fx, fy = np.float32(x - fx), np.float32(y - fy)
+        x1 = x0 + 1 if x0 + 1 < W else 0
+        y1 = y0 + 1 if y0 + 1 < H else 0
+        gx, gy = one32 - fx, one32 - fy
+        a, b, c, d = y0 * W + x0, y0 * W + x1, y1 * W + x0, y1 * W + x1
+        for k in range(texels.shape[1]):
+            top = texels[a, k] * gx + texels[b, k] * fx
+            bottom = texels[c, k] * gx + texels[d, k] * fx
+            out[i, k] = (top * gy + bottom * fy) * scale
 
 
 def _texel_corner(uv: np.ndarray, W: int, H: int):

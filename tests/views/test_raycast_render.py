@@ -123,14 +123,21 @@ def test_sample_texture_bilinear_and_wrap():
     assert np.allclose(got, [0, 255, 50, 0], atol=1e-3)
 
 
-def test_sample_texture_equals_its_reference():
+@pytest.mark.parametrize("path", ["compiled", "numpy"])
+def test_sample_texture_equals_its_reference(path, monkeypatch):
+    from scantex import jit
+
+    if path == "numpy":  # where numba is missing
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
     rng = np.random.default_rng(3)
     uv = np.concatenate([rng.uniform(-1.5, 2.5, (5000, 2)),  # repeats outside [0, 1]
                          (rng.integers(0, 7, (500, 2)) + 0.5) / 7,  # texel centres
                          [[0.0, 0.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.0]]])  # the atlas's corners
     for image in (rng.integers(0, 256, (7, 5, 3), dtype=np.uint8), rng.integers(0, 256, (4, 9, 4), dtype=np.uint8),
-                  rng.random((6, 6, 3), dtype=np.float32), rng.integers(0, 256, (1, 1, 3), dtype=np.uint8)):
-        assert np.array_equal(sample_texture(image, uv), sample_texture_reference(image, uv))
+                  rng.random((6, 6, 3), dtype=np.float32), rng.integers(0, 256, (1, 1, 3), dtype=np.uint8),
+                  rng.random((5, 3, 2)), rng.integers(0, 256, (4, 6), dtype=np.uint8)):
+        for coordinates in (uv, uv.astype(np.float32)):
+            assert np.array_equal(sample_texture(image, coordinates), sample_texture_reference(image, coordinates))
 
 
 def test_unlit_render_shows_the_texture():
