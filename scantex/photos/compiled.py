@@ -68,7 +68,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             dx, dy, dz = local[i, 0] - centre[p, 0], local[i, 1] - centre[p, 1], local[i, 2] - centre[p, 2]
             distance = np.sqrt(cx * cx + cy * cy + cz * cz)
             cos = abs(unit[i, 0] * dx + unit[i, 1] * dy + unit[i, 2] * dz) / distance
-            quality[m] = np.log(max(cos, 1e-3)) + np.log(focal[p] / cz) + log_sharpness[p]
+            quality[m] = np.log(max(cos, 1e-3) * focal[p] / cz) + log_sharpness[p]  # one log: log(a) + log(b)
             weight[m] = feather[at]
             # the photo's colour there, bilinear
             W, H = widths[p], heights[p]
