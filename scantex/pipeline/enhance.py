@@ -216,18 +216,21 @@ def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, c
     """The colour mesh-only mode bakes (``bake.source``; see :mod:`scantex.atlas.colour`) and a report.
 
     ``fitted`` may be ``None`` with ``bake.source`` input: no denoising (the field was not trained,
-    see :func:`enhance`). ``noise``: the atlas's noise level when already estimated."""
+    see :func:`enhance`). ``noise``: the atlas's noise level when already estimated; without a field it sets
+    nothing, and is not estimated (``None`` in the report: 0.3 s of a photo-mode run on the bolster)."""
     from scantex.atlas.colour import atlas_noise, field_colour, levelled_input_colour
     from scantex.atlas.levelling import seam_offsets
 
     if config.source == "field" or not scan.is_textured:
         return field_colour(scan, fitted, fill, taught, charts, device, detail=config.detail), {"source": "field"}
     offsets = seam_offsets(scan, exclude=fill) if config.levelling else np.zeros((len(scan.uvs), 3))
-    noise = atlas_noise(scan, exclude=fill) if noise is None else noise
+    if noise is None and fitted is not None:
+        noise = atlas_noise(scan, exclude=fill)
+    threshold = config.denoise * noise if noise is not None else 0.0
     colour = levelled_input_colour(scan, offsets, fill, fitted=fitted, taught=taught, charts=charts, device=device,
-                                   noise_threshold=config.denoise * noise)
-    return colour, {"source": "input", "noise_level": round(noise, 5), "denoised": fitted is not None,
-                    "noise_threshold": round(config.denoise * noise, 5),
+                                   noise_threshold=threshold)
+    return colour, {"source": "input", "noise_level": None if noise is None else round(noise, 5),
+                    "denoised": fitted is not None, "noise_threshold": round(threshold, 5),
                     "levelling_offset_mean": round(float(np.abs(offsets).mean()) if offsets.size else 0.0, 5),
                     "levelling_offset_max": round(float(np.abs(offsets).max()) if offsets.size else 0.0, 5)}
 
