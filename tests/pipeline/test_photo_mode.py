@@ -296,3 +296,27 @@ def test_an_untextured_scans_atlas_is_as_fine_as_its_photos():
     assert untextured_atlas_size(square(1.0), photo_density(capture(10.0))) == 2048  # 1,000 texels a side wanted
     assert untextured_atlas_size(square(10.0), photo_density(capture(3.5))) == 4096  # 3,500: a room
     assert untextured_atlas_size(square(40.0), photo_density(capture(3.5))) == 4096  # 14,000: the largest it lays out
+
+
+def test_photo_mode_without_numba_makes_the_same_texture(toy_demo, toy_photos, photo_result, monkeypatch):
+    """Every compiled kernel (:mod:`scantex.jit`) has a numpy twin: with numba missing, photo mode runs in numpy
+    and bakes the texture the compiled run baked (a texel on a rounding boundary, or on an edge two faces share,
+    may differ)."""
+    import sys
+
+    from scantex import jit
+
+    monkeypatch.setitem(sys.modules, "numba", None)  # as if it were not installed
+    jit.compiled.cache_clear()
+    try:
+        result = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False),
+                         ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    finally:
+        jit.compiled.cache_clear()
+    assert result.metrics["photos"]["texturing"]["compiled"] is False
+    assert photo_result.metrics["photos"]["texturing"]["compiled"] is True
+    slow = result.scan.materials[0].image.astype(int)
+    fast = photo_result.scan.materials[0].image.astype(int)
+    assert slow.shape == fast.shape and (np.abs(slow - fast).max(axis=2) > 2).mean() < 0.01
+    assert [c["applied"] for c in result.metrics["photos"]["pose_corrections"]] == \
+        [c["applied"] for c in photo_result.metrics["photos"]["pose_corrections"]]
