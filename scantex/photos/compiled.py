@@ -4,11 +4,11 @@ one pass over the points.
 :func:`scantex.photos.texturing.projective_colour` blends, for each surface point, the samples of the photos
 that see it. In numpy that is some forty passes over the samples a photo (projection, visibility, view
 quality, four bilinear corners, colour transform, feather, then the softmax and the weighted sums): on one
-core, 4.5-5.4 s for the bolster's 2.8 M texels from 12 photos. This module does the same arithmetic point
-by point, a point's samples held in small buffers, in 2.2-2.9 s (``bench/bench_blend.py``), with the numpy
-path as its slow, obviously correct twin (``tests/photos/test_compiled.py`` compares them). numba is the
-field's compiler for such loops (the kernel is compiled on first use, about 4 s, and cached beside this
-file); where it is missing, the numpy path runs (:func:`available` says which).
+core, 4.6-6.0 s for the bolster's 2.8 M texels from 12 photos. This module does the same arithmetic point
+by point, a point's samples held in small buffers, in 0.41-0.52x that time (``bench/bench_blend.py``), with the
+numpy path as its slow, obviously correct twin (``tests/photos/test_compiled.py`` compares them). The kernel is
+compiled by :func:`scantex.jit.compiled` on first use (about 4 s) and cached beside this file; where numba is
+missing, the numpy path runs (:func:`available` says which).
 
 The kernel releases the interpreter lock: chunks of points blend on threads side by side.
 """
