@@ -24,7 +24,8 @@ from scantex.atlas.padding import fill_gutters
 from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
 from scantex.atlas.texelmap import ROWS_PER_STRIP, texel_strips, uv_to_pixel
 from scantex.scan import Scan
-from scantex.views.raycast import interpolate
+from scantex.threads import side_by_side
+from scantex.views.raycast import PAIR_THREADS, interpolate
 from scantex.views.render import sample_texture, to_uint8
 
 if TYPE_CHECKING:
@@ -82,7 +83,6 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
         new = image.copy()
         covered = np.zeros((H, W), bool)
-        moved = 0
         layout = layouts[m] if layouts is not None and m < len(layouts) else None
         if layout is not None and layout.face_id.shape != (H, W):
             layout = None  # not this image's bake
@@ -90,7 +90,10 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         strips = (((y0, strip.face_id) for y0, strip in texel_strips(tri_uv, W, H, np.flatnonzero(mats == m)))
                   if layout is None else
                   ((y0, layout.face_id[y0:y0 + ROWS_PER_STRIP]) for y0 in range(0, H, ROWS_PER_STRIP)))
-        for y0, face_id in strips:
+
+        def blend_strip(strip: tuple[int, np.ndarray]) -> int:
+            """Blend atlas rows ``y0 ..`` of ``face_id``; the texels moved."""
+            y0, face_id = strip
             y1 = y0 + face_id.shape[0]
             covered[y0:y1] = face_id >= 0
             texel_shell = np.where(face_id >= 0, shells[np.maximum(face_id, 0)], -1)
@@ -100,7 +103,12 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
             rgb = image[y0:y1, :, :3][touched].astype(np.float64) * scale
             rgb += offset[touched] / weight[touched, None] * strongest[touched, None]
             new[y0:y1, :, :3][touched] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
-            moved += int(touched.sum())
+            return int(touched.sum())
+
+        # with the bake's layout, the strips side by side (each reads the image and writes its own rows of the
+        # copy; the bolster's blending 0.85 -> 0.65 s); without it, one at a time: each strip's texel map is
+        # made as it comes, and side_by_side would hold them all
+        moved = sum(side_by_side(blend_strip, strips, PAIR_THREADS) if layout is not None else map(blend_strip, strips))
         fill_gutters(new[..., :3], covered, layout.sources if layout is not None else None)  # from the blended texels
         out_images[m] = new
         log.debug("blended %d seam sides in material %d (%d texels moved)", len(f), m, moved)
