@@ -1,8 +1,8 @@
 """The texel map: for every texel of an atlas, the face and barycentrics it shows.
 
 Made by rasterising the UV triangles into texel space. The fast path is a compiled scan-conversion
-(:mod:`scantex.jit`: each triangle's texel box, its texel centres tested by their barycentrics; 0.05 s for the
-bolster's 4096^2 atlas, where Embree took 1.1 s of CPU). Where numba is missing, one ray is cast per texel centre
+(:mod:`scantex.jit`: each triangle's texel box, its texel centres tested by their barycentrics; about 0.05 s for
+the bolster's 2048^2 atlas, where Embree took 1.1 s of CPU). Where numba is missing, one ray is cast per texel centre
 at the UV triangles laid flat in a plane (Embree as a 2D rasteriser: about 4x faster than numpy
 scan-conversion). :func:`texel_map_reference` is the slow, obviously correct twin the tests compare both with.
 """

@@ -59,9 +59,9 @@ def _sample_kernel(texels, uv, width, height, one, half, W, H, scale, out):
     for i in range(uv.shape[0]):
         x = uv[i, 0] * width - half
         y = (one - uv[i, 1]) * height - half
-        fx, fy = np.floor(x), np.floor(y)
-        x0, y0 = int(fx) % W, int(fy) % H
-        fx, fy = np.float32(x - fx), np.float32(y - fy)
+        left, top_row = np.floor(x), np.floor(y)
+        x0, y0 = int(left) % W, int(top_row) % H
+        fx, fy = np.float32(x - left), np.float32(y - top_row)
         x1 = x0 + 1 if x0 + 1 < W else 0
         y1 = y0 + 1 if y0 + 1 < H else 0
         gx, gy = one32 - fx, one32 - fy
