@@ -420,7 +420,93 @@ def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.nda
 
 def _edge_residuals(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray) -> np.ndarray:
     """``(n,)``: each sample's edge points moved by ``x`` (rotation vector about ``centre``, then translation
-    ``x[3:] * spread``), their distance (px) to the photo's nearest edge."""
+    ``x[3:] * spread``), their distance (px) to the photo's nearest edge; compiled (:mod:`scantex.jit`: the
+    fit asks for it a hundred times and more), or :func:`_edge_residuals_numpy` where numba is missing."""
+    return _edge_terms(samples, centre, spread, x, jacobian=False)
+
+
+def _edge_jacobian(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray) -> np.ndarray:
+    """``(n, 6)``: the derivatives of :func:`_edge_residuals` in ``x`` (the chain rule through the distance
+    field's bilinear gradient, the projection and the rotation vector's left Jacobian); compiled, or
+    :func:`_edge_jacobian_numpy` where numba is missing."""
+    return _edge_terms(samples, centre, spread, x, jacobian=True)
+
+
+def _edge_terms(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray,
+                jacobian: bool) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    from scantex import jit
+
+    kernel = jit.compiled(_edge_kernel)
+    if kernel is None:
+        return (_edge_jacobian_numpy if jacobian else _edge_residuals_numpy)(samples, centre, spread, x)
+    R = Rotation.from_rotvec(x[:3]).as_matrix()
+    turn = _left_jacobian(x[:3])
+    shift = np.asarray(x[3:] * spread, np.float64)
+    centre = np.asarray(centre, np.float64)
+    out = []
+    for s in samples:
+        n = len(s.points)
+        residuals, derivatives = np.empty(n), np.empty((n if jacobian else 0, 6))
+        field = np.ascontiguousarray(s.distance)
+        kernel(np.ascontiguousarray(s.points, np.float64), centre, R, shift, np.ascontiguousarray(s.camera.R),
+               np.ascontiguousarray(s.camera.t, np.float64), np.ascontiguousarray(s.camera.K, np.float64), field,
+               float(field.max()), float(spread), turn, residuals, derivatives, jacobian)
+        out.append(derivatives if jacobian else residuals)
+    return np.concatenate(out)
+
+
+def _edge_kernel(points, centre, rotation, shift, cam_rotation, cam_translation, intrinsics, field, outside, spread,
+                 turn, residuals, derivatives, jacobian):
+    """The kernel of :func:`_edge_terms`, point by point: ``residuals (n,)`` filled in, and ``derivatives (n, 6)``
+    where ``jacobian``, as :func:`_edge_residuals_numpy` and :func:`_edge_jacobian_numpy` make them."""
+    H, W = field.shape
+    KR = intrinsics @ cam_rotation
+    moved = np.empty(3)
+    world = np.empty(3)
+    cam = np.empty(3)
+    d_world = np.empty(3)
+    for i in range(points.shape[0]):
+        for k in range(3):  # R (X - centre), then the world point
+            moved[k] = (rotation[k, 0] * (points[i, 0] - centre[0]) + rotation[k, 1] * (points[i, 1] - centre[1])
+                        + rotation[k, 2] * (points[i, 2] - centre[2]))
+            world[k] = moved[k] + centre[k] + shift[k]
+        for k in range(3):
+            cam[k] = (cam_rotation[k, 0] * world[0] + cam_rotation[k, 1] * world[1] + cam_rotation[k, 2] * world[2]
+                      + cam_translation[k])
+        hx = intrinsics[0, 0] * cam[0] + intrinsics[0, 1] * cam[1] + intrinsics[0, 2] * cam[2]
+        hy = intrinsics[1, 0] * cam[0] + intrinsics[1, 1] * cam[1] + intrinsics[1, 2] * cam[2]
+        hz = intrinsics[2, 0] * cam[0] + intrinsics[2, 1] * cam[1] + intrinsics[2, 2] * cam[2]
+        u, v = hx / hz, hy / hz
+        if not (cam[2] > 0 and u >= 0 and u <= W - 1 and v >= 0 and v <= H - 1):  # off the image (or behind)
+            residuals[i] = outside
+            if jacobian:
+                derivatives[i, :] = 0.0
+            continue
+        cx, cy = min(u, W - 1.001), min(v, H - 1.001)  # the cell as _bilinear_cells takes it
+        x0, y0 = int(cx), int(cy)
+        fx, fy = cx - x0, cy - y0
+        a, b = np.float64(field[y0, x0]), np.float64(field[y0, x0 + 1])
+        c, d = np.float64(field[y0 + 1, x0]), np.float64(field[y0 + 1, x0 + 1])
+        residuals[i] = (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d)
+        if not jacobian:
+            continue
+        gx, gy = (1 - fy) * (b - a) + fy * (d - c), (1 - fx) * (c - a) + fx * (d - b)
+        for k in range(3):  # d residual / d world point: grad . d pix / d world, d pix = ([I | -pix] / h_z) K R
+            d_world[k] = (gx * (KR[0, k] - u * KR[2, k]) + gy * (KR[1, k] - v * KR[2, k])) / hz
+        # d world / d rotation vector = -[R (X - centre)]x J_l: (moved x d_world) . J_l; d world / d x[3:] = spread I
+        c0 = moved[1] * d_world[2] - moved[2] * d_world[1]
+        c1 = moved[2] * d_world[0] - moved[0] * d_world[2]
+        c2 = moved[0] * d_world[1] - moved[1] * d_world[0]
+        for k in range(3):
+            derivatives[i, k] = c0 * turn[0, k] + c1 * turn[1, k] + c2 * turn[2, k]
+            derivatives[i, 3 + k] = spread * d_world[k]
+
+
+def _edge_residuals_numpy(samples: list[_EdgeSample], centre: np.ndarray, spread: float,
+                          x: np.ndarray) -> np.ndarray:
+    """:func:`_edge_residuals` in numpy: its twin, and what runs where numba is missing."""
     from scipy.spatial.transform import Rotation
 
     R = Rotation.from_rotvec(x[:3]).as_matrix()
@@ -433,9 +519,9 @@ def _edge_residuals(samples: list[_EdgeSample], centre: np.ndarray, spread: floa
     return np.concatenate(out)
 
 
-def _edge_jacobian(samples: list[_EdgeSample], centre: np.ndarray, spread: float, x: np.ndarray) -> np.ndarray:
-    """``(n, 6)``: the derivatives of :func:`_edge_residuals` in ``x`` (the chain rule through the distance
-    field's bilinear gradient, the projection and the rotation vector's left Jacobian)."""
+def _edge_jacobian_numpy(samples: list[_EdgeSample], centre: np.ndarray, spread: float,
+                         x: np.ndarray) -> np.ndarray:
+    """:func:`_edge_jacobian` in numpy: its twin, and what runs where numba is missing."""
     from scipy.spatial.transform import Rotation
 
     R = Rotation.from_rotvec(x[:3]).as_matrix()

@@ -367,3 +367,26 @@ def test_the_rigid_fit_jacobian_is_the_residuals_derivative():
     numeric = np.stack([(_edge_residuals(samples, centre, spread, x + 1e-6 * e)
                          - _edge_residuals(samples, centre, spread, x - 1e-6 * e)) / 2e-6 for e in np.eye(6)], axis=1)
     np.testing.assert_allclose(_edge_jacobian(samples, centre, spread, x), numeric, atol=1e-5 * np.abs(numeric).max())
+
+
+def test_the_compiled_rigid_fit_terms_are_the_numpy_ones():
+    """The rigid fit's residuals and Jacobian, compiled, against their numpy twins: points on the image, off its
+    sides and behind a camera."""
+    from scipy import ndimage
+
+    from scantex.photos.alignment import (_edge_jacobian, _edge_jacobian_numpy, _edge_residuals,
+                                          _edge_residuals_numpy, _EdgeSample)
+
+    rng = np.random.default_rng(4)
+    cams = [Camera.look_at(e, (0.0, 0.0, 0.0), fov_deg=50, width=160, height=120)
+            for e in [(0.3, -2.0, 0.5), (-1.5, -1.2, 0.8)]]
+    points = np.concatenate([rng.uniform(-1.6, 1.6, (400, 3)), [[0.3, -2.5, 0.5]]])  # some off, one behind
+    samples = [_EdgeSample(cam, points, ndimage.gaussian_filter(rng.random((120, 160)) * 30, 4).astype(dtype))
+               for cam, dtype in zip(cams, (np.float32, np.float64))]
+    centre, spread = np.array([0.05, 0.0, -0.02]), 0.3
+    x = np.array([0.02, -0.03, 0.01, 0.05, -0.02, 0.03])
+    slow = _edge_residuals_numpy(samples, centre, spread, x)
+    assert 20 < (slow == slow.max()).sum() < 400  # both kinds of points are there
+    np.testing.assert_allclose(_edge_residuals(samples, centre, spread, x), slow, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(_edge_jacobian(samples, centre, spread, x),
+                               _edge_jacobian_numpy(samples, centre, spread, x), rtol=1e-8, atol=1e-9)
