@@ -28,5 +28,13 @@ def compiled(function: Callable) -> Callable | None:
     try:
         return numba.njit(nogil=True, cache=True, error_model="numpy")(function)
     except RuntimeError as error:  # no folder numba may keep its cache in (a read-only install, no home)
-        log.warning("%s cannot be cached (%s): it is compiled again in each run", function.__name__, error)
+        log.debug("%s cannot be cached: %s", function.__name__, error)
+        _uncached()
         return numba.njit(nogil=True, error_model="numpy")(function)
+
+
+@functools.cache
+def _uncached() -> None:
+    """Says once a run, not once a kernel, that numba keeps no cache here."""
+    log.warning("numba cannot keep its cache here (no writable folder for it; NUMBA_CACHE_DIR names one): the "
+                "compiled loops are compiled again in each run, a few seconds each")

@@ -113,9 +113,14 @@ def test_without_numba_the_numpy_path_runs(capture, monkeypatch):
         jit.compiled.cache_clear()
 
 
-def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, monkeypatch):
-    """A read-only install with no home folder: numba refuses ``cache=True``; the blend is compiled uncached."""
+def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, monkeypatch, caplog):
+    """A read-only install with no home folder: numba refuses ``cache=True``; the blend (and every other kernel)
+    is compiled uncached, with one warning a run, not one a kernel."""
+    import logging
+
     import numba
+
+    from scantex.views.render import sample_texture, sample_texture_reference
 
     njit = numba.njit
 
@@ -127,11 +132,16 @@ def test_where_numba_cannot_cache_the_blend_it_is_compiled_each_run(capture, mon
     scan, photos, views, transforms, (points, normals, f, b) = capture
     monkeypatch.setattr(numba, "njit", refusing)
     jit.compiled.cache_clear()
+    jit._uncached.cache_clear()
+    image, uv = np.arange(48, dtype=np.uint8).reshape(4, 4, 3), np.linspace(0, 1, 10).reshape(5, 2)
     try:
-        uncached, report = projective_colour(photos, views, range(4), None, grey)
-        assert report["compiled"]
-        got = uncached(points[:500], normals[:500], f[:500], b[:500])
+        with caplog.at_level(logging.WARNING, logger="scantex.jit"):
+            uncached, report = projective_colour(photos, views, range(4), None, grey)
+            assert report["compiled"]
+            got = uncached(points[:500], normals[:500], f[:500], b[:500])
+            assert np.array_equal(sample_texture(image, uv), sample_texture_reference(image, uv))
     finally:
         jit.compiled.cache_clear()
+    assert sum("cannot keep its cache" in r.getMessage() for r in caplog.records) == 1
     cached, _ = projective_colour(photos, views, range(4), None, grey)
     np.testing.assert_array_equal(got, cached(points[:500], normals[:500], f[:500], b[:500]))
