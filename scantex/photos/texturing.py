@@ -250,10 +250,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
 
     to_recorded = recorded if recorded is not None or canonicalise is not None else (lambda rgb, group: rgb)
+    from scantex.photos import compiled
+
     tables = None
     if sources and (canonicalise is None or transforms is not None):
-        from scantex.photos import compiled
-
         if compiled.available():
             tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None,
                              pixels, pixel_start, feathers, view_start)
@@ -266,8 +266,6 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The blend, compiled: ``(colour (n, 3), total weight (n,), largest feather (n,))``; the points in
         ``threads`` parts side by side (the kernel releases the interpreter lock)."""
-        from scantex.photos import compiled
-
         def part(span: slice):
             return compiled.blend(tables, local[span], unit[span], face_ids[span],
                                   depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
@@ -279,7 +277,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         parts = max(1, min(threads, n // 4096))
         bounds = np.linspace(0, n, parts + 1).astype(int)
         spans = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-        if parts > 1:
+        if parts > 1:  # a plain pool, not side_by_side: this runs per chunk on the bake's threads, where
+            # limiting BLAS (process-wide) from two threads at once could leave it limited
             with ThreadPoolExecutor(parts) as pool:
                 results = list(pool.map(part, spans))
         else:
