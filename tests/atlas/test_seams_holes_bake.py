@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 
 import numpy as np
 import pytest
@@ -201,6 +202,27 @@ def test_a_bake_of_some_faces_colours_their_texels_as_a_full_bake_does(wall):
     assert (part[inside] == full[inside]).all(axis=1).mean() > 0.9
     others = (whole >= 0) & ~only[np.maximum(whole, 0)]
     assert not np.array_equal(part[others], full[others])  # not coloured: padding
+
+
+def test_a_bake_on_threads_pads_as_one_on_a_single_core(cube, wall):
+    """``workers`` 2 finds the gutters' nearest texels on a thread of its own while colouring (the texel map drawn
+    a second time for its mask): the same images and layouts as one core's bake, for a few faces as for all."""
+    from scantex.atlas.bake import AtlasLayout
+    from scantex.atlas.texelmap import rasterised_cheaply
+
+    assert rasterised_cheaply() == (importlib.util.find_spec("numba") is not None)
+
+    def colour(points, normals, faces, bary):
+        return np.clip(np.abs(np.sin(5 * points + normals)), 0, 1)
+
+    for scan, only in ((cube, None), (wall, None), (wall, np.arange(wall.n_faces) % 3 == 0)):
+        one: list[AtlasLayout | None] = []
+        two: list[AtlasLayout | None] = []
+        alone = bake(scan, colour, size=64, chunk=500, layouts=one, only=only)
+        threaded = bake(scan, colour, size=64, chunk=500, layouts=two, only=only, workers=2)
+        assert all(np.array_equal(a, b) for a, b in zip(alone, threaded, strict=True))
+        for a, b in zip(one, two, strict=True):
+            assert np.array_equal(a.face_id, b.face_id) and np.array_equal(a.sources, b.sources)
 
 
 def test_bake_keeps_layout_per_material(cube):
