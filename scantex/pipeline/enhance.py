@@ -288,8 +288,10 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         if scan.is_textured:
             canonicalise, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan), pc.pair_weight)
 
-            def fallback(points, normals, face_ids, bary):
+            def input_colour(points, normals, face_ids, bary):
                 return shade_hits(scan, face_ids, bary)
+
+            fallback = input_colour
         else:
             canonicalise = None
 
