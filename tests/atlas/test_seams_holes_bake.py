@@ -341,13 +341,18 @@ def test_a_mostly_empty_atlas_casts_only_where_triangles_reach(monkeypatch):
     np.testing.assert_allclose(compiled.bary[both], ref.bary[both], atol=1e-6)
 
 
-def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
+@pytest.mark.parametrize("numba", [True, False])
+def test_gutter_padding_in_place_is_nearest_texel(numba, monkeypatch):
+    """Compiled (rows on threads: 151 rows make two parts) and in numpy (strips of rows) alike."""
     import scantex.atlas.padding
+    from scantex import jit
 
     monkeypatch.setattr(scantex.atlas.padding, "ROWS_PER_STRIP", 4)
+    if not numba:
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
     rng = np.random.default_rng(0)
-    image = rng.integers(0, 255, (23, 17, 3)).astype(np.uint8)
-    covered = rng.random((23, 17)) < 0.2
+    image = rng.integers(0, 255, (151, 17, 3)).astype(np.uint8)
+    covered = rng.random((151, 17)) < 0.2
     padded = pad_gutters(image, covered)
     from scipy.ndimage import distance_transform_edt
 
@@ -359,12 +364,46 @@ def test_gutter_padding_in_place_is_nearest_texel(monkeypatch):
     floats = image.astype(np.float32) / 255
     fill_gutters(floats, covered)
     assert np.array_equal(floats, image[iy, ix].astype(np.float32) / 255)
-    rgba = np.concatenate([image, np.full((23, 17, 1), 7, np.uint8)], axis=2)
+    rgba = np.concatenate([image, np.full((151, 17, 1), 7, np.uint8)], axis=2)
     fill_gutters(rgba[..., :3], covered)
     assert np.array_equal(rgba[..., :3], image[iy, ix]) and (rgba[..., 3] == 7).all()
     columns = np.asfortranarray(image)
     fill_gutters(columns, covered)
     assert np.array_equal(columns, image[iy, ix])
+
+
+@pytest.mark.parametrize("numba", [True, False])
+def test_gutter_sources_are_the_nearest_covered_texels(numba, monkeypatch):
+    """The compiled passes (rows and columns shared among threads) against their twin, scipy's distance transform,
+    on masks full of ties (covered texels on lattices, single texels, one row or column): every texel named is
+    covered and as near as scipy's; covered texels name themselves. Without numba the twin runs."""
+    from scantex import jit
+    from scantex.atlas.padding import gutter_sources, gutter_sources_scipy
+
+    if not numba:
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
+    rng = np.random.default_rng(3)
+    masks = [np.eye(1, 9, 4, dtype=bool), np.eye(9, 1, 4, dtype=bool), rng.random((300, 200)) < 0.001]
+    for _ in range(40):
+        H, W = rng.integers(1, 90, 2)
+        mask = np.zeros((H, W), bool)
+        mask[::rng.integers(2, 7), ::rng.integers(2, 7)] = rng.random() < 0.5
+        masks.append(mask | (rng.random((H, W)) < rng.choice([0.002, 0.02, 0.3])))
+    for covered in masks:
+        if covered.all() or not covered.any():
+            assert gutter_sources(covered) is None
+            continue
+        H, W = covered.shape
+        ours, theirs = gutter_sources(covered), gutter_sources_scipy(covered)
+        assert ours.shape == (H, W) and ours.dtype == np.int32
+        y, x = np.indices((H, W))
+
+        def distance(sources):
+            return (sources // W - y) ** 2 + (sources % W - x) ** 2
+
+        assert covered.reshape(-1)[ours.reshape(-1)].all()
+        assert np.array_equal(distance(ours), distance(theirs))
+        assert np.array_equal(ours[covered], (y * W + x)[covered])
 
 
 def test_vertex_colours_baked_into_a_texture_render_as_the_vertex_colours():
