@@ -120,7 +120,15 @@ def face_display_colors(scan: Scan, faces: np.ndarray) -> np.ndarray:
     return shade_hits(scan, face_id, bary).reshape(M, S, 3).mean(axis=1)
 
 
+#: each byte's two lowercase hex digits, as character codes: ``(256, 2) uint8``
+_HEX_DIGITS = np.frombuffer("".join(f"{v:02x}" for v in range(256)).encode(), np.uint8).reshape(256, 2)
+
+
 def _hex(rgb: np.ndarray) -> np.ndarray:
     """``(N, 3) uint8`` colours as ``(N,)`` '#rrggbb' strings (the most compact colour plotly.js reads)."""
-    packed = (rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8) | rgb[:, 2]
-    return np.char.add("#", np.char.zfill(np.char.mod("%x", packed), 6))
+    # each byte's two hex digits from a table, the seven characters of a colour as one fixed-width string
+    # (np.char's formatting took 0.15 s for the bathroom's 132,317 faces)
+    chars = np.empty((len(rgb), 7), np.uint8)
+    chars[:, 0] = ord("#")
+    chars[:, 1:] = _HEX_DIGITS[np.asarray(rgb, np.uint8)].reshape(len(rgb), 6)
+    return chars.view("S7").reshape(-1).astype("U7")
