@@ -794,6 +794,11 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             colour, refine_report = refined.colour, refined.report
         timings["refine"] = time.perf_counter() - t
 
+    if photo is None and fitted is None and refine_report is None and bake_report["source"] == "input":
+        # the input's own texels, levelled and filled: lookups in numpy and compiled loops, no network, so chunks
+        # colour side by side too (the bathroom's 8192^2 atlas: see bench/RESULTS.md)
+        workers = min(8, config.threads or os.cpu_count() or 1)
+
     def bake_and_blend(colour: SurfaceColour, stage: str, workers: int = 1,
                        only: np.ndarray | None = None) -> tuple[Scan, Scan]:
         with reporter.stage(stage) as update:
@@ -836,7 +841,7 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             if refine_report is not None:  # it ran; its colour is not in the result
                 safety["refine_discarded"] = refine_report
             refine_report = None
-            baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)")
+            baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)", workers)
             bake_report["safety"] = safety
     timings["bake"] = time.perf_counter() - t
     scored = enhanced
