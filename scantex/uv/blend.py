@@ -22,7 +22,7 @@ import numpy as np
 
 from scantex.atlas.padding import fill_gutters
 from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
-from scantex.atlas.texelmap import ROWS_PER_STRIP, texel_strips, uv_to_pixel
+from scantex.atlas.texelmap import texel_strips, uv_to_pixel
 from scantex.scan import Scan
 from scantex.threads import side_by_side
 from scantex.views.raycast import PAIR_THREADS, interpolate
@@ -84,12 +84,12 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         new = image.copy()
         covered = np.zeros((H, W), bool)
         layout = layouts[m] if layouts is not None and m < len(layouts) else None
-        if layout is not None and layout.face_id.shape != (H, W):
+        if layout is not None and layout.shape != (H, W):
             layout = None  # not this image's bake
         # the atlas in strips of rows: each strip's texel map and offsets, and the edges whose band reaches it
         strips = (((y0, strip.face_id) for y0, strip in texel_strips(tri_uv, W, H, np.flatnonzero(mats == m)))
                   if layout is None else
-                  ((y0, layout.face_id[y0:y0 + ROWS_PER_STRIP]) for y0 in range(0, H, ROWS_PER_STRIP)))
+                  layout.rows())
 
         def blend_strip(strip: tuple[int, np.ndarray]) -> int:
             """Blend atlas rows ``y0 ..`` of ``face_id``; the texels moved."""

@@ -221,8 +221,10 @@ def test_a_bake_on_threads_pads_as_one_on_a_single_core(cube, wall):
         alone = bake(scan, colour, size=64, chunk=500, layouts=one, only=only)
         threaded = bake(scan, colour, size=64, chunk=500, layouts=two, only=only, workers=2)
         assert all(np.array_equal(a, b) for a, b in zip(alone, threaded, strict=True))
-        for a, b in zip(one, two, strict=True):
-            assert np.array_equal(a.face_id, b.face_id) and np.array_equal(a.sources, b.sources)
+        for a, b, image in zip(one, two, alone, strict=True):
+            assert a.shape == b.shape == image.shape[:2]
+            assert np.array_equal(np.concatenate(a.strips), np.concatenate(b.strips))
+            assert np.array_equal(a.sources, b.sources)
 
 
 def test_bake_keeps_layout_per_material(cube):

@@ -118,12 +118,17 @@ def test_blending_in_strips_is_blending_the_whole_atlas(rows, batch, monkeypatch
         assert any(not np.array_equal(a.image, s.image) for a, s in zip(out.materials, scan.materials))
 
 
-def test_blending_with_the_bakes_layout_is_blending_without_it():
-    """The bake hands its texel map and gutter padding to the seam blending, which then neither rasterises the
-    UVs nor runs the distance transform again: the same images, bit for bit, and the bake's face map is the
-    texel map's."""
+@pytest.mark.parametrize("rows", [None, 7])
+def test_blending_with_the_bakes_layout_is_blending_without_it(rows, monkeypatch):
+    """The bake hands its texel map (its strips of rows: one, or 14 of 7 rows) and gutter padding to the seam
+    blending, which then neither rasterises the UVs nor runs the distance transform again: the same images, bit
+    for bit, and the bake's face map is the texel map's."""
+    import scantex.atlas.texelmap
     from scantex.atlas.bake import bake
     from scantex.atlas.texelmap import texel_map
+
+    if rows:
+        monkeypatch.setattr(scantex.atlas.texelmap, "ROWS_PER_STRIP", rows)
 
     cube = textured_cube(materials=2)
 
@@ -135,7 +140,8 @@ def test_blending_with_the_bakes_layout_is_blending_without_it():
     assert len(layouts) == len(images) == 2
     for m, layout in enumerate(layouts):
         faces = np.flatnonzero(cube.face_materials == m)
-        assert np.array_equal(layout.face_id, texel_map(cube.triangle_uvs, 96, 96, faces).face_id)
+        assert len(layout.strips) == (-(-96 // rows) if rows else 1) and layout.shape == (96, 96)
+        assert np.array_equal(np.concatenate(layout.strips), texel_map(cube.triangle_uvs, 96, 96, faces).face_id)
     baked = cube.replace(materials=tuple(mat.with_image(img) for mat, img in zip(cube.materials, images)))
     plain = blend_seams(baked, max_crease_deg=180)
     reused = blend_seams(baked, max_crease_deg=180, layouts=layouts)
