@@ -33,6 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from scantex import jit
 from scantex.atlas.bake import SurfaceColour
 from scantex.atlas.inpaint import harmonic_vertex_colours
 from scantex.scan import Scan
@@ -217,6 +218,11 @@ def _dark_texels(scan: Scan):
                 return tables[m]
             image = scan.materials[m].image
             out = np.empty((*image.shape[:2], 4), np.uint8)
+            kernel = jit.compiled(_dark_table) if image.dtype == np.uint8 else None
+            if kernel is not None:  # one compiled pass (an 8192^2 atlas: about 0.2 s, where numpy took 1-2 s)
+                kernel(image, out, BLACK_LEVEL, np.float32(BLACK_LEVEL + DARK_RAMP), np.float32(DARK_RAMP))
+                tables[m] = out
+                return out
             for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
                 band = out[r:r + 512]
                 if image.dtype != np.uint8:
@@ -263,6 +269,30 @@ def _dark_texels(scan: Scan):
         return share, dark
 
     return darkness
+
+
+def _dark_table(image, out, black_level, ramp_end, ramp):
+    """The compiled twin of :func:`_dark_texels`' table for an 8-bit ``image (H, W, >= 3)``: ``out (H, W, 4)`` the
+    texel itself behind 255 at ``black_level`` and below, zeros from ``ramp_end`` up, and between them ``w`` = (ramp_end
+    - brightest) / ramp times 255 and times the texel, rounded, in float32 as the numpy table computes them."""
+    H, W = image.shape[0], image.shape[1]
+    for y in range(H):
+        for x in range(W):
+            r, g, b = image[y, x, 0], image[y, x, 1], image[y, x, 2]
+            brightest = max(max(r, g), b)
+            if brightest <= black_level:
+                out[y, x, 0] = 255
+                out[y, x, 1] = r
+                out[y, x, 2] = g
+                out[y, x, 3] = b
+            elif np.float32(brightest) < ramp_end:
+                w = min(max((ramp_end - np.float32(brightest)) / ramp, np.float32(0.0)), np.float32(1.0))
+                out[y, x, 0] = np.uint8(np.rint(w * np.float32(255.0)))
+                out[y, x, 1] = np.uint8(np.rint(w * np.float32(r)))
+                out[y, x, 2] = np.uint8(np.rint(w * np.float32(g)))
+                out[y, x, 3] = np.uint8(np.rint(w * np.float32(b)))
+            else:
+                out[y, x, 0] = out[y, x, 1] = out[y, x, 2] = out[y, x, 3] = 0
 
 
 def field_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, charts: np.ndarray, device, *,

