@@ -166,6 +166,43 @@ def _interpolate_kernel(face_id, bary, corner_values, out):
             out[i, c] = corner_values[f, 0, c] * w + corner_values[f, 1, c] * u + corner_values[f, 2, c] * v
 
 
+def interpolate_indexed(face_id: np.ndarray, bary: np.ndarray, corners: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """:func:`interpolate` of ``values[corners]`` (``corners (F, 3)`` indices into ``values (T, C)``: a scan's UVs by
+    its ``face_uvs``), bit for bit, without gathering the ``(F, 3, C)`` corner values first: only the hits' corners
+    are read, in the compiled pass (a room's 1.2 M hits: several times faster than gathering their corners)."""
+    from scantex import jit
+
+    kernel = jit.compiled(_interpolate_indexed_kernel)
+    values = np.asarray(values)
+    fid = np.asarray(face_id)
+    if kernel is None or values.dtype.kind not in "fiu":
+        return interpolate(np.where(fid >= 0, np.arange(fid.size).reshape(fid.shape), -1), bary,
+                           values[corners[np.maximum(fid, 0).reshape(-1)]])
+    shape = fid.shape
+    flat = np.ascontiguousarray(fid).reshape(-1)
+    if flat.size and int(flat.max()) >= len(corners):
+        raise IndexError(f"face {int(flat.max())} is out of bounds for {len(corners)} faces")
+    out = np.empty((flat.size, values.shape[-1]), np.float64)
+    kernel(flat, np.ascontiguousarray(bary).reshape(-1, 2), np.ascontiguousarray(corners),
+           np.ascontiguousarray(values), out)
+    return out.reshape(*shape, values.shape[-1])
+
+
+def _interpolate_indexed_kernel(face_id, bary, corners, values, out):
+    """:func:`interpolate_indexed`'s kernel, hit by hit: :func:`_interpolate_kernel`'s arithmetic on ``values``
+    read through ``corners``."""
+    for i in range(face_id.shape[0]):
+        f = face_id[i]
+        if f < 0:
+            out[i, :] = 0.0
+            continue
+        u, v = np.float64(bary[i, 0]), np.float64(bary[i, 1])
+        w = 1 - u - v
+        a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
+        for k in range(values.shape[1]):
+            out[i, k] = values[a, k] * w + values[b, k] * u + values[c, k] * v
+
+
 def interpolate_numpy(face_id: np.ndarray, bary: np.ndarray, corner_values: np.ndarray) -> np.ndarray:
     """:func:`interpolate` in numpy: its twin, and what runs where numba is missing."""
     shape = face_id.shape

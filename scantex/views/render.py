@@ -12,7 +12,7 @@ import numpy as np
 
 from scantex.scan import Scan
 from scantex.views.camera import Camera
-from scantex.views.raycast import GBuffer, RayCaster, cast_gbuffer, interpolate
+from scantex.views.raycast import GBuffer, RayCaster, cast_gbuffer, interpolate, interpolate_indexed
 
 
 def sample_texture(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -115,7 +115,13 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray
             continue
         base = np.asarray(material.diffuse[:3], dtype=np.float32)
         if material.image is not None and uv is not None:
-            rgb[sel] = sample_texture(material.image, uv if sel.size == N else uv[sel])[:, :3] * base
+            looked = sample_texture(material.image, uv if sel.size == N else uv[sel])[:, :3]
+            if not (base == 1).all():  # times 1 is the identity: no pass for the usual white base
+                looked = looked * base
+            if sel.size == N:  # every point (one material): a copy, not a scatter by index
+                rgb[:] = looked
+            else:
+                rgb[sel] = looked
         elif scan.vertex_colors is not None:
             corner = scan.vertex_colors[scan.faces][:, :, :3].astype(np.float32) / 255.0
             rgb[sel] = interpolate(face_id[sel], bary[sel], corner)
@@ -131,9 +137,7 @@ def hit_uvs(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
     ``face_id`` is -1, a miss)."""
     # the corners of the faces asked about only (a room's every face corner, gathered at each call, cost more
     # than the lookup): point k reads corners k, and a miss stays a miss
-    fid = np.asarray(face_id)
-    corners = scan.uvs[scan.face_uvs[np.maximum(fid, 0).reshape(-1)]]
-    return interpolate(np.where(fid >= 0, np.arange(fid.size).reshape(fid.shape), -1), bary, corners)
+    return interpolate_indexed(face_id, bary, scan.face_uvs, scan.uvs)
 
 
 def render_gbuffer(scan: Scan, gbuffer: GBuffer, background=(0.0, 0.0, 0.0)) -> np.ndarray:

@@ -206,3 +206,26 @@ def test_the_compiled_interpolation_is_numpys_bit_for_bit():
         assert not got[face_id < 0].any()
     with pytest.raises(IndexError):
         interpolate(np.array([50], np.int32), np.zeros((1, 2), np.float32), rng.random((50, 3, 3)))
+
+
+@pytest.mark.parametrize("numba", [True, False])
+def test_interpolation_through_corner_indices_is_interpolation_of_the_gathered_corners(numba, monkeypatch):
+    """``interpolate_indexed`` (how :func:`hit_uvs` reads a scan's UVs through its ``face_uvs``): bit for bit the
+    interpolation of ``values[corners]``, misses 0, shapes kept, compiled and in numpy alike."""
+    from scantex import jit
+    from scantex.views.raycast import interpolate_indexed
+
+    if not numba:
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
+    rng = np.random.default_rng(7)
+    face_id = rng.integers(-1, 40, (6, 11)).astype(np.int32)
+    bary = (rng.random((6, 11, 2)) * 0.5).astype(np.float32)
+    corners = rng.integers(0, 70, (40, 3))
+    for values in (rng.random((70, 2)), rng.random((70, 2)).astype(np.float32), rng.integers(0, 9, (70, 3))):
+        got = interpolate_indexed(face_id, bary, corners, values)
+        assert got.shape == (6, 11, values.shape[1]) and got.dtype == np.float64
+        assert np.array_equal(got, interpolate(face_id, bary, values[corners]))
+        assert not got[face_id < 0].any()
+    if numba:
+        with pytest.raises(IndexError):
+            interpolate_indexed(np.array([40], np.int32), np.zeros((1, 2), np.float32), corners, rng.random((70, 2)))
