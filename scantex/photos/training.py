@@ -389,7 +389,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             penalises a sharp texture more than a blurred one; aligning each scan's view on its own
             (as pose-refining NeRFs are evaluated) scores the texture rather than the held-out pose.
     """
-    from scantex.metrics.image import psnr, ssim
+    from scantex.metrics.image import psnr, ssim, ssim_maps
     from scantex.photos.poses import PoseSettings, align_camera
     from scantex.views.render import render, render_scans, shade_hits
 
@@ -400,14 +400,16 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             return None
         row = [view.image]
         renders = render_scans(scans, view.camera, caster, supersample=supersample)  # one ray cast for all
+        matched = {name: colour_match(img, view.image, mask) for name, (img, _) in renders.items()}
+        # every render's SSIM against the photo, the photo's own filtering done once
+        maps = iter(ssim_maps([image for name in scans for image in (renders[name][0], matched[name])], view.image))
         out = {}
         for name, scan in scans.items():
             img, _ = renders[name]
             row.append(img)
-            matched = colour_match(img, view.image, mask)
-            s = out[name] = {"psnr": psnr(img, view.image, mask), "ssim": ssim(img, view.image, mask),
-                             "psnr_matched": psnr(matched, view.image, mask),
-                             "ssim_matched": ssim(matched, view.image, mask)}
+            s = out[name] = {"psnr": psnr(img, view.image, mask), "ssim": float(next(maps)[mask].mean()),
+                             "psnr_matched": psnr(matched[name], view.image, mask),
+                             "ssim_matched": float(next(maps)[mask].mean())}
             if align:
                 fitted = align_camera(scan, view.camera, view.image, lambda f, b, scan=scan: shade_hits(scan, f, b),
                                       caster, PoseSettings(max_side=max(view.camera.width, view.camera.height)),
@@ -419,7 +421,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                          aligned_by_deg=fitted.rotation_deg)
         return out, np.concatenate(row, axis=1)
 
-    # the photos side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
+    # the photos side by side: Embree, numpy and scipy's filtering release the interpreter lock
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
         scored = list(pool.map(score, views))
     scores = {name: {"psnr": [], "ssim": [], "psnr_matched": [], "ssim_matched": []} for name in scans}

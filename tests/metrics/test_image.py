@@ -49,3 +49,21 @@ def test_ssim_is_one_for_equal_images_and_falls_with_noise():
     mask = np.zeros(a.shape[:2], bool)
     mask[:20] = True
     assert ssim(a, noisy[1], mask) == pytest.approx(float(ssim_map(a, noisy[1])[:20].mean()), rel=1e-6)
+
+
+def test_several_images_against_one_reference_are_each_its_own_ssim_map(monkeypatch):
+    """``ssim_maps`` filters the reference once a strip for all the images: each map is the image's own ``ssim_map``,
+    bit for bit (a held-out photo against the input's and the result's renders, raw and colour-matched), and all
+    near the direct windows."""
+    from scantex.metrics.image import ssim_maps
+
+    monkeypatch.setattr(image, "STRIP_ROWS", 8)
+    rng = np.random.default_rng(4)
+    b = rng.random((37, 29, 3)).astype(np.float32)
+    images = [np.clip(b + s * rng.standard_normal(b.shape), 0, 1).astype(np.float32) for s in (0.0, 0.05, 0.2)]
+    images.append(rng.random((37, 29, 3)))  # float64 too, as a render may come
+    maps = ssim_maps(images, b)
+    assert len(maps) == 4 and maps[0].min() > 0.999
+    for a, m in zip(images, maps, strict=True):
+        assert np.array_equal(m, ssim_map(a, b))
+        np.testing.assert_allclose(m, ssim_reference(a, b), atol=2e-5)
