@@ -29,22 +29,26 @@ def gutter_sources(covered: np.ndarray) -> np.ndarray | None:
     down, across = jit.compiled(_nearest_rows), jit.compiled(_nearest_texels)
     if down is None or across is None:
         return gutter_sources_scipy(covered)
+    H, W = covered.shape
+    covered = np.ascontiguousarray(covered)
+    sources = np.empty((H, W), np.int64 if covered.size >= 2**31 else np.int32)
+    _in_parts(W, lambda x0, x1: down(covered, sources, x0, x1))  # columns apart
+    _in_parts(H, lambda y0, y1: across(sources, y0, y1))  # then rows apart
+    return sources
+
+
+def _in_parts(n: int, work) -> None:
+    """``work(start, stop)`` over ``range(n)`` cut into one part a core (parts of at least 64), on threads. A plain
+    pool, not side_by_side: this may run beside a bake's colouring threads (see scantex.atlas.bake), where limiting
+    BLAS process-wide from two threads could leave it limited."""
     from concurrent.futures import ThreadPoolExecutor
 
     from scantex.threads import cores
 
-    H, W = covered.shape
-    covered = np.ascontiguousarray(covered)
-    sources = np.empty((H, W), np.int64 if covered.size >= 2**31 else np.int32)
-    parts = max(1, min(cores(), 8, H // 64, W // 64))
-    columns = np.linspace(0, W, parts + 1).astype(np.int64)
-    rows = np.linspace(0, H, parts + 1).astype(np.int64)
-    # a plain pool, not side_by_side: this may run beside a bake's colouring threads (see scantex.atlas.bake),
-    # where limiting BLAS process-wide from two threads could leave it limited
+    parts = max(1, min(cores(), 8, n // 64))
+    bounds = np.linspace(0, n, parts + 1).astype(np.int64)
     with ThreadPoolExecutor(parts) as pool:
-        list(pool.map(lambda k: down(covered, sources, columns[k], columns[k + 1]), range(parts)))
-        list(pool.map(lambda k: across(sources, rows[k], rows[k + 1]), range(parts)))
-    return sources
+        list(pool.map(lambda k: work(bounds[k], bounds[k + 1]), range(parts)))
 
 
 def _nearest_rows(covered, nearest, x0, x1):
@@ -136,15 +140,7 @@ def fill_gutters(image: np.ndarray, covered: np.ndarray, sources: np.ndarray | N
 
     kernel = jit.compiled(_fill)
     if kernel is not None:  # compiled, rows shared among threads (an 8192^2 atlas 86 % gutter: 2 s -> 0.2 s)
-        from concurrent.futures import ThreadPoolExecutor
-
-        from scantex.threads import cores
-
-        H = covered.shape[0]
-        parts = max(1, min(cores(), 8, H // 64))
-        rows = np.linspace(0, H, parts + 1).astype(np.int64)
-        with ThreadPoolExecutor(parts) as pool:  # a plain pool: see gutter_sources
-            list(pool.map(lambda k: kernel(image, covered, sources, rows[k], rows[k + 1]), range(parts)))
+        _in_parts(covered.shape[0], lambda y0, y1: kernel(image, covered, sources, y0, y1))
         return
     if not image.flags.c_contiguous:  # a view (an RGBA atlas's colour channels): texel by row and column
         W = covered.shape[1]

@@ -9,6 +9,7 @@ A world point ``X`` maps to camera coordinates ``x_cam = R @ X + t`` (``world_to
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,29 +93,34 @@ class Camera:
             directions: ``(H * W, 3) float32`` world directions with unit camera-z component, so a
             hit distance along them is the pixel's depth.
         """
-        A, B, C = self._ray_axes()
         xs = np.arange(self.width, dtype=np.float32)[None, :]
         ys = np.arange(self.height, dtype=np.float32)[:, None]
         directions = np.empty((self.height, self.width, 3), np.float32)
-        for k in range(3):  # a component at a time: numpy's loops over rows of three are several times slower
-            directions[:, :, k] = xs * A[k] + (ys * B[k] + C[k])
+        for k, component in enumerate(self._ray_components(xs, ys)):
+            directions[:, :, k] = component
         return self.center.copy(), directions.reshape(-1, 3)
 
     def ray_cosines(self, normals: np.ndarray) -> np.ndarray:
         """``(H, W) float32``: the absolute cosine of the angle between each pixel's ray (:meth:`pixel_rays`) and
         ``normals`` (``(H, W, 3)`` or ``(H * W, 3)`` unit vectors; a zero one gives 0), without the rays'
         ``(H * W, 3)`` array (a component at a time: several times faster)."""
-        A, B, C = self._ray_axes()
         xs = np.arange(self.width, dtype=np.float32)[None, :]
         ys = np.arange(self.height, dtype=np.float32)[:, None]
         normals = np.asarray(normals).reshape(self.height, self.width, 3)
         dot = np.zeros((self.height, self.width), np.float32)
         length = np.zeros((self.height, self.width), np.float32)
-        for k in range(3):
-            d = xs * A[k] + (ys * B[k] + C[k])
+        for k, d in enumerate(self._ray_components(xs, ys)):
             dot += d * normals[:, :, k]
             length += d * d
         return np.abs(dot) / np.sqrt(length)
+
+    def _ray_components(self, x: np.ndarray, y: np.ndarray) -> Iterator[np.ndarray]:
+        """The x, y and z components of the rays through pixels ``(x, y)`` (float32 arrays that broadcast), one at a
+        time: numpy's loops over rows of three are several times slower. The one expression :meth:`pixel_rays`,
+        :meth:`rays_through` and :meth:`ray_cosines` share, so that their rays agree bit for bit."""
+        A, B, C = self._ray_axes()
+        for k in range(3):
+            yield x * A[k] + (y * B[k] + C[k])
 
     def _ray_axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C)``, ``(3,) float32`` each: R^T K^-1 [x, y, 1] = A x + B y + C, pixel ``(x, y)``'s ray."""
@@ -124,11 +130,10 @@ class Camera:
     def rays_through(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """``(N, 3) float32`` directions through pixels ``(x, y)`` (integer columns and rows ``(N,)``): the
         same values, bit for bit, as :meth:`pixel_rays` gives those pixels."""
-        A, B, C = self._ray_axes()
         x, y = np.asarray(x, np.float32), np.asarray(y, np.float32)
         directions = np.empty((len(x), 3), np.float32)
-        for k in range(3):  # as pixel_rays: a component at a time (3-6x faster than rows of three)
-            directions[:, k] = x * A[k] + (y * B[k] + C[k])
+        for k, component in enumerate(self._ray_components(x, y)):
+            directions[:, k] = component
         return directions
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -140,30 +140,11 @@ def interpolate(face_id: np.ndarray, bary: np.ndarray, corner_values: np.ndarray
     """
     from scantex import jit
 
-    kernel = jit.compiled(_interpolate_kernel)
     corner_values = np.asarray(corner_values)
-    if kernel is None or corner_values.dtype.kind not in "fiu":
+    if jit.compiled(_interpolate_kernel) is None or corner_values.dtype.kind not in "fiu":
         return interpolate_numpy(face_id, bary, corner_values)
-    shape = np.shape(face_id)
-    fid = np.ascontiguousarray(face_id).reshape(-1)
-    if fid.size and int(fid.max()) >= len(corner_values):
-        raise IndexError(f"face {int(fid.max())} is out of bounds for {len(corner_values)} faces")
-    out = np.empty((fid.size, corner_values.shape[-1]), np.float64)
-    kernel(fid, np.ascontiguousarray(bary).reshape(-1, 2), np.ascontiguousarray(corner_values), out)
-    return out.reshape(*shape, corner_values.shape[-1])
-
-
-def _interpolate_kernel(face_id, bary, corner_values, out):
-    """:func:`interpolate`'s kernel, hit by hit: ``out (n, C)`` filled in."""
-    for i in range(face_id.shape[0]):
-        f = face_id[i]
-        if f < 0:
-            out[i, :] = 0.0
-            continue
-        u, v = np.float64(bary[i, 0]), np.float64(bary[i, 1])
-        w = 1 - u - v
-        for c in range(corner_values.shape[2]):
-            out[i, c] = corner_values[f, 0, c] * w + corner_values[f, 1, c] * u + corner_values[f, 2, c] * v
+    F = len(corner_values)  # face f's corners are rows 3f, 3f + 1 and 3f + 2 of the values laid flat
+    return _interpolated(face_id, bary, _IMPLICIT_CORNERS, corner_values.reshape(F * 3, corner_values.shape[-1]), F)
 
 
 def interpolate_indexed(face_id: np.ndarray, bary: np.ndarray, corners: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -172,25 +153,37 @@ def interpolate_indexed(face_id: np.ndarray, bary: np.ndarray, corners: np.ndarr
     are read, in the compiled pass (a room's 1.2 M hits: several times faster than gathering their corners)."""
     from scantex import jit
 
-    kernel = jit.compiled(_interpolate_indexed_kernel)
     values = np.asarray(values)
-    fid = np.asarray(face_id)
-    if kernel is None or values.dtype.kind not in "fiu":
+    if jit.compiled(_interpolate_kernel) is None or values.dtype.kind not in "fiu":
+        fid = np.asarray(face_id)
         return interpolate(np.where(fid >= 0, np.arange(fid.size).reshape(fid.shape), -1), bary,
                            values[corners[np.maximum(fid, 0).reshape(-1)]])
-    shape = fid.shape
-    flat = np.ascontiguousarray(fid).reshape(-1)
-    if flat.size and int(flat.max()) >= len(corners):
-        raise IndexError(f"face {int(flat.max())} is out of bounds for {len(corners)} faces")
+    return _interpolated(face_id, bary, np.ascontiguousarray(corners), values, len(corners))
+
+
+#: ``corners`` of :func:`_interpolate_kernel` saying "face f's corners are rows 3f, 3f + 1 and 3f + 2"
+_IMPLICIT_CORNERS = np.zeros((0, 3), np.int64)
+
+
+def _interpolated(face_id: np.ndarray, bary: np.ndarray, corners: np.ndarray, values: np.ndarray,
+                  n_faces: int) -> np.ndarray:
+    """The compiled interpolation of :func:`interpolate` and :func:`interpolate_indexed`: ``(..., C)`` float64."""
+    from scantex import jit
+
+    shape = np.shape(face_id)
+    flat = np.ascontiguousarray(face_id).reshape(-1)
+    if flat.size and int(flat.max()) >= n_faces:
+        raise IndexError(f"face {int(flat.max())} is out of bounds for {n_faces} faces")
     out = np.empty((flat.size, values.shape[-1]), np.float64)
-    kernel(flat, np.ascontiguousarray(bary).reshape(-1, 2), np.ascontiguousarray(corners),
-           np.ascontiguousarray(values), out)
+    jit.compiled(_interpolate_kernel)(flat, np.ascontiguousarray(bary).reshape(-1, 2), corners,
+                                      np.ascontiguousarray(values), out)
     return out.reshape(*shape, values.shape[-1])
 
 
-def _interpolate_indexed_kernel(face_id, bary, corners, values, out):
-    """:func:`interpolate_indexed`'s kernel, hit by hit: :func:`_interpolate_kernel`'s arithmetic on ``values``
-    read through ``corners``."""
+def _interpolate_kernel(face_id, bary, corners, values, out):
+    """The kernel of :func:`_interpolated`, hit by hit: ``out (n, C)`` filled in from the rows of ``values (T, C)``
+    that ``corners (F, 3)`` names for each face, or (``corners`` empty) rows 3f, 3f + 1 and 3f + 2."""
+    implicit = corners.shape[0] == 0
     for i in range(face_id.shape[0]):
         f = face_id[i]
         if f < 0:
@@ -198,7 +191,10 @@ def _interpolate_indexed_kernel(face_id, bary, corners, values, out):
             continue
         u, v = np.float64(bary[i, 0]), np.float64(bary[i, 1])
         w = 1 - u - v
-        a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
+        if implicit:
+            a, b, c = 3 * f, 3 * f + 1, 3 * f + 2
+        else:
+            a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
         for k in range(values.shape[1]):
             out[i, k] = values[a, k] * w + values[b, k] * u + values[c, k] * v
 

@@ -135,8 +135,7 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray
 def hit_uvs(scan: Scan, face_id: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """``(N, 2)``: the texture coordinates of the surface points ``face_id (N,)``, ``bary (N, 2)`` (0 where
     ``face_id`` is -1, a miss)."""
-    # the corners of the faces asked about only (a room's every face corner, gathered at each call, cost more
-    # than the lookup): point k reads corners k, and a miss stays a miss
+    # read through face_uvs, hit by hit (gathering every face's corners at each call cost more than the lookup)
     return interpolate_indexed(face_id, bary, scan.face_uvs, scan.uvs)
 
 
