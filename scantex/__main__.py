@@ -1,3 +1,3 @@
-from scantex.cli import main
+from scantex.cli import run
 
-raise SystemExit(main())
+run()

@@ -646,6 +646,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def run() -> None:
+    """The command's entry point (``scantex``, ``python -m scantex``): :func:`main`, then the process's exit.
+
+    Before exiting, every object is moved out of the garbage collector's reach (``gc.freeze``): the interpreter's
+    shutdown collects the whole heap again as it clears each module, and with numba, scipy, trimesh and plotly
+    loaded that took 0.4-0.6 s after the last output was written (a photo-mode run of the bolster: 0.5 s of its
+    10). Nothing is lost: the outputs are written and closed by then, and objects are still freed as their last
+    reference goes. :func:`main` itself, which tests and other programs call, leaves the collector alone."""
+    import gc
+
+    code = main()
+    gc.freeze()
+    raise SystemExit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.ERROR if args.quiet else logging.WARNING,
