@@ -574,6 +574,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     from scantex.uv import blend_seams, plan_uvs
 
     validate(config)
+    if photos is not None:
+        photos.prefetch()  # decoded on a thread while the views are planned and rendered
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
     from_vertex_colours = not scan.is_textured and scan.vertex_colors is not None

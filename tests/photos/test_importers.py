@@ -392,6 +392,60 @@ def test_photos_are_decoded_once_when_they_all_fit(tmp_path):
     np.testing.assert_array_equal(small.load_image(0), first)
 
 
+def test_prefetched_photos_and_depth_maps_are_decoded_once(tmp_path):
+    """:meth:`PhotoSet.prefetch` decodes every photo and depth map into the cache on a thread; the stages get
+    those very arrays (read-only), and a photo asked for while it is being decoded is waited for, not decoded
+    again. A file that cannot be read stops the prefetch quietly and fails where a stage reads it."""
+    import threading
+    import time
+
+    from scantex.photos.photoset import ImageCache
+
+    for k in range(3):
+        Image.fromarray(np.full((H, W, 3), 40 * k, np.uint8)).save(tmp_path / f"{k}.png")
+        Image.fromarray(np.full((H // 2, W // 2), 1000 + k, np.uint16)).save(tmp_path / f"d{k}.png")
+    photos = PhotoSet(cameras=(reference_camera(),) * 3, images=[tmp_path / f"{k}.png" for k in range(3)],
+                      depths=[tmp_path / f"d{k}.png" for k in range(3)], source=tmp_path, format="test")
+    thread = photos.prefetch()
+    thread.join(timeout=30)
+    assert not thread.is_alive()
+    cached = [photos.image_cache.get(tmp_path / f"{k}.png") for k in range(3)]
+    depths = [photos.image_cache.get(tmp_path / f"d{k}.png") for k in range(3)]
+    for k in range(3):
+        assert photos.load_image(k) is cached[k] and cached[k][0, 0, 0] == 40 * k
+        assert photos.load_depth(k) is depths[k] and not depths[k].flags.writeable
+        assert depths[k].shape == (H // 2, W // 2) and np.allclose(depths[k], (1000 + k) / 1000)
+
+    # a decode in flight is waited for: two threads asking at once decode the file once
+    cache, calls, started = ImageCache(), [], threading.Event()
+
+    def slow():
+        calls.append(1)
+        started.set()
+        time.sleep(0.2)
+        return np.zeros((2, 2, 3), np.uint8)
+
+    first = []
+    other = threading.Thread(target=lambda: first.append(cache.get_or_decode(tmp_path / "0.png", slow)))
+    other.start()
+    started.wait(5)
+    second = cache.get_or_decode(tmp_path / "0.png", slow)
+    other.join()
+    assert len(calls) == 1 and second is first[0]
+
+    # a set too large for its cache is not prefetched, and each read decodes again
+    small = dataclasses.replace(photos, image_cache=ImageCache(budget_mb=W * H * 3 / 2**20))
+    assert small.prefetch() is None and small.load_image(0) is not small.load_image(0)
+    # a broken photo: the prefetch stops, the read raises
+    (tmp_path / "1.png").write_bytes(b"not a png")
+    fresh = dataclasses.replace(photos, image_cache=ImageCache())
+    fresh.prefetch().join(timeout=30)
+    assert fresh.image_cache.get(tmp_path / "0.png") is not None
+    assert fresh.image_cache.get(tmp_path / "2.png") is None
+    with pytest.raises(ScanError, match="not an image"):
+        fresh.load_image(1)
+
+
 # ---- the real bolster capture (skipped without ../shared/data) ---------------------------------
 
 def test_bolster_cameras_json():
