@@ -621,7 +621,11 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         if vc.adaptive and trains_on_views:
             cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4),
                                              up=up, seed=rng_seed, caster=caster)
-        coverage = face_coverage(scan, cameras, caster=caster)
+        # the surface the rendered views see: all of them, or the held-out ones a photo-mode run renders alone
+        # (casting the other views' G-buffers only for this count took 0.24 s of the bolster's 10)
+        covering = cameras if trains_on_views else [cameras[i] for i in
+                                                    split_train_test(len(cameras), vc.test_fraction, rng_seed)[1]]
+        coverage = face_coverage(scan, covering, caster=caster)
         update(1, 1)
     timings["plan"] = time.perf_counter() - t
 
