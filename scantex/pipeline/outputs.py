@@ -54,15 +54,16 @@ def write_outputs(result, out_dir: str | Path) -> None:
 
     out_dir = Path(out_dir)
     png_cache: dict = {}  # the OBJ's PNG and the GLB's embedded one are the same bytes: encode once
-    # the atlases are encoded on a second core while the metrics and the report are made (zlib releases the
-    # interpreter lock), then the OBJ and the GLB are written from those bytes
+    # on a second core, while the metrics and the report are made: the atlases encoded (zlib releases the
+    # interpreter lock), then the OBJ and the GLB written from those bytes (the GLB imports trimesh: the
+    # bolster's outputs written in about 0.9 s instead of 1.1)
     with ThreadPoolExecutor(1) as pool:
-        encoding = [pool.submit(png_bytes, m.image, png_cache) for m in result.scan.materials if m.image is not None]
+        writing = [pool.submit(png_bytes, m.image, png_cache) for m in result.scan.materials if m.image is not None]
+        writing += [pool.submit(save_scan, result.scan, out_dir / name, png_cache=png_cache)
+                    for name in ("enhanced.obj", "enhanced.glb")]
         _write_the_rest(result, out_dir)
-        for done in encoding:
+        for done in writing:
             done.result()
-    save_scan(result.scan, out_dir / "enhanced.obj", png_cache=png_cache)
-    save_scan(result.scan, out_dir / "enhanced.glb", png_cache=png_cache)
     if usd_input(result):  # a USDZ given, a USDZ back (what iOS opens), beside the OBJ and the GLB
         save_scan(result.scan, out_dir / "enhanced.usdz", png_cache=png_cache)
 
