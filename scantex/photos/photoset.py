@@ -64,13 +64,17 @@ class ImageCache:
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["budget"] / 2**20)
 
+    def _used(self, key: tuple | None) -> np.ndarray | None:
+        """The image kept under ``key``, now the most recently used (the caller holds the lock)."""
+        image = self._images.get(key)
+        if image is not None:
+            self._images.move_to_end(key)
+        return image
+
     def get(self, path: Path) -> np.ndarray | None:
         key = self._key(path)
         with self._lock:
-            image = self._images.get(key)
-            if image is not None:
-                self._images.move_to_end(key)
-            return image
+            return self._used(key)
 
     def get_or_decode(self, path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
         """The image of ``path``: the cache's, or ``decode()``'s, kept. A thread asking for a file another
@@ -78,32 +82,28 @@ class ImageCache:
         ahead of the stages)."""
         key = self._key(path)
         with self._lock:
-            image = self._images.get(key)
+            image = self._used(key)
             if image is not None:
-                self._images.move_to_end(key)
                 return image
             pending = self._decoding.get(key)
             mine = pending is None and key is not None
             if mine:
                 pending = self._decoding[key] = threading.Event()
-        if not mine:
-            if pending is not None:
-                pending.wait()
-                image = self.get(path)
-                if image is not None:
-                    return image
-            # the other decode failed (its error is raised again here) or the file cannot be keyed
-            image = decode()
-            self.put(path, image)
-            return image
+        if not mine and pending is not None:
+            pending.wait()
+            image = self.get(path)
+            if image is not None:
+                return image
+            # the other decode failed: this one raises its error again, where the stage asked
         try:
-            image = decode()
+            image = decode()  # also where the file cannot be keyed (missing): decode says so
             self.put(path, image)
             return image
         finally:
-            with self._lock:
-                del self._decoding[key]
-            pending.set()
+            if mine:
+                with self._lock:
+                    del self._decoding[key]
+                pending.set()
 
     def put(self, path: Path, image: np.ndarray) -> None:
         key = self._key(path)
