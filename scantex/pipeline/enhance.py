@@ -956,6 +956,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "textured": scan.is_textured,
                   "charts": int(charts.max()) + 1, "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
         "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
+                  # photo mode without a field renders the held-out views alone (nothing trains on the others)
+                  "rendered": len(tv.views) if tv.views.rendered is None else int(tv.views.rendered.sum()),
                   "coverage": coverage.summary()},
         "field": {"trained": True, "train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run,
                   "final_loss": float(np.mean(fitted.losses[-50:]))} if fitted is not None else {"trained": False},

@@ -179,6 +179,7 @@ def test_default_bake_keeps_the_input_texels_and_reports_patches(toy_demo, toy_r
     assert m["bake"]["source"] == "input" and m["bake"]["noise_threshold"] >= 0
     assert 0 <= m["patches"]["enhanced_vs_input"] <= 1 and len(m["patches"]["per_view"]) == m["views"]["test"]
     assert m["sampling"]["train_rays"] > 0 and m["sampling"]["used_input_texels"] > 0
+    assert m["views"]["rendered"] == m["views"]["total"]  # mesh-only mode renders every view it plans
 
 
 def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypatch):

@@ -51,8 +51,9 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     # no field is trained (projective texturing, colour transforms in closed form): the synthetic training
     # views would teach nothing, and are not rendered
     assert m["photos"]["photo_rays"] > 0 and m["photos"]["synthetic_rays"] == 0 and "why" in m["field"]
-    # the views' coverage counts the views rendered: the held-out ones alone
-    assert m["views"]["coverage"].startswith(f"{m['views']['test']} views: ") and m["views"]["test"] < m["views"]["total"]
+    # the views rendered are the held-out ones alone, and their coverage counts them
+    assert m["views"]["rendered"] == m["views"]["test"] < m["views"]["total"]
+    assert m["views"]["coverage"].startswith(f"{m['views']['test']} views: ")
     truth = m["held_out_photos_vs_ground_truth"]
     assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
     photos = m["held_out_photos"]
