@@ -264,7 +264,8 @@ class PhotoSet:
     def all_cached(self) -> bool:
         """Whether :attr:`image_cache` keeps the decoded photos and depth maps: only when they all fit (the
         stages read the photos in turn: a cache holding the last few would never be hit). A depth map is
-        counted at its photo's size, 4 bytes a pixel: no larger than that in any capture scantex reads."""
+        counted at its photo's size, 4 bytes a pixel: no larger than that in any capture scantex reads (16-bit
+        maps at the photo's size or below)."""
         return sum(c.width * c.height * (3 + 4 * (d is not None))
                    for c, d in zip(self.cameras, self.depths)) <= self.image_cache.budget
 
@@ -291,8 +292,8 @@ class PhotoSet:
 
     def load_depth(self, i: int) -> np.ndarray | None:
         """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,
-        stored as 0), at the depth map's own size, read-only (it may be :attr:`image_cache`'s copy);
-        ``None`` when the photo has no depth map."""
+        stored as 0), at the depth map's own size; ``None`` when the photo has no depth map. The decoded
+        integers are what :attr:`image_cache` keeps (half the size, and right for any ``depth_scale``)."""
         path = self.depths[i]
         if path is None:
             return None
@@ -303,12 +304,11 @@ class PhotoSet:
                 raw = np.asarray(im)
             if raw.ndim != 2 or raw.dtype.kind not in "ui":
                 raise ScanError(path, f"depth map is not a single-channel integer image (mode {im.mode})")
-            depth = raw.astype(np.float32) * np.float32(self.depth_scale)
-            depth[raw == 0] = np.nan
-            return depth
+            return raw
 
-        depth = self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
-        depth.flags.writeable = False
+        raw = self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
+        depth = raw.astype(np.float32) * np.float32(self.depth_scale)
+        depth[raw == 0] = np.nan
         return depth
 
 

@@ -621,11 +621,6 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         if vc.adaptive and trains_on_views:
             cameras = add_views_for_coverage(scan, cameras, min_views=2, max_new=max(2, vc.n_views // 4),
                                              up=up, seed=rng_seed, caster=caster)
-        # the surface the rendered views see: all of them, or the held-out ones a photo-mode run renders alone
-        # (casting the other views' G-buffers only for this count took 0.24 s of the bolster's 10)
-        covering = cameras if trains_on_views else [cameras[i] for i in
-                                                    split_train_test(len(cameras), vc.test_fraction, rng_seed)[1]]
-        coverage = face_coverage(scan, covering, caster=caster)
         update(1, 1)
     timings["plan"] = time.perf_counter() - t
 
@@ -633,6 +628,10 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     with reporter.stage("rendering views") as update:
         tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
                                    rng_seed, update, render_train=trains_on_views)
+        # the surface the rendered views see: all of them, or the held-out ones a photo-mode run renders alone
+        # (casting the other views' G-buffers only for this count took 0.24 s of the bolster's 10)
+        coverage = face_coverage(scan, cameras if trains_on_views else [cameras[i] for i in tv.views.test],
+                                 caster=caster)
     timings["render"] = time.perf_counter() - t
 
     photo = None

@@ -413,8 +413,10 @@ def test_prefetched_photos_and_depth_maps_are_decoded_once(tmp_path):
     depths = [photos.image_cache.get(tmp_path / f"d{k}.png") for k in range(3)]
     for k in range(3):
         assert photos.load_image(k) is cached[k] and cached[k][0, 0, 0] == 40 * k
-        assert photos.load_depth(k) is depths[k] and not depths[k].flags.writeable
-        assert depths[k].shape == (H // 2, W // 2) and np.allclose(depths[k], (1000 + k) / 1000)
+        # the cache keeps the map's integers; each read is in metres, at the set's own scale
+        assert depths[k].dtype.kind in "ui" and depths[k].shape == (H // 2, W // 2) and (depths[k] == 1000 + k).all()
+        assert np.allclose(photos.load_depth(k), (1000 + k) / 1000)
+        assert np.allclose(dataclasses.replace(photos, depth_scale=1e-4).load_depth(k), (1000 + k) / 10000)
 
     # a decode in flight is waited for: two threads asking at once decode the file once
     cache, calls, started = ImageCache(), [], threading.Event()
