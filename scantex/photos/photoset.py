@@ -282,7 +282,7 @@ class PhotoSet:
             for i in range(len(self)):
                 try:
                     self.load_image(i)
-                    self.load_depth(i)
+                    self._depth_integers(i)  # what the cache keeps: no conversion to metres thrown away
                 except Exception:  # noqa: BLE001 - the stage reading this photo says what is wrong with it
                     return
 
@@ -294,6 +294,15 @@ class PhotoSet:
         """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,
         stored as 0), at the depth map's own size; ``None`` when the photo has no depth map. The decoded
         integers are what :attr:`image_cache` keeps (half the size, and right for any ``depth_scale``)."""
+        raw = self._depth_integers(i)
+        if raw is None:
+            return None
+        depth = raw.astype(np.float32) * np.float32(self.depth_scale)
+        depth[raw == 0] = np.nan
+        return depth
+
+    def _depth_integers(self, i: int) -> np.ndarray | None:
+        """Photo ``i``'s depth map as stored, ``(h, w)`` integers (the cache's copy when the set fits it)."""
         path = self.depths[i]
         if path is None:
             return None
@@ -306,10 +315,7 @@ class PhotoSet:
                 raise ScanError(path, f"depth map is not a single-channel integer image (mode {im.mode})")
             return raw
 
-        raw = self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
-        depth = raw.astype(np.float32) * np.float32(self.depth_scale)
-        depth[raw == 0] = np.nan
-        return depth
+        return self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
 
 
 def image_size(path: Path) -> tuple[int, int]:
