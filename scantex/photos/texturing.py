@@ -671,12 +671,17 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
 def _packed(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``(H * W,) uint32``: an ``(H, W, 3) uint8`` image with each pixel's bytes in one word (a sample
     then gathers one word per corner instead of a row of three bytes: about twice as fast), written into
-    ``out`` when given."""
+    ``out`` when given: red in the low byte, the high byte 0.
+
+    Built as whole-image shifts and ors of each channel: a byte copy into every fourth byte runs numpy's
+    strided loop three bytes at a time (19 ms for a 1920x1080 photo, 50 ms with the bake's other thread
+    busy; this way 6 ms)."""
     H, W = image.shape[:2]
     words = np.empty(H * W, np.uint32) if out is None else out
-    channels = words.view(np.uint8).reshape(-1, 4)
-    channels[:, :3] = image.reshape(-1, 3)
-    channels[:, 3] = 0
+    grid = words.reshape(H, W)
+    np.left_shift(image[..., 2], 16, out=grid, dtype=np.uint32)
+    grid |= np.left_shift(image[..., 1], 8, dtype=np.uint32)
+    grid |= image[..., 0]
     return words
 
 
