@@ -165,12 +165,41 @@ def seam_side_colours(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.
                        inset_texels: float) -> np.ndarray:
     """``(N, 3)`` colour at parameter ``t (N,)`` along each seam edge's UV segment in face ``faces (N,)``,
     looked up ``inset_texels`` inside the face (away from the gutter)."""
+    return seam_sides(scan, faces, corners, inset_texels).colours(scan, np.arange(len(faces)), t)
+
+
+@dataclass(frozen=True)
+class SeamSides:
+    """Seam edges' UV segments as the faces of one side hold them, and the step inside each face that a
+    lookup along the segment takes (:func:`seam_sides`): what :func:`seam_side_colours` computes per edge,
+    kept for a caller that reads many points of the same edges (seam blending: a few dozen texels an edge)."""
+
+    start: np.ndarray  # (N, 2) the segment's first corner, in UV
+    along: np.ndarray  # (N, 2) from the first corner to the second
+    inset: np.ndarray  # (N, 2) the lookup's step inside the face, in UV (0 for no material image)
+    material: np.ndarray  # (N,) the face's material
+
+    def colours(self, scan: Scan, rows: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """``(n, 3)`` colour at parameter ``t (n,)`` along sides ``rows (n,)``, the step inside included."""
+        point = self.start[rows] + t[:, None] * self.along[rows]
+        out = np.zeros((len(rows), 3), np.float32)
+        mat = self.material[rows]
+        for m, material in enumerate(scan.materials):
+            sel = np.flatnonzero(mat == m)
+            if material.image is None or sel.size == 0:
+                continue
+            out[sel] = sample_texture(material.image, point[sel] + self.inset[rows[sel]])[:, :3]
+        return out
+
+
+def seam_sides(scan: Scan, faces: np.ndarray, corners: np.ndarray, inset_texels: float) -> SeamSides:
+    """The :class:`SeamSides` of the seam edges whose corners ``corners (N, 2)`` (0-2) are in faces
+    ``faces (N,)``, looked up ``inset_texels`` inside each face (at most half its height there)."""
     rows = np.arange(len(faces))
     uv_tri = scan.uvs[scan.face_uvs[faces]]  # [N, 3, 2]
     p0, p1 = uv_tri[rows, corners[:, 0]], uv_tri[rows, corners[:, 1]]
     opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
-    point = p0 + t[:, None] * (p1 - p0)
-    out = np.zeros((len(faces), 3), np.float32)
+    inset = np.zeros((len(faces), 2), np.float64)
     mat = scan.face_materials[faces]
     for m, material in enumerate(scan.materials):
         sel = np.flatnonzero(mat == m)
@@ -184,5 +213,5 @@ def seam_side_colours(scan: Scan, faces: np.ndarray, corners: np.ndarray, t: np.
         normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
         height = ((opposite[sel] - p0[sel]) * px * normal).sum(axis=1, keepdims=True)
         step = np.sign(height) * np.minimum(inset_texels, 0.5 * np.abs(height))
-        out[sel] = sample_texture(material.image, point[sel] + normal * step / px)[:, :3]
-    return out
+        inset[sel] = normal * step / px
+    return SeamSides(p0, p1 - p0, inset, mat)

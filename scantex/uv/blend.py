@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scantex.atlas.padding import fill_gutters
-from scantex.atlas.seams import SeamEdges, seam_edges, seam_side_colours, uv_shells
+from scantex.atlas.seams import SeamEdges, SeamSides, seam_edges, seam_sides, uv_shells
 from scantex.atlas.texelmap import texel_strips, uv_to_pixel
 from scantex.scan import Scan
 from scantex.threads import side_by_side
@@ -80,6 +80,8 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         seg = uv_to_pixel(np.stack([tri_uv[f, cf[:, 0]], tri_uv[f, cf[:, 1]]], axis=1), W, H)  # [n, 2, 2]
         lo = np.floor(seg.min(axis=1) - band_texels).astype(np.int64)
         hi = np.ceil(seg.max(axis=1) + band_texels).astype(np.int64)
+        # each side's segment and inward step, once: a side's band holds a few dozen texels that read it
+        mine, theirs = seam_sides(scan, f, cf, inset_texels), seam_sides(scan, g, cg, inset_texels)
         scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
         new = image.copy()
         covered = np.zeros((H, W), bool)
@@ -97,13 +99,15 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
             y1 = y0 + face_id.shape[0]
             covered[y0:y1] = face_id >= 0
             texel_shell = np.where(face_id >= 0, shells[np.maximum(face_id, 0)], -1)
-            offset, weight, strongest = _strip_offsets(
-                scan, texel_shell, y0, W, shells, seg, f, g, cf, cg, lo, hi, band_texels, core, inset_texels)
+            at, offset, weight, strongest = _strip_offsets(
+                scan, texel_shell, y0, W, shells[f], seg, mine, theirs, lo, hi, band_texels, core)
             touched = weight > 0  # only these change
-            rgb = image[y0:y1, :, :3][touched].astype(np.float64) * scale
-            rgb += offset[touched] / weight[touched, None] * strongest[touched, None]
-            new[y0:y1, :, :3][touched] = to_uint8(rgb) if image.dtype == np.uint8 else rgb.astype(image.dtype)
-            return int(touched.sum())
+            at, offset, weight, strongest = at[touched], offset[touched], weight[touched], strongest[touched]
+            rgb = image[y0:y1].reshape(-1, image.shape[2])[at, :3].astype(np.float64) * scale
+            rgb += offset / weight[:, None] * strongest[:, None]
+            new[y0:y1].reshape(-1, image.shape[2])[at, :3] = (to_uint8(rgb) if image.dtype == np.uint8
+                                                               else rgb.astype(image.dtype))
+            return int(at.size)
 
         # with the bake's layout, the strips side by side (each reads the image and writes its own rows of the
         # copy; the bolster's blending 0.85 -> 0.65 s); without it, one at a time: each strip's texel map is
@@ -116,19 +120,19 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
     return scan.replace(materials=materials)
 
 
-def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, shells: np.ndarray, seg: np.ndarray,
-                   f: np.ndarray, g: np.ndarray, cf: np.ndarray, cg: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                   band_texels: float, core: float, inset_texels: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, side_shell: np.ndarray, seg: np.ndarray,
+                   mine: SeamSides, theirs: SeamSides, lo: np.ndarray, hi: np.ndarray, band_texels: float,
+                   core: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The seam sides' pull on the texels of atlas rows ``y0 .. y0 + h`` (``texel_shell (h, W)``: the
-    shell each texel shows, -1 for none): ``(h, W, 3)`` summed weighted offsets, ``(h, W)`` summed
-    weights and ``(h, W)`` strongest weight. Candidate texels are each seam side's bounding box within
-    ``band_texels``, cut to the strip's rows, examined ``CANDIDATES_PER_BATCH`` at a time."""
+    shell each texel shows, -1 for none; ``side_shell (N,)`` each side's shell; ``mine`` and ``theirs``
+    each side's segment as its own face and the other side's face hold it): ``(at (n,), offsets (n, 3),
+    weights (n,), strongest (n,))``, the summed weighted offsets, summed weights and strongest weight of
+    the ``n`` texels reached, ``at`` their indices in the strip's rows flattened, increasing. Candidate
+    texels are each seam side's bounding box within ``band_texels``, cut to the strip's rows, examined
+    ``CANDIDATES_PER_BATCH`` at a time; the sums are kept for the texels reached only (a few per cent of
+    a strip: dense sums over every texel of it took a third of the blending)."""
     h = texel_shell.shape[0]
     y1 = y0 + h
-    offset = np.zeros((3, h * W), np.float64)
-    weight = np.zeros(h * W, np.float64)
-    strongest = np.zeros(h * W, np.float64)
     rows = np.flatnonzero((hi[:, 1] >= y0) & (lo[:, 1] <= y1 - 1))  # the sides whose band reaches the strip
     lo_y = np.maximum(lo[rows, 1], y0)
     count_x = np.maximum(hi[rows, 0] - lo[rows, 0] + 1, 0)
@@ -136,6 +140,7 @@ def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, shells:
     per = count_x * count_y
     cum = np.cumsum(per)
     start = 0
+    batches = []  # each batch's (texel, weight, weighted offset)
     while start < len(rows):
         done_before = cum[start - 1] if start else 0
         end = max(int(np.searchsorted(cum, done_before + CANDIDATES_PER_BATCH, side="right")), start + 1)
@@ -149,27 +154,36 @@ def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, shells:
         e = rows[j]
         inside = (x >= 0) & (x < W) & (y >= y0) & (y < y1)
         e, x, y = e[inside], x[inside], y[inside]
-        same_chart = texel_shell[y - y0, x] == shells[f[e]]
+        same_chart = texel_shell[y - y0, x] == side_shell[e]
         e, x, y = e[same_chart], x[same_chart], y[same_chart]
-        a, d_vec = seg[e, 0], seg[e, 1] - seg[e, 0]
-        length2 = (d_vec ** 2).sum(axis=1)
-        t = np.clip(np.divide(((np.stack([x, y], 1) - a) * d_vec).sum(axis=1), length2,
-                              out=np.zeros(len(e)), where=length2 > 0), 0.0, 1.0)
-        dist = np.linalg.norm(np.stack([x, y], 1) - (a + t[:, None] * d_vec), axis=1)
-        w = np.clip((band_texels - dist) / (band_texels - core), 0.0, 1.0)
+        # the texel's distance from its side's segment, and where along it the nearest point is
+        ax, ay = seg[e, 0, 0], seg[e, 0, 1]
+        dx, dy = seg[e, 1, 0] - ax, seg[e, 1, 1] - ay
+        length2 = dx * dx + dy * dy
+        t = np.clip(np.divide((x - ax) * dx + (y - ay) * dy, length2, out=np.zeros(len(e)), where=length2 > 0),
+                    0.0, 1.0)
+        ex, ey = x - (ax + t * dx), y - (ay + t * dy)
+        w = np.clip((band_texels - np.sqrt(ex * ex + ey * ey)) / (band_texels - core), 0.0, 1.0)
         keep = w > 0
         e, x, y, t, w = e[keep], x[keep], y[keep], t[keep], w[keep]
         if e.size == 0:
             continue
-        mine = seam_side_colours(scan, f[e], cf[e], t, inset_texels)
-        theirs = seam_side_colours(scan, g[e], cg[e], t, inset_texels)
-        delta = 0.5 * (theirs - mine).astype(np.float64)
-        flat = (y - y0) * W + x
+        delta = 0.5 * (theirs.colours(scan, e, t) - mine.colours(scan, e, t)).astype(np.float64)
+        batches.append(((y - y0) * W + x, w, delta))
+    if not batches:
+        empty = np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros((0, 3)), empty, empty
+    at = np.unique(np.concatenate([flat for flat, _, _ in batches]))
+    offset = np.zeros((3, len(at)), np.float64)
+    weight = np.zeros(len(at), np.float64)
+    strongest = np.zeros(len(at), np.float64)
+    for flat, w, delta in batches:  # each batch's sums added in turn, as the texels' own sums
+        slot = np.searchsorted(at, flat)
         for c in range(3):
-            offset[c] += np.bincount(flat, w * delta[:, c], h * W)
-        weight += np.bincount(flat, w, h * W)
-        np.maximum.at(strongest, flat, w)
-    return offset.T.reshape(h, W, 3), weight.reshape(h, W), strongest.reshape(h, W)
+            offset[c] += np.bincount(slot, w * delta[:, c], len(at))
+        weight += np.bincount(slot, w, len(at))
+        np.maximum.at(strongest, slot, w)
+    return at, offset.T, weight, strongest
 
 
 def transfer_texture(source: Scan, target: Scan, size: int) -> Scan:
