@@ -25,7 +25,7 @@ SCORE_SUPERSAMPLE = 2
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
                 cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray,
                 supersample: int = SCORE_SUPERSAMPLE, *, renders: list | None = None,
-                reference_name: str = "reference") -> dict:
+                reference_name: str = "reference", scored: list | None = None) -> dict:
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
 
     ``reference`` is a function giving a camera's ``(image, alpha)``, or a scan of the same geometry (a
@@ -44,22 +44,26 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
 
     ``renders``: if given, receives one dict a camera, in order: each scan's render (and a reference
     scan's, as ``reference_name``) before its supersamples are averaged, ``uint8`` (see
-    :func:`scantex.views.render.render_scans`'s ``fine``): the report shows these.
+    :func:`scantex.views.render.render_scans`'s ``fine``): the report shows these. ``scored``: if given,
+    receives one dict a camera, in order: each scan's ``(image, alpha)`` as scored (and a reference scan's, as
+    ``reference_name``), as :func:`scantex.views.render.render` gives them.
     """
     from scantex.metrics.patches import patch_score
 
     truth = reference if isinstance(reference, Scan) else None
 
-    def score(cam: Camera) -> tuple[dict[str, tuple[dict[str, float], np.ndarray | None]], dict | None]:
-        """Each scan's scores at ``cam`` and its squared errors over hole pixels (``None``: none), and the
-        fine renders (``None`` unless ``renders`` is given)."""
+    def score(cam: Camera) -> tuple[dict[str, tuple[dict[str, float], np.ndarray | None]], dict | None, dict]:
+        """Each scan's scores at ``cam`` and its squared errors over hole pixels (``None``: none), the fine
+        renders (``None`` unless ``renders`` is given), and the renders as scored."""
         fine = {} if renders is not None else None
         if truth is None:
             ref, ref_alpha = reference(cam)
             shown = render_scans(scans, cam, caster, supersample=supersample, fine=fine)
+            images = dict(shown)
         else:
             shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample, fine=fine)
             ref, ref_alpha = shown.pop(_REFERENCE)
+            images = {**shown, reference_name: (ref, ref_alpha)}
             if fine is not None:
                 fine[reference_name] = fine.pop(_REFERENCE)
         mask = ref_alpha >= 0.999
@@ -68,13 +72,15 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         return {name: ({"psnr": min(psnr(img, ref, mask), PSNR_CAP_DB), "ssim": ssim(img, ref, mask),
                         "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},
                        ((img - ref) ** 2)[holes] if holes.any() else None)
-                for name, (img, _) in shown.items()}, fine
+                for name, (img, _) in shown.items()}, fine, images
 
     # the views side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
-        per_view, fine_renders = zip(*pool.map(score, cameras)) if cameras else ((), ())
+        per_view, fine_renders, scored_renders = zip(*pool.map(score, cameras)) if cameras else ((), (), ())
     if renders is not None:
         renders.extend(fine_renders)
+    if scored is not None:
+        scored.extend(scored_renders)
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
     hole_pixels = {name: [] for name in scans}
     for scored in per_view:

@@ -53,7 +53,8 @@ class Reporter:
 
 @dataclass(frozen=True, eq=False)
 class TrainingViews:
-    """Rendered views with what training needs from their G-buffers."""
+    """Rendered views with what training needs from their G-buffers (views left unrendered: no pixel valid,
+    no face, infinite depth)."""
 
     views: ViewSet
     face_id: np.ndarray  # [N, H, W] int32 centre-sample face, -1 where unusable
@@ -91,14 +92,16 @@ def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
 
 def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray, supersample: int,
                           caster: RayCaster, test_fraction: float, seed: int,
-                          update: Update, render_train: bool = True) -> TrainingViews:
+                          update: Update, render_train: bool = True, render_test: bool = True) -> TrainingViews:
     """Unlit renders (box-filtered supersamples) plus per-pixel validity for training. With ``render_train``
     False only the held-out (test) views are rendered; the training views are left empty (no pixel valid):
-    for a run that trains nothing on them."""
+    for a run that trains nothing on them. With ``render_test`` False the held-out views are left empty too,
+    for :func:`measure` to fill their images with the input's renders it scores against (the same renders:
+    rendering them here as well cost the bolster's photo-mode run 0.3 s)."""
     s = supersample
     train, test = split_train_test(len(cameras), test_fraction, seed)
     rendered = np.zeros(len(cameras), bool)
-    rendered[test] = True
+    rendered[test] = render_test
     rendered[train] = render_train
 
     # every view's arrays, filled as each view is rendered; an unrendered one stays empty (no pixel valid).
@@ -625,13 +628,16 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     timings["plan"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    with reporter.stage("rendering views") as update:
+    render_test = not held_out_rendered_when_scored(scan, trains_on_views)
+    with reporter.stage("rendering views" if trains_on_views or render_test else "views' coverage") as update:
         tv = render_training_views(scan, cameras, ~excluded, vc.supersample, caster, vc.test_fraction,
-                                   rng_seed, update, render_train=trains_on_views)
+                                   rng_seed, update, render_train=trains_on_views, render_test=render_test)
         # the surface the rendered views see: all of them, or the held-out ones a photo-mode run renders alone
         # (casting the other views' G-buffers only for this count took 0.24 s of the bolster's 10)
         coverage = face_coverage(scan, cameras if trains_on_views else [cameras[i] for i in tv.views.test],
                                  caster=caster)
+        if not (trains_on_views or render_test):
+            update(1, 1)
     timings["render"] = time.perf_counter() - t
 
     photo = None
@@ -943,12 +949,42 @@ def alignment_metrics(report) -> dict | None:
             "displacement": round(report.displacement, 5), "summary": report.summary()}
 
 
+def held_out_rendered_when_scored(scan: Scan, trains_on_views: bool) -> bool:
+    """Whether the held-out views are left for :func:`measure` to render: when nothing trains on the views
+    (photo mode without a field), the only use of their input renders is the score, which renders them."""
+    return not trains_on_views and scan.is_textured
+
+
+def fill_held_out(views: ViewSet, scored: list[dict]) -> None:
+    """The held-out views of ``views`` that were not rendered take the input's renders as scored (``scored``:
+    :func:`scantex.metrics.views.score_views`'s, one dict a held-out view in order, holding ``"input"``)."""
+    for i, renders in zip(views.test, scored):
+        if views.rendered is not None and not views.rendered[i]:
+            views.images[i], views.alpha[i] = renders["input"]
+            views.rendered[i] = True
+
+
 def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingViews, holes: np.ndarray,
             charts: np.ndarray, caster: RayCaster, coverage, fitted, patches: dict | None = None,
             renders: list | None = None) -> dict:
     """The run's metrics: geometry identity always; texture scores on the held-out views. ``patches``: the
     result's :func:`patch_metrics`, when already taken. ``renders``: if given, receives the scored views'
-    renders (:func:`scantex.metrics.views.score_views`), for the report."""
+    renders (:func:`scantex.metrics.views.score_views`), for the report. Held-out views of ``tv`` left
+    unrendered (``render_training_views``'s ``render_test``) take the input's renders scored here."""
+    test_cams = [tv.views.cameras[i] for i in tv.views.test]
+    scores: dict = {}
+    scored: list[dict] = []
+    if ground_truth is not None:
+        scores["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced},
+                                                         test_cams, caster, holes, renders=renders,
+                                                         reference_name="ground truth", scored=scored)
+    elif scan.is_textured:
+        # no truth: how faithfully the result reproduces the input where the input has colour
+        scores["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes,
+                                                  renders=renders, reference_name="input", scored=scored)
+        if patches is None:  # scored against the input's renders, that is the patch measure: not twice
+            patches = patch_summary(scores["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
+    fill_held_out(tv.views, scored)
     edges = seam_edges(scan)
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
@@ -964,17 +1000,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
         "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
                             "enhanced": round(seam_visibility(enhanced), 3)},
     }
-    test_cams = [tv.views.cameras[i] for i in tv.views.test]
-    if ground_truth is not None:
-        metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced},
-                                                          test_cams, caster, holes, renders=renders,
-                                                          reference_name="ground truth")
-    elif scan.is_textured:
-        # no truth: how faithfully the result reproduces the input where the input has colour
-        metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes,
-                                                   renders=renders, reference_name="input")
-        if patches is None:  # scored against the input's renders, that is the patch measure: not twice
-            patches = patch_summary(metrics["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
+    metrics.update(scores)
     if scan.is_textured:
         metrics["patches"] = patches if patches is not None else patch_metrics(scan, enhanced, test_cams, caster)
     return metrics

@@ -675,7 +675,8 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     from scantex.atlas.seams import seam_visibility
     from scantex.metrics.geometry import geometry_metrics
     from scantex.metrics.views import score_views
-    from scantex.pipeline.enhance import render_training_views, up_axis, views_teach
+    from scantex.pipeline.enhance import (fill_held_out, held_out_rendered_when_scored, render_training_views,
+                                          up_axis, views_teach)
     from scantex.views.planning import add_views_for_coverage, plan_views
     from scantex.views.raycast import RayCaster
 
@@ -691,7 +692,8 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     holes = untextured_faces(scan)
     views = render_training_views(scan, cameras, np.ones(scan.n_faces, bool), vc.supersample, caster,
                                   vc.test_fraction, config.seed, lambda done, total: None,
-                                  render_train=trains_on_views)
+                                  render_train=trains_on_views,
+                                  render_test=not held_out_rendered_when_scored(scan, trains_on_views))
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "hole_faces": int(holes.sum())},
@@ -699,10 +701,13 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
         "seam_visibility": {"input": round(seam_visibility(scan), 3), "enhanced": round(seam_visibility(enhanced), 3)},
     }
     test = [views.views.cameras[i] for i in views.views.test]
+    scored: list[dict] = []
     if ground_truth is not None:
         metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced}, test,
-                                                          caster, holes, renders=renders, reference_name="ground truth")
+                                                          caster, holes, renders=renders, reference_name="ground truth",
+                                                          scored=scored)
     else:
         metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test, caster, holes, renders=renders,
-                                                   reference_name="input")
+                                                   reference_name="input", scored=scored)
+    fill_held_out(views.views, scored)
     return views, metrics

@@ -16,6 +16,7 @@ from scantex.photos import load_photos
 from scantex.pipeline.enhance import FINAL_ALL_BELOW, REFINE_BELOW, enhance, final_texture_mode, pose_refinement_mode
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
+from scantex.views.render import render
 from tests.pipeline.test_enhance import TOY, toy_demo  # noqa: F401  (a fixture)
 
 CAPTURE = PhotoCapture(n_photos=10, width=128, height=96, distance=2.0)
@@ -54,6 +55,11 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     # the views rendered are the held-out ones alone, and their coverage counts them
     assert m["views"]["rendered"] == m["views"]["test"] < m["views"]["total"]
     assert m["views"]["coverage"].startswith(f"{m['views']['test']} views: ")
+    # rendered once, by the held-out score, their images are the input's renders as the training views would be
+    views = photo_result.views.views
+    for i in views.test:
+        image, alpha = render(toy_demo.scan, views.cameras[i], supersample=TOY.views.supersample)
+        assert views.rendered[i] and np.array_equal(views.images[i], image) and np.array_equal(views.alpha[i], alpha)
     truth = m["held_out_photos_vs_ground_truth"]
     assert truth["enhanced"]["mse"] < 0.7 * truth["input"]["mse"]
     photos = m["held_out_photos"]
