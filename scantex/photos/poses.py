@@ -44,6 +44,10 @@ PRIOR_SCALE = np.array([np.radians(0.5)] * 3 + [0.01] * 3 + [0.01])
 Reference = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
+#: the pose fit's step tolerance (scipy's ``xtol``: it stops at a step under ``xtol * (xtol + |x|)``)
+POSE_XTOL = 1e-2
+
+
 @dataclass(frozen=True)
 class PoseSettings:
     """How poses are refined."""
@@ -276,8 +280,12 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
             return np.vstack([jacobian(full, levels[sigma], m)[:, :n_params],
                               np.diag(prior / PRIOR_SCALE[:n_params])])
 
+        # the fit stops once a step moves the pose by under 1 % of the correction so far (xtol; scipy: 1e-8):
+        # a few hundredths of a working pixel. At 1e-3 the bolster's 12 photos took 277 evaluations, at 1e-2 204,
+        # 1.16 -> 0.97 s, each pose within 0.02 px of the tighter fit's (the façade's: 236 -> 112)
         fit = least_squares(partial, x[:n_params], jac=partial_jacobian, loss="soft_l1", f_scale=0.05,
-                            x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20, xtol=1e-3)
+                            x_scale=np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3])[:n_params], max_nfev=20,
+                            xtol=POSE_XTOL)
         trial = x.copy()
         trial[:n_params] = fit.x
         c = cost(trial)
