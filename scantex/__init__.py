@@ -44,7 +44,7 @@ _API = {
     "check_alignment": "scantex.photos",
     "batch": "scantex.scale.batch",
     "enhance_tiled": "scantex.scale.tiles",
-    "TilingConfig": "scantex.scale.tiles",
+    "TilingConfig": "scantex.pipeline.config",
     "make_wall": "scantex.synth",
     "make_room": "scantex.synth",
     "write_demo": "scantex.synth",

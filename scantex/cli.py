@@ -280,7 +280,7 @@ def _enhance_capture(args, config, capture) -> int:
 def tile_count(args, scan, photos) -> int:
     """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans
     in the kept UV layout, with photos or without; others run whole)."""
-    from scantex.scale.tiles import TilingConfig
+    from scantex.pipeline.config import TilingConfig
 
     auto = args.tiles == "auto"
     n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass
 from dataclasses import field as default
 from pathlib import Path
@@ -231,6 +232,26 @@ class EnhanceConfig:
             else:
                 cfg = dataclasses.replace(cfg, **{section: value})
         return cfg
+
+
+@dataclass(frozen=True)
+class TilingConfig:
+    """How :func:`scantex.scale.tiles.enhance_tiled` cuts a huge scan into tiles (kept here, with the other
+    settings, so that a run deciding whether to tile imports none of the tiling machinery)."""
+
+    tiles: int = 0
+    """tiles to cut the surface into (0: automatic, one per max_faces faces; 1: no tiling)"""
+    max_faces: int = 1_000_000
+    """automatic tiling: the most faces one tile should hold"""
+    overlap: float = 0.15
+    """overlap of neighbouring tiles on each side of their border, as a share of a tile's size"""
+    harmonize: bool = False
+    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
+    cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
+
+    def count(self, n_faces: int) -> int:
+        """The number of tiles for a scan of ``n_faces`` faces."""
+        return self.tiles if self.tiles > 0 else max(1, math.ceil(n_faces / self.max_faces))
 
 
 def _build(cls, values: dict, where, section: str):

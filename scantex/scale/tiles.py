@@ -38,30 +38,13 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.photoset import PhotoSet
-from scantex.pipeline.config import EnhanceConfig
+from scantex.pipeline.config import EnhanceConfig, TilingConfig
 from scantex.scale.executors import Job, LocalPool, WorkerLost
 from scantex.scale.resources import GiB, estimate_memory, machine, peak_memory, photo_memory
 from scantex.scan import Scan
 
 log = logging.getLogger(__name__)
 
-
-
-@dataclass(frozen=True)
-class TilingConfig:
-    tiles: int = 0
-    """tiles to cut the surface into (0: automatic, one per max_faces faces; 1: no tiling)"""
-    max_faces: int = 1_000_000
-    """automatic tiling: the most faces one tile should hold"""
-    overlap: float = 0.15
-    """overlap of neighbouring tiles on each side of their border, as a share of a tile's size"""
-    harmonize: bool = False
-    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
-    cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
-
-    def count(self, n_faces: int) -> int:
-        """The number of tiles for a scan of ``n_faces`` faces."""
-        return self.tiles if self.tiles > 0 else max(1, math.ceil(n_faces / self.max_faces))
 
 
 @dataclass(frozen=True, eq=False)
