@@ -83,7 +83,8 @@ def test_a_reader_that_goes_away_is_no_error(tmp_path, wall):
 
 def test_the_entry_point_exits_with_mains_code_after_freezing_the_heap(monkeypatch):
     """``scantex`` and ``python -m scantex`` run :func:`scantex.cli.run`: main's exit code, and the heap frozen
-    first so that the interpreter's shutdown does not collect it all again (0.5 s of a 10 s run)."""
+    first so that the interpreter's shutdown does not collect it all again (0.5 s of a 10 s run); the run itself
+    under :data:`scantex.cli.GC_THRESHOLDS`."""
     import gc
 
     import pytest
@@ -93,8 +94,11 @@ def test_the_entry_point_exits_with_mains_code_after_freezing_the_heap(monkeypat
     calls = []
     monkeypatch.setattr(cli, "main", lambda: calls.append("main") or 3)
     monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
+    monkeypatch.setattr(gc, "set_threshold", lambda *t: calls.append(t))
     with pytest.raises(SystemExit) as exit_:
         cli.run()
-    assert exit_.value.code == 3 and calls == ["main", "freeze"]
+    # full collections made rarer for the run (Python's thresholds: 700, 10, 10)
+    assert exit_.value.code == 3 and calls == [cli.GC_THRESHOLDS, "main", "freeze"]
+    assert cli.GC_THRESHOLDS[2] > gc.get_threshold()[2]
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.startswith("scantex ")
