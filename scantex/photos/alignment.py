@@ -714,9 +714,9 @@ def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None)
 
 def _check_photo(scan: Scan, photos: PhotoSet, i: int, max_side: int, caster,
                  mesh_edges: _MeshEdges) -> tuple[PhotoAlignment, _EdgeSample | None]:
-    from PIL import Image
     from scipy import ndimage
 
+    from scantex.io.images import box_downscaled
     from scantex.views.raycast import cast_gbuffer
     from scantex.views.render import render_gbuffer
 
@@ -726,7 +726,7 @@ def _check_photo(scan: Scan, photos: PhotoSet, i: int, max_side: int, caster,
     small = resized_camera(cam, w, h)
     photo = photos.load_image(i)
     if (w, h) != (cam.width, cam.height):
-        photo = np.asarray(Image.fromarray(photo).resize((w, h), Image.Resampling.BOX))
+        photo = box_downscaled(photo, w, h)
     photo = photo.astype(np.float32) / 255.0
     photo_edges = edge_map(_gray(photo))
 

@@ -153,10 +153,10 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     """The pose correction that makes ``image`` (``(H, W, 3)`` uint8, or float in [0, 1], at ``recorded``'s
     size) agree best with ``reference`` seen through the camera (see the module docstring); ``index``
     names the photo in the result and seeds its point sample."""
-    from PIL import Image
     from scipy import ndimage
     from scipy.optimize import least_squares
 
+    from scantex.io.images import box_downscaled
     from scantex.photos.alignment import contour_map
     from scantex.photos.training import working_camera
     from scantex.views.raycast import cast_gbuffer
@@ -166,7 +166,7 @@ def align_camera(scan: Scan, recorded: Camera, image: np.ndarray, reference: Ref
     if photo.dtype != np.uint8:
         photo = np.clip(np.round(photo * 255), 0, 255).astype(np.uint8)
     if (cam.width, cam.height) != (recorded.width, recorded.height):
-        photo = np.asarray(Image.fromarray(photo).resize((cam.width, cam.height), Image.Resampling.BOX))
+        photo = box_downscaled(photo, cam.width, cam.height)
     photo = photo.astype(np.float32) / 255.0
 
     g = cast_gbuffer(caster, cam, scan.face_normals)

@@ -178,8 +178,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         and ``coverage=True``: it then returns ``(rgb, share)``, ``share (n,)`` the photos' part of each
         point's colour (1: the photos alone, 0: the fallback alone).
     """
-    from PIL import Image
     from scipy import ndimage
+
+    from scantex.io.images import box_downscaled
 
     incidence = _incidence(faces) if faces is not None else None
     # points are projected in float32 (half the memory traffic of float64), about the cameras' mean centre
@@ -216,7 +217,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         view, cam = views[k], cameras[k]
         image = photos.load_image(view.index)
         if image.shape[:2] != (cam.height, cam.width):
-            image = np.asarray(Image.fromarray(image).resize((cam.width, cam.height), Image.Resampling.BOX))
+            image = box_downscaled(image, cam.width, cam.height)
         packed = _packed(image, pixels[pixel_start[k]:pixel_start[k] + pixel_sizes[k]])
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]

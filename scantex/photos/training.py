@@ -132,14 +132,15 @@ def depth_factor(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, 
 def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_side: int,
                   settings: VisibilitySettings = VisibilitySettings()) -> PhotoView:
     """Photo ``i`` at the working resolution, ray cast and tested for visibility."""
-    from PIL import Image
     from scipy import ndimage
+
+    from scantex.io.images import box_downscaled
 
     cam = working_camera(photos.cameras[i], max_side)
     W, H = cam.width, cam.height
     photo = photos.load_image(i)
     if (W, H) != photo.shape[1::-1]:
-        photo = np.asarray(Image.fromarray(photo).resize((W, H), Image.Resampling.BOX))
+        photo = box_downscaled(photo, W, H)
     image = photo.astype(np.float32) / 255.0
 
     s = max(1, settings.supersample)
