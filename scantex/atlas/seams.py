@@ -8,12 +8,13 @@ colours, a line shows on the model.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from scantex.arrays import read_only, unique_rows
-from scantex.scan import Scan
+from scantex.scan import Material, Scan
 from scantex.views.render import sample_texture
 
 
@@ -183,13 +184,18 @@ class SeamSides:
         """``(n, 3)`` colour at parameter ``t (n,)`` along sides ``rows (n,)``, the step inside included."""
         point = self.start[rows] + t[:, None] * self.along[rows]
         out = np.zeros((len(rows), 3), np.float32)
-        mat = self.material[rows]
-        for m, material in enumerate(scan.materials):
-            sel = np.flatnonzero(mat == m)
-            if material.image is None or sel.size == 0:
-                continue
+        for material, sel in _textured_rows(scan, self.material[rows]):
             out[sel] = sample_texture(material.image, point[sel] + self.inset[rows[sel]])[:, :3]
         return out
+
+
+def _textured_rows(scan: Scan, material_of: np.ndarray) -> Iterator[tuple[Material, np.ndarray]]:
+    """Each material of ``scan`` that has an image, with the rows of ``material_of (n,)`` (a material index a row)
+    that are its."""
+    for m, material in enumerate(scan.materials):
+        sel = np.flatnonzero(material_of == m)
+        if material.image is not None and sel.size:
+            yield material, sel
 
 
 def seam_sides(scan: Scan, faces: np.ndarray, corners: np.ndarray, inset_texels: float) -> SeamSides:
@@ -201,10 +207,7 @@ def seam_sides(scan: Scan, faces: np.ndarray, corners: np.ndarray, inset_texels:
     opposite = uv_tri[rows, 3 - corners[:, 0] - corners[:, 1]]
     inset = np.zeros((len(faces), 2), np.float64)
     mat = scan.face_materials[faces]
-    for m, material in enumerate(scan.materials):
-        sel = np.flatnonzero(mat == m)
-        if material.image is None or sel.size == 0:
-            continue
+    for material, sel in _textured_rows(scan, mat):
         H, W = material.image.shape[:2]
         px = np.array([W, H], np.float64)
         e = (p1[sel] - p0[sel]) * px
