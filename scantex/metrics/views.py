@@ -83,8 +83,8 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         scored.extend(scored_renders)
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
     hole_pixels = {name: [] for name in scans}
-    for scored in per_view:
-        for name, (values, hole_errors) in scored.items():
+    for view_scores in per_view:
+        for name, (values, hole_errors) in view_scores.items():
             for k, v in values.items():
                 out[name][k].append(v)
             if hole_errors is not None:

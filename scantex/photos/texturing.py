@@ -672,7 +672,8 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
 def _packed(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``(H * W,) uint32``: an ``(H, W, 3) uint8`` image with each pixel's bytes in one word (a sample
     then gathers one word per corner instead of a row of three bytes: about twice as fast), written into
-    ``out`` when given: red in the low byte, the high byte 0.
+    ``out`` when given: red in the low byte, the high byte 0 (in memory, on a little-endian machine: R, G, B, 0,
+    as :func:`_bilinear` reads them).
 
     Built as whole-image shifts and ors of each channel: a byte copy into every fourth byte runs numpy's
     strided loop three bytes at a time (19 ms for a 1920x1080 photo, 50 ms with the bake's other thread

@@ -46,7 +46,6 @@ from scantex.scan import Scan
 log = logging.getLogger(__name__)
 
 
-
 @dataclass(frozen=True, eq=False)
 class TilePlan:
     """How a scan is cut into tiles.

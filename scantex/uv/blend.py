@@ -82,6 +82,7 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         hi = np.ceil(seg.max(axis=1) + band_texels).astype(np.int64)
         # each side's segment and inward step, once: a side's band holds a few dozen texels that read it
         mine, theirs = seam_sides(scan, f, cf, inset_texels), seam_sides(scan, g, cg, inset_texels)
+        side_shell = shells[f]
         scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
         new = image.copy()
         covered = np.zeros((H, W), bool)
@@ -100,7 +101,7 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
             covered[y0:y1] = face_id >= 0
             texel_shell = np.where(face_id >= 0, shells[np.maximum(face_id, 0)], -1)
             at, offset, weight, strongest = _strip_offsets(
-                scan, texel_shell, y0, W, shells[f], seg, mine, theirs, lo, hi, band_texels, core)
+                scan, texel_shell, y0, W, side_shell, seg, mine, theirs, lo, hi, band_texels, core)
             touched = weight > 0  # only these change
             at, offset, weight, strongest = at[touched], offset[touched], weight[touched], strongest[touched]
             rgb = image[y0:y1].reshape(-1, image.shape[2])[at, :3].astype(np.float64) * scale
