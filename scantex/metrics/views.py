@@ -58,8 +58,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         fine = {} if renders is not None else None
         if truth is None:
             ref, ref_alpha = reference(cam)
-            shown = render_scans(scans, cam, caster, supersample=supersample, fine=fine)
-            images = dict(shown)
+            images = shown = render_scans(scans, cam, caster, supersample=supersample, fine=fine)
         else:
             shown = render_scans({**scans, _REFERENCE: truth}, cam, caster, supersample=supersample, fine=fine)
             ref, ref_alpha = shown.pop(_REFERENCE)
