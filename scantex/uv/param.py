@@ -84,6 +84,28 @@ def distortion(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> Distortion
     return distortions(triangles_3d, triangles_uv, np.zeros(len(triangles_3d), int), 1)[0]
 
 
+def stretch_sums(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`distortion`'s stretch of a chart is summed from, over its ``(n, 3, 3)`` corner positions and
+    ``(n, 3, 2)`` corner UVs: ``[surface area, UV area, area x inverse stretch² / 2, signed UV area]``, and
+    each face's signed UV area ``(n,)`` (its sign against the chart's says a mirrored face). The sums of two
+    pieces are their union's when neither's layout changes (:func:`stretch_of_sums`)."""
+    J, area = jacobians(triangles_3d, triangles_uv)
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    used = area > 0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inverse = np.where(used, (J ** 2).sum(axis=(1, 2)) / np.where(used, det ** 2, 1.0), 0.0)
+    signed = det * area
+    return np.array([area.sum(), np.abs(signed).sum(), (area * inverse / 2).sum(), signed.sum()]), signed
+
+
+def stretch_of_sums(sums: np.ndarray) -> float:
+    """The L2 stretch of a chart from its :func:`stretch_sums` (infinite without surface or UV area)."""
+    total, uv_area, inverse, _ = sums
+    if not total > 0 or not uv_area > 0:
+        return float("inf")
+    return float(np.sqrt(inverse / total) * np.sqrt(uv_area / total))
+
+
 def distortions(triangles_3d: np.ndarray, triangles_uv: np.ndarray, chart_of_face: np.ndarray,
                 n_charts: int | None = None) -> list[Distortion]:
     """:func:`distortion` of every chart ``0 .. n_charts-1`` at once, from all faces' ``(F, 3, 3)`` corner
@@ -166,12 +188,16 @@ def planar_projections(points: np.ndarray, triangles: np.ndarray, chart_of_face:
                      np.einsum("ij,ij->i", centred, y_axis[chart_of_point])], axis=1)
 
 
-def lscm(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+def lscm(points: np.ndarray, triangles: np.ndarray, pins: tuple[np.ndarray, np.ndarray] | None = None
+         ) -> np.ndarray:
     """Least-squares conformal map (Lévy et al. 2002) of a disc-like chart, ``(N, 2)`` in metres.
 
-    Two far-apart vertices are pinned; the result is rescaled so that its UV area equals the surface
-    area and mirrored if needed so that faces keep their winding. Vertices no face uses stay at 0.
-    Written here because no maintained Python library exposes LSCM without a heavy dependency.
+    Without ``pins``, two far-apart vertices are pinned and the result is rescaled so that its UV area equals
+    the surface area and mirrored if needed so that faces keep their winding. With ``pins = (ids (k,), uv
+    (k, 2))``, k >= 2 of the triangles' vertices keep the given coordinates and the others are placed around
+    them, in the pins' scale and orientation (a piece joined to a chart whose layout stays as it is).
+    Vertices no face uses stay at 0. Written here because no maintained Python library exposes LSCM without
+    a heavy dependency.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import spsolve
@@ -192,11 +218,15 @@ def lscm(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     A = coo_matrix((v, (r, c)), shape=(2 * n, 2 * N)).tocsc()
 
     used = np.unique(triangles)
-    centre = points[used].mean(axis=0)
-    p0 = used[np.argmax(np.linalg.norm(points[used] - centre, axis=1))]
-    p1 = used[np.argmax(np.linalg.norm(points[used] - points[p0], axis=1))]
-    pinned = np.array([p0, p1, p0 + N, p1 + N])
-    pinned_values = np.array([0.0, np.linalg.norm(points[p1] - points[p0]), 0.0, 0.0])
+    if pins is None:
+        centre = points[used].mean(axis=0)
+        p0 = used[np.argmax(np.linalg.norm(points[used] - centre, axis=1))]
+        p1 = used[np.argmax(np.linalg.norm(points[used] - points[p0], axis=1))]
+        ids, pin_uv = np.array([p0, p1]), np.array([[0.0, 0.0], [np.linalg.norm(points[p1] - points[p0]), 0.0]])
+    else:
+        ids, pin_uv = np.asarray(pins[0]), np.asarray(pins[1], dtype=np.float64)
+    pinned = np.concatenate([ids, ids + N])
+    pinned_values = np.concatenate([pin_uv[:, 0], pin_uv[:, 1]])
     free = np.setdiff1d(np.concatenate([used, used + N]), pinned)
     Af, Ap = A[:, free], A[:, pinned]
     rhs = -(Ap @ pinned_values)
@@ -207,7 +237,7 @@ def lscm(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     x[free] = spsolve(AtA, Af.T @ rhs)
     x[pinned] = pinned_values
     uv = np.stack([x[:N], x[N:]], axis=1)
-    return normalise(points, triangles, uv)
+    return normalise(points, triangles, uv) if pins is None else uv
 
 
 def normalise(points: np.ndarray, triangles: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -242,14 +272,28 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     lo = triangles_uv.reshape(-1, 2).min(axis=0)
     scale = np.sqrt(texels / area)
     for _ in range(8):
-        pix = (triangles_uv - lo) * scale  # [n, 3, 2]
-        tmin = np.floor(pix.min(axis=1) - 0.5).astype(np.int64) + 1  # first texel centre x+0.5 >= min
-        tmax = np.floor(pix.max(axis=1) - 0.5).astype(np.int64)
-        count = np.maximum(tmax - tmin + 1, 0)
-        per = count[:, 0] * count[:, 1]
-        if per.sum() <= 20_000_000:
+        if _texel_boxes(triangles_uv, lo, scale)[3].sum() <= 20_000_000:
             break
         scale *= 0.5
+    overlapped, covered = overlap_counts(triangles_uv, lo, scale)
+    return float(overlapped / max(covered, 1))
+
+
+def _texel_boxes(triangles_uv: np.ndarray, lo: np.ndarray, scale: float):
+    """``(n, 3, 2)`` triangles in texels of size ``1 / scale`` from ``lo``, each one's first texel ``(n, 2)``,
+    texel counts along x and y ``(n, 2)`` and in all ``(n,)`` (the texel centres in its bounding box)."""
+    pix = (triangles_uv - lo) * scale  # [n, 3, 2]
+    tmin = np.floor(pix.min(axis=1) - 0.5).astype(np.int64) + 1  # first texel centre x+0.5 >= min
+    tmax = np.floor(pix.max(axis=1) - 0.5).astype(np.int64)
+    count = np.maximum(tmax - tmin + 1, 0)
+    return pix, tmin, count, count[:, 0] * count[:, 1]
+
+
+def overlap_counts(triangles_uv: np.ndarray, lo: np.ndarray, scale: float) -> tuple[int, int]:
+    """Texels (of size ``1 / scale``, on the grid from ``lo``) whose centre lies strictly inside more than one
+    of the ``(n, 3, 2)`` triangles, and inside at least one (see :func:`overlap_share`)."""
+    n = len(triangles_uv)
+    pix, tmin, count, per = _texel_boxes(triangles_uv, lo, scale)
     tri = np.repeat(np.arange(n), per)
     offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
     w = np.maximum(count[tri, 0], 1)
@@ -264,10 +308,10 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     s0, s1, s2 = edge(a, b), edge(b, c), edge(c, a)
     inside = ((s0 > 0) & (s1 > 0) & (s2 > 0)) | ((s0 < 0) & (s1 < 0) & (s2 < 0))
     if not inside.any():
-        return 0.0
+        return 0, 0
     width = int(x.max()) + 2
     hits = np.bincount(y[inside] * width + x[inside])
-    return float((hits > 1).sum() / max((hits > 0).sum(), 1))
+    return int((hits > 1).sum()), int((hits > 0).sum())
 
 
 #: candidate texels (a triangle's bounding box) rasterised at once by :func:`overlap_shares`

@@ -341,11 +341,11 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
     pairs, corners = interior_edges(faces)
     pieces = planar_charts(positions, faces, normals, 0.5 * area2, pairs, options, record=record)
     if any(len(p[0]) < options.min_chart_faces for p in pieces):
-        from scantex.uv.merge import MergeLog, Merger, Piece
+        from scantex.uv.merge import ABSORB_FACES, MergeLog, Merger, Piece
 
         merge_log = MergeLog()
         merger = Merger(positions, faces, [Piece(*p) for p in pieces], pairs, corners, options.threshold,
-                        small_faces=options.min_chart_faces)
+                        small_faces=options.min_chart_faces, absorb_faces=ABSORB_FACES)
         merged = merger.run(start + 0.5 * time_budget_s, merge_log)
         pieces = [(p.faces, p.corner_node, p.node_uv) for p in merged]
         record.small_merged = merge_log.merges

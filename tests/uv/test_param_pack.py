@@ -8,7 +8,8 @@ import trimesh
 
 from scantex.uv.charts import Charts, compact
 from scantex.uv.pack import min_area_rotation, pack
-from scantex.uv.param import distortion, distortions, lscm, overlap_share, planar_projection
+from scantex.uv.param import distortion, distortions, lscm, overlap_share, planar_projection, stretch_of_sums, \
+    stretch_sums
 
 
 def flat_grid(n: int = 6, size: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
@@ -84,6 +85,41 @@ def test_lscm_unfolds_a_bent_strip_isometrically():
     d = distortion(bent[tris], uv[tris])
     assert d.stretch == pytest.approx(1.0, abs=1e-6) and d.flipped_share == 0
     assert d.uv_area == pytest.approx(d.surface_area)
+
+
+def test_lscm_pinned_keeps_its_pins_and_places_the_rest_in_their_frame():
+    """A piece joined to a chart that keeps its layout: its shared vertices stay where the chart has them and
+    the others follow in the chart's scale and turn (the grid bent up by 90 degrees on the right, pinned by
+    its left column where its own flat layout, turned by 30 degrees and moved, has it: laid flat again the
+    same way around the pins)."""
+    points, tris = flat_grid()
+    bent = points.copy()
+    fold = bent[:, 0] > 1.0
+    bent[fold, 2] = bent[fold, 0] - 1.0
+    bent[fold, 0] = 1.0
+    turn = np.deg2rad(30.0)
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    truth = lscm(bent, tris) @ rotation.T + [5.0, -2.0]
+    pins = np.flatnonzero(points[:, 0] == 0.0)  # the left column
+    uv = lscm(bent, tris, pins=(pins, truth[pins]))
+    assert np.array_equal(uv[pins], truth[pins])
+    assert np.allclose(uv, truth, atol=1e-6)
+    d = distortion(bent[tris], uv[tris])
+    assert d.stretch == pytest.approx(1.0, abs=1e-6) and d.flipped_share == 0
+
+
+def test_stretch_sums_add_up_to_the_unions_distortion():
+    points, tris = flat_grid(8)
+    rng = np.random.default_rng(3)
+    uv = points[:, :2] * [1.0, 1.3] + rng.normal(0.0, 0.01, (len(points), 2))
+    half = np.arange(len(tris)) < len(tris) // 3
+    left, left_signed = stretch_sums(points[tris[half]], uv[tris[half]])
+    right, _ = stretch_sums(points[tris[~half]], uv[tris[~half]])
+    whole = distortion(points[tris], uv[tris])
+    assert stretch_of_sums(left + right) == pytest.approx(whole.stretch, rel=1e-12)
+    assert (left + right)[1] == pytest.approx(whole.uv_area, rel=1e-12)
+    assert (left_signed > 0).all()
+    assert stretch_of_sums(np.zeros(4)) == float("inf")
 
 
 def test_lscm_of_a_sphere_cap_has_scale_distortion():

@@ -145,6 +145,49 @@ def test_unwrap_and_optimise_see_faces_meet_where_positions_repeat():
     assert optimised.report["before"]["shells"] == 1 and optimised.report["after"]["shells"] == 1
 
 
+def test_merging_keeps_a_large_charts_layout_and_places_small_ones_around_it():
+    """Unwrapping's merges of slivers into a large chart (``absorb_faces``): the large chart's UVs stay as
+    they are, each small chart (laid out anywhere, turned) joins it where they share a seam, and the union is
+    still an isometric chart without overlaps: the flat grid is one chart again."""
+    from scantex.uv.charts import compact
+    from scantex.uv.merge import Merger, MergeLog, Piece
+    from scantex.uv.unwrap import interior_edges
+
+    wall = grid_wall(n=24)
+    positions, faces = wall.positions, wall.faces
+    centre = positions[faces].mean(axis=1)
+    rng = np.random.default_rng(1)
+    seeds = rng.choice(len(faces), 6, replace=False)
+    small = np.full(len(faces), -1)
+    for k, seed in enumerate(seeds):  # a few faces around each seed make a small chart
+        near = np.argsort(np.linalg.norm(centre - centre[seed], axis=1))[:int(rng.integers(2, 8))]
+        small[near[small[near] < 0]] = k
+    flat = positions[:, [0, 2]]  # the wall's own plane
+    pieces = []
+    for k in range(-1, len(seeds)):
+        sel = np.flatnonzero(small == k)
+        if sel.size == 0:
+            continue
+        corner_node, vertex = compact(faces[sel])
+        turn = rng.uniform(0, 2 * np.pi) if k >= 0 else 0.0
+        rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        pieces.append(Piece(sel, corner_node, flat[vertex] @ rotation.T + (rng.normal(0, 9, 2) if k >= 0 else 0)))
+    large = pieces[0]
+    pairs, corners = interior_edges(faces)
+    record = MergeLog()
+    merger = Merger(positions, faces, pieces, pairs, corners, 1.1, small_faces=12, absorb_faces=256)
+    merged = merger.run(float("inf"), record)
+    assert len(merged) == 1 and record.absorbed == len(pieces) - 1 and record.planar == record.lscm == 0
+    chart = merged[0]
+    assert np.array_equal(np.sort(chart.faces), np.arange(len(faces)))
+    rows = np.flatnonzero(np.isin(chart.faces, large.faces))
+    assert np.array_equal(chart.faces[rows], large.faces)
+    assert np.array_equal(chart.node_uv[chart.corner_node[rows]], large.node_uv[large.corner_node])
+    tri_uv = chart.node_uv[chart.corner_node]
+    assert np.allclose(tri_uv, flat[faces[chart.faces]], atol=1e-9)  # the small charts' faces where they belong
+    assert overlap_share(tri_uv) == 0.0
+
+
 def test_xatlas_runs_in_a_subprocess_and_times_out_cleanly():
     sphere = trimesh.creation.icosphere(2)
     result = _run_xatlas(sphere.vertices, sphere.faces, timeout=120)
