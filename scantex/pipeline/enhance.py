@@ -862,7 +862,7 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         scored_colour, projective_report = photo_texture(scan, photo, None, photo_fallback, config.photos, caster,
                                                          charts, device, atlas_density, threads=sampling_threads)
         photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
-        _, scored = bake_and_blend(scored_colour, "baking the texture the held-out photos score", workers,
+        _, scored = bake_and_blend(scored_colour, "baking without the held-out photos", workers,
                                    only=faces_in_view(scan, photo.held_out))
         del scored_colour
         timings["scored"] = time.perf_counter() - t_scored
