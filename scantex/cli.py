@@ -552,8 +552,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "a mesh moved or turned out of the cameras' frame)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
-                        "texture or the other photos' consensus (default auto: against the input texture for a "
-                        "textured scan of fewer than 50 photos, off otherwise)")
+                        "texture or the other photos' consensus (default auto: for fewer than 50 photos, "
+                        "against the input texture for a textured scan and the consensus for an untextured "
+                        "one; off otherwise)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views with a Vision Transformer trained self-supervised on the scan's own "
                         "views (masked completion, cross-view consistency, internal super-resolution) and fuse "

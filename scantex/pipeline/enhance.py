@@ -486,10 +486,13 @@ def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
 
 
 def pose_refinement_mode(refine_poses: str, scan: Scan, n_photos: int) -> str:
-    """``photos.refine_poses`` as a run applies it: ``off``, ``input`` or ``consensus`` (``auto``: input for a
-    textured scan of fewer than ``REFINE_BELOW`` photos, else off; input needs a texture to align to)."""
+    """``photos.refine_poses`` as a run applies it: ``off``, ``input`` or ``consensus`` (``auto``: below
+    ``REFINE_BELOW`` photos, input for a textured scan and consensus for an untextured one, which has no
+    texture to align to; else off)."""
     if refine_poses == "auto":
-        return "input" if scan.is_textured and n_photos < REFINE_BELOW else "off"
+        if n_photos >= REFINE_BELOW:
+            return "off"
+        return "input" if scan.is_textured else "consensus"
     if refine_poses == "input" and not scan.is_textured:
         return "off"
     return refine_poses

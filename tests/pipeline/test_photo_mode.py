@@ -67,16 +67,17 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
 
 
 def test_a_small_capture_of_a_textured_scan_refines_its_poses_by_default(toy_demo, photo_result):
-    """photos.refine_poses auto: a textured scan's photos are aligned to its texture below REFINE_BELOW photos
-    (each reported in metrics.json); a larger capture, or an untextured scan (nothing to align to), keeps the
-    recorded poses; a mode asked for is applied as asked."""
+    """photos.refine_poses auto: below REFINE_BELOW photos, a textured scan's photos are aligned to its texture
+    (each reported in metrics.json) and an untextured scan's to one another (it has no texture); a larger
+    capture keeps the recorded poses; a mode asked for is applied as asked."""
     m = photo_result.metrics["photos"]
     assert m["pose_refinement"] == "input" and len(m["pose_corrections"]) == len(m["train"]) == 9
     assert all({"photo", "rotation_deg", "applied"} <= set(c) for c in m["pose_corrections"])
     scan, bare = toy_demo.scan, Scan(toy_demo.scan.positions, toy_demo.scan.faces)
     assert pose_refinement_mode("auto", scan, REFINE_BELOW - 1) == "input"
     assert pose_refinement_mode("auto", scan, REFINE_BELOW) == "off"
-    assert pose_refinement_mode("auto", bare, 5) == "off" and pose_refinement_mode("input", bare, 5) == "off"
+    assert pose_refinement_mode("auto", bare, 5) == "consensus" and pose_refinement_mode("input", bare, 5) == "off"
+    assert pose_refinement_mode("auto", bare, REFINE_BELOW) == "off"
     assert pose_refinement_mode("consensus", bare, 500) == "consensus"
     assert pose_refinement_mode("off", scan, 5) == "off"
 
