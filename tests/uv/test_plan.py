@@ -188,6 +188,38 @@ def test_merging_keeps_a_large_charts_layout_and_places_small_ones_around_it():
     assert overlap_share(tri_uv) == 0.0
 
 
+def test_a_sliver_that_would_close_a_large_charts_cut_is_merged_by_flattening_the_union():
+    """A large chart cut along a slit keeps two nodes at each vertex of the slit; a sliver below the slit's
+    end touches both sides of it, so welding it joins two of the large chart's own nodes: its layout cannot be
+    kept, and the union is flattened afresh (here: its plane) instead of being absorbed."""
+    from scantex.uv.charts import compact
+    from scantex.uv.merge import Merger, MergeLog, Piece
+    from scantex.uv.unwrap import interior_edges
+
+    n, k, r0 = 20, 10, 12  # the slit: grid column k, from vertex row r0 up to the top
+    wall = grid_wall(n=n)
+    positions, faces = wall.positions, wall.faces
+    cells = n - 1
+    row, column = np.divmod(np.arange(len(faces)) % (cells * cells), cells)  # each face's cell
+    sliver = (row == r0 - 1) & ((column == k - 1) | (column == k))
+    large = np.flatnonzero(~sliver)
+    corners = faces[large].copy()
+    right = (row[large] >= r0) & (column[large] == k)  # faces right of the slit take copies of its vertices
+    slit = np.arange(r0, n) * n + k
+    copy = np.where(right[:, None] & np.isin(corners, slit), corners + n * n, corners)
+    corner_node, key = compact(copy)
+    flat = positions[:, [0, 2]]
+    pieces = [Piece(large, corner_node, flat[key % (n * n)])]
+    small_node, small_key = compact(faces[np.flatnonzero(sliver)])
+    pieces.append(Piece(np.flatnonzero(sliver), small_node, flat[small_key] + 7.0))
+    pairs, edge_corners = interior_edges(faces)
+    record = MergeLog()
+    merged = Merger(positions, faces, pieces, pairs, edge_corners, 1.1, small_faces=12, absorb_faces=256).run(
+        float("inf"), record)
+    assert len(merged) == 1 and record.absorbed == 0 and record.planar == 1
+    assert overlap_share(merged[0].node_uv[merged[0].corner_node]) == 0.0
+
+
 def test_xatlas_runs_in_a_subprocess_and_times_out_cleanly():
     sphere = trimesh.creation.icosphere(2)
     result = _run_xatlas(sphere.vertices, sphere.faces, timeout=120)
