@@ -41,7 +41,8 @@ def fmt(s: dict | None, key: str) -> str:
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 #: real scans unwrapped as bare geometry (positions and faces only)
 REAL = ("facade_openmvs/scene_mesh.ply", "facade_openmvs/scene_mesh_refine.ply", "bolster_rgbd_posed/bloster.ply",
-        "bathroom_3dscannerapp/textured_output.obj")
+        "bathroom_3dscannerapp/textured_output.obj", "polycam_glb/potted_plant_on_rug_raw.glb",
+        "polycam_glb/tyres_on_tiled_floor_raw.glb")
 
 
 def real_rows() -> list[str]:
