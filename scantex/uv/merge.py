@@ -4,8 +4,8 @@ Two neighbouring charts are welded along the seam between them only (their other
 merged when the result has no mirrored face, no overlap and L2 stretch within the threshold. Small unions
 are flattened again (planar projection first, a least-squares conformal map when that fails); where one
 chart is large, it keeps its layout and the other is placed around their shared nodes (flattening a large
-chart again for every sliver joining it took seconds a try: the refined facade's 175,000 faces ran out of
-time after 184 merges).
+chart again for every sliver joining it took up to seconds a try: the refined facade's 175,000 faces ran out
+of time after about 190 of its 590 merges).
 """
 
 from __future__ import annotations
@@ -268,8 +268,9 @@ class Merger:
         if (orientation != _orientation(sums_big) or (signed * orientation < 0).any()
                 or not stretch_of_sums(sums) <= self.threshold):
             return None
-        # the larger chart had no overlap: a new one involves the smaller chart's faces, so only the faces
-        # around those are rasterised, on the grid (and at the resolution) the whole union would be
+        # the larger chart passed this test when it was made: an overlap it lacked involves the smaller chart's
+        # faces, so only the faces around those are rasterised, on the grid (and at the resolution) the whole
+        # union would be
         lo, hi = tri_uv.reshape(-1, 2).min(axis=0), tri_uv.reshape(-1, 2).max(axis=0)
         near = np.flatnonzero((boxes_big[:, 1] >= lo).all(axis=1) & (boxes_big[:, 0] <= hi).all(axis=1))
         piece = self.pieces[big]
