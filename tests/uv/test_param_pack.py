@@ -174,6 +174,41 @@ def test_pack_places_charts_apart_at_one_density():
     assert atlas.texels_per_metre > 256 / 3.5 * 0.8  # a decent fill: 2 + 1 + 0.5 metres across at most
 
 
+def test_pack_turns_strips_beside_a_large_chart_that_shelves_leave_empty():
+    """A square chart half the atlas wide and long thin strips (a cushion's top and its sides): shelves put
+    every strip below the square, leaving the room beside it empty; the skyline turns strips upright into
+    it. The charts stay apart, each at the one density, turned without mirroring."""
+    from scantex.uv.pack import shelf_pack
+
+    face_uvs, uvs, chart, sides = [], [], [], [(1.0, 1.0)] + [(1.1, 0.15)] * 6
+    for c, (w, h) in enumerate(sides):
+        base = len(uvs)
+        uvs += [[0, 0], [w, 0], [w, h], [0, h]]
+        face_uvs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        chart += [c, c]
+    charts = Charts(np.array(chart), np.array(face_uvs), np.array(uvs, float))
+    shelf_scale, _ = shelf_pack(np.array(sides), 512, 2)
+    atlas = pack(charts, 512, gutter=2)
+    assert atlas.texels_per_metre > 1.2 * shelf_scale and atlas.utilisation > 0.75
+    px = atlas.uvs * 512
+    boxes = []
+    for c, (w, h) in enumerate(sides):
+        faces = np.flatnonzero(np.array(chart) == c)
+        p = px[np.unique(atlas.face_uvs[faces])]
+        extent = np.sort(p.max(axis=0) - p.min(axis=0))
+        assert extent == pytest.approx(np.sort([w, h]) * atlas.texels_per_metre)
+        tri = px[atlas.face_uvs[faces]]
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        assert (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] > 0).all()  # counter-clockwise in UV, as given
+        boxes.append((p.min(axis=0), p.max(axis=0)))
+    turned = sum(b[1][1] - b[0][1] > b[1][0] - b[0][0] for b in boxes[1:])
+    assert turned >= 1
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            gap = np.maximum(boxes[j][0] - boxes[i][1], boxes[i][0] - boxes[j][1]).max()
+            assert gap >= 2 * 2 - 1
+
+
 def test_pack_fails_loudly_when_nothing_fits():
     charts = Charts(np.zeros(1, np.int64), np.array([[0, 1, 2]]), np.array([[0, 0], [1, 0], [0, 1.0]]))
     with pytest.raises(ValueError, match="do not fit"):
