@@ -137,24 +137,20 @@ def skyline_place(boxes: np.ndarray, size: int, by_area: bool) -> tuple[np.ndarr
             return None
         _, x, top, w, h, turn = best
         corner[c], turned[c] = (x, top), turn
-        # the box's top becomes the skyline over [x, x + w)
-        ends = xs[1:] + [size]
-        new_xs, new_ys = [], []
-        for k in range(len(xs)):
-            a, b = xs[k], ends[k]
-            if b <= x or a >= x + w:
-                new_xs.append(a), new_ys.append(ys[k])
-                continue
+        # the box's far side becomes the skyline over [x, x + w): (start, height) of every segment after it
+        segments = []
+        for a, b, y in zip(xs, xs[1:] + [size], ys):
             if a < x:
-                new_xs.append(a), new_ys.append(ys[k])
+                segments.append((a, y))  # (the part of) a segment before the box
             if a <= x < b:
-                new_xs.append(x), new_ys.append(top + h)
+                segments.append((x, top + h))
             if b > x + w:
-                new_xs.append(x + w), new_ys.append(ys[k])
-        xs, ys = [new_xs[0]], [new_ys[0]]
-        for a, y in zip(new_xs[1:], new_ys[1:]):
-            if y != ys[-1]:
-                xs.append(a), ys.append(y)
+                segments.append((max(a, x + w), y))  # (the part of) a segment after it
+        xs, ys = [segments[0][0]], [segments[0][1]]
+        for a, y in segments[1:]:
+            if y != ys[-1]:  # neighbours at one height are one segment
+                xs.append(a)
+                ys.append(y)
     return corner, turned
 
 
