@@ -86,21 +86,32 @@ def shelf_pack(extent: np.ndarray, size: int, gutter: int) -> tuple[float, np.nd
             shelf = max(shelf, boxes[c, 1])
         return corner if y + shelf <= size else None
 
-    area = float(np.maximum(extent, 1e-12).prod(axis=1).sum())
-    hi = size / np.sqrt(area)  # every texel used: an upper bound
-    lo = 0.0
-    best = None
-    for _ in range(40):  # bisection on the scale; shelf packing is nearly monotone in it
-        mid = 0.5 * (lo + hi)
-        corner = place(mid)
-        if corner is None:
-            hi = mid
-        else:
-            lo, best = mid, corner
-        if hi - lo < 1e-4 * hi:
-            break
+    # shelf packing is nearly monotone in the scale
+    scale, best = _largest_scale(place, 0.0, _scale_bound(extent, size), steps=40, rtol=1e-4)
     if best is None:
         raise ValueError(f"{n} charts do not fit a {size}² atlas with {gutter}-texel gutters")
+    return scale, best
+
+
+def _scale_bound(extent: np.ndarray, size: int) -> float:
+    """The scale at which boxes of ``extent (n, 2)`` would use every texel of ``size``²: an upper bound."""
+    return size / np.sqrt(float(np.maximum(extent, 1e-12).prod(axis=1).sum()))
+
+
+def _largest_scale(place, lo: float, hi: float, steps: int, rtol: float):
+    """Bisection between ``lo`` and ``hi`` for the largest scale at which ``place(scale)`` gives a layout
+    (``None``: it does not fit), ``steps`` at most, until the bracket is under ``rtol`` of ``hi``: that scale
+    and its layout, or ``lo`` and ``None`` where no scale tried fitted."""
+    best = None
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        got = place(mid)
+        if got is None:
+            hi = mid
+        else:
+            lo, best = mid, got
+        if hi - lo < rtol * hi:
+            break
     return lo, best
 
 
@@ -160,19 +171,14 @@ def skyline_pack(extent: np.ndarray, size: int, gutter: int, floor: float) -> tu
     corners (gutters included) and ``(n,)`` turned flags; ``floor`` and ``None`` corners where the skyline
     does no better. (Neither order wins everywhere: a square beside strips wants area first, the real scans'
     layouts gain 0-3 % either way.)"""
-    area = float(np.maximum(extent, 1e-12).prod(axis=1).sum())
     scale, best = floor, None
     for by_area in (True, False):
-        lo, hi = scale, size / np.sqrt(area)
-        for _ in range(12):
-            mid = 0.5 * (lo + hi)
-            got = skyline_place(np.ceil(extent * mid).astype(np.int64) + 2 * gutter, size, by_area)
-            if got is None:
-                hi = mid
-            else:
-                lo, scale, best = mid, mid, got
-            if hi - lo < 1e-3 * hi:
-                break
+        tried, got = _largest_scale(
+            lambda mid, by_area=by_area: skyline_place(np.ceil(extent * mid).astype(np.int64) + 2 * gutter, size,
+                                                        by_area),
+            scale, _scale_bound(extent, size), steps=12, rtol=1e-3)
+        if got is not None:
+            scale, best = tried, got
     if best is None:
         return floor, None, None
     return scale, best[0], best[1]

@@ -84,16 +84,25 @@ def distortion(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> Distortion
     return distortions(triangles_3d, triangles_uv, np.zeros(len(triangles_3d), int), 1)[0]
 
 
+def _face_terms(triangles_3d: np.ndarray, triangles_uv: np.ndarray):
+    """Each face's surface area, Jacobian determinant, σ1² + σ2² and inverse stretch Γ1² + Γ2² (0 without
+    surface), ``(n,)`` each: what :func:`distortions` and :func:`stretch_sums` sum."""
+    J, area = jacobians(triangles_3d, triangles_uv)
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    frob2 = (J ** 2).sum(axis=(1, 2))  # σ1² + σ2²
+    used = area > 0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # Sander et al.'s stretch is of the inverse map (texels onto the surface): Γ1² + Γ2² = (σ1² + σ2²) / det²
+        inverse = np.where(used, frob2 / np.where(used, det ** 2, 1.0), 0.0)
+    return area, det, frob2, inverse
+
+
 def stretch_sums(triangles_3d: np.ndarray, triangles_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """What :func:`distortion`'s stretch of a chart is summed from, over its ``(n, 3, 3)`` corner positions and
     ``(n, 3, 2)`` corner UVs: ``[surface area, UV area, area x inverse stretch² / 2, signed UV area]``, and
     each face's signed UV area ``(n,)`` (its sign against the chart's says a mirrored face). The sums of two
     pieces are their union's when neither's layout changes (:func:`stretch_of_sums`)."""
-    J, area = jacobians(triangles_3d, triangles_uv)
-    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-    used = area > 0
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        inverse = np.where(used, (J ** 2).sum(axis=(1, 2)) / np.where(used, det ** 2, 1.0), 0.0)
+    area, det, _, inverse = _face_terms(triangles_3d, triangles_uv)
     signed = det * area
     return np.array([area.sum(), np.abs(signed).sum(), (area * inverse / 2).sum(), signed.sum()]), signed
 
@@ -113,9 +122,7 @@ def distortions(triangles_3d: np.ndarray, triangles_uv: np.ndarray, chart_of_fac
     and summed per chart (a fused room scan's 25,000 charts one by one took 10 s). A chart without surface
     area (or UV area) gets an infinite stretch and anisotropy."""
     C = int(chart_of_face.max()) + 1 if n_charts is None else int(n_charts)
-    J, area = jacobians(triangles_3d, triangles_uv)
-    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-    frob2 = (J ** 2).sum(axis=(1, 2))  # σ1² + σ2²
+    area, det, frob2, inverse = _face_terms(triangles_3d, triangles_uv)
     used = area > 0
     # σ1, σ2 from the trace and determinant of JᵀJ
     disc = np.sqrt(np.maximum(frob2 ** 2 - 4 * det ** 2, 0.0))
@@ -123,8 +130,6 @@ def distortions(triangles_3d: np.ndarray, triangles_uv: np.ndarray, chart_of_fac
     s2 = np.sqrt(np.maximum(0.5 * (frob2 - disc), 0.0))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         aniso = np.where(used, np.where(s2 > 0, s1 / np.maximum(s2, 1e-300), np.inf), -np.inf)
-        # Sander et al.'s stretch is of the inverse map (texels onto the surface): Γ1² + Γ2² = (σ1² + σ2²) / det²
-        inverse = np.where(used, frob2 / np.where(used, det ** 2, 1.0), 0.0)
 
     def per_chart(values: np.ndarray) -> np.ndarray:
         return np.bincount(chart_of_face, values, C)
