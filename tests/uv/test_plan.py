@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from scantex.atlas.seams import seam_edges, uv_shells
-from scantex.scan import Scan
+from scantex.scan import Material, Scan
 from scantex.uv import plan_uvs, seam_distances, summarise, texel_density
 from scantex.uv.param import overlap_share
 from scantex.uv.unwrap import (
@@ -83,14 +83,73 @@ def test_optimize_merges_cube_sides_within_the_threshold():
     assert len(plan.scan.materials) == 1 and plan.scan.materials[0].image.shape == (64, 64, 3)
 
 
-def test_optimize_splits_a_stretched_shell():
+def test_optimize_flattens_a_stretched_shell_again_without_cutting_it():
     wall = grid_wall(n=10)
     u, v = wall.uvs[:, 0], wall.uvs[:, 1]
     warped = wall.replace(uvs=np.stack([u ** 3, v], axis=1))  # strongly non-uniform along u
     assert summarise(warped).stretch["max"] > 1.5
     plan = plan_uvs(warped, "optimize", threshold=1.1, texture_size=128)
-    assert plan.report["optimize"]["shells_split"] == 1
+    done = plan.report["optimize"]
+    assert done["shells_reflattened"] == 1 and done["shells_split"] == 0
+    assert plan.report["after"]["shells"] == 1 and plan.report["after"]["seam_edges"] == 0
+    assert summarise(plan.scan).stretch["max"] < 1.01  # a flat wall flattens without stretch
     check_layout(warped, plan.scan, 1.1)
+
+
+def dome(subdivisions: int = 3) -> Scan:
+    """An icosphere but for a cap below, as one UV shell projected from above: stretched and folded at its
+    rim, and curved beyond what a conformal map flattens within 1.1."""
+    sphere = trimesh.creation.icosphere(subdivisions)
+    upper = sphere.triangles_center[:, 2] > -0.5
+    mesh = trimesh.Trimesh(sphere.vertices, sphere.faces[upper], process=False)
+    mesh.remove_unreferenced_vertices()
+    p = np.asarray(mesh.vertices)
+    uvs = (p[:, :2] + 1.0) / 2.0 * 0.9 + 0.05
+    faces = np.asarray(mesh.faces)
+    return Scan(p, faces, uvs, faces.copy(), None, (Material("dome", np.zeros((64, 64, 3), np.uint8)),))
+
+
+def test_optimize_splits_a_shell_no_conformal_map_flattens():
+    scan = dome()
+    plan = plan_uvs(scan, "optimize", threshold=1.1, texture_size=256)
+    done = plan.report["optimize"]
+    assert done["shells_reflattened"] == 0 and done["shells_split"] == 1 and done["charts_from_splits"] > 1
+    assert 1 < plan.report["after"]["shells"] < done["charts_from_splits"]  # split, then merged back in part
+    check_layout(scan, plan.scan, 1.1)
+
+
+def test_merging_without_retry_never_tries_a_union_holding_one_that_failed():
+    from scantex.uv.merge import MergeLog, Merger, Piece
+    from scantex.uv.unwrap import UnwrapOptions, interior_edges, planar_charts
+
+    scan = dome(4)
+    positions, faces = scan.welded_geometry()
+    pairs, corners = interior_edges(faces)
+    pieces = [Piece(*p) for p in planar_charts(positions, faces, scan.face_normals, scan.face_areas, pairs,
+                                               UnwrapOptions(threshold=1.1))]
+    tried = {}
+    for retry in (True, False):
+        merger = Merger(positions, faces, pieces, pairs, corners, 1.1, retry=retry)
+        attempts, original = [], merger.try_merge
+
+        def logged(a, b, record, merger=merger, attempts=attempts, original=original):
+            sides = (set(merger.pieces[a].faces.tolist()), set(merger.pieces[b].faces.tolist()))
+            ok = original(a, b, record)
+            attempts.append((*sides, ok))
+            return ok
+
+        merger.try_merge = logged
+        log = MergeLog()
+        merged = merger.run(float("inf"), log)
+        assert sum(len(p.faces) for p in merged) == len(faces) and not log.out_of_time
+        tried[retry] = attempts
+    failed_before = []
+    for a, b, ok in tried[False]:
+        assert not any((fa <= a and fb <= b) or (fa <= b and fb <= a) for fa, fb in failed_before)
+        if not ok:
+            failed_before.append((a, b))
+    assert failed_before  # the dome's charts do fail to merge, and retrying tries such unions again
+    assert len(tried[True]) > len(tried[False])
 
 
 def test_optimize_reduces_shells_and_seams_on_the_demo_wall(demo_wall):
