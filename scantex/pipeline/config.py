@@ -96,7 +96,8 @@ class TrainConfig:
 @dataclass(frozen=True)
 class UVConfig:
     mode: str = "keep"
-    """texture layout: keep the input's, optimize it (merge/split shells by stretch), or unwrap afresh"""
+    """texture layout: keep the input's, optimize it (flatten, split and merge shells by stretch), or unwrap
+    afresh"""
     threshold: float = 1.1
     """largest per-chart L2 stretch allowed when merging/splitting/unwrapping (1 = no distortion)"""
     time_budget_s: float = 60.0

@@ -209,6 +209,53 @@ def test_pack_turns_strips_beside_a_large_chart_that_shelves_leave_empty():
             assert gap >= 2 * 2 - 1
 
 
+def test_compiled_skyline_places_every_box_as_its_python_twin():
+    from scantex.uv.pack import skyline_place, skyline_place_reference
+
+    rng = np.random.default_rng(7)
+    fitted = 0
+    for trial in range(200):
+        n = int(rng.integers(1, 50))
+        boxes = rng.integers(1, 40, (n, 2))
+        if trial % 4 == 0:
+            boxes[:, 1] = boxes[:, 0]  # squares: never turned
+        size = int(rng.integers(16, 160))
+        for by_area in (True, False):
+            got, want = skyline_place(boxes, size, by_area), skyline_place_reference(boxes, size, by_area)
+            assert (got is None) == (want is None)
+            if want is not None:
+                fitted += 1
+                assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert 50 < fitted < 400  # both outcomes were exercised
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_many_charts_go_on_the_skyline_only_when_it_is_compiled(compiled, monkeypatch):
+    """Past ``SKYLINE_MAX_CHARTS`` charts the Python skyline is too slow to run; compiled, it packs any
+    number (here a square half the atlas wide beside many small squares: shelves leave the room beside it
+    empty)."""
+    from scantex import jit
+    from scantex.uv import pack as packing
+
+    if not compiled:
+        monkeypatch.setattr(jit, "compiled", lambda function: None)
+    monkeypatch.setattr(packing, "SKYLINE_MAX_CHARTS", 20)
+    sides = [1.0] + [0.12] * 40
+    face_uvs, uvs, chart = [], [], []
+    for c, w in enumerate(sides):
+        base = len(uvs)
+        uvs += [[0, 0], [w, 0], [w, w], [0, w]]
+        face_uvs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        chart += [c, c]
+    charts = Charts(np.array(chart), np.array(face_uvs), np.array(uvs, float))
+    shelf_scale, _ = packing.shelf_pack(np.array([[w, w] for w in sides]), 256, 2)
+    atlas = pack(charts, 256, gutter=2)
+    if compiled:
+        assert atlas.texels_per_metre > 1.08 * shelf_scale  # 1.105 x: the squares stacked beside the big one
+    else:
+        assert atlas.texels_per_metre == shelf_scale
+
+
 def test_pack_fails_loudly_when_nothing_fits():
     charts = Charts(np.zeros(1, np.int64), np.array([[0, 1, 2]]), np.array([[0, 0], [1, 0], [0, 1.0]]))
     with pytest.raises(ValueError, match="do not fit"):
