@@ -344,6 +344,9 @@ def enhance_summary(m: dict) -> str:
              f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces; Hausdorff "
              f"{g['distance']['hausdorff']:.3g}, mean distance {g['distance']['mean']:.3g})",
              f"seam visibility: {m['seam_visibility']['input']:.2f} -> {m['seam_visibility']['enhanced']:.2f}"]
+    if "enhanced_at_input_seams" in m["seam_visibility"]:
+        lines[-1] += (f" along each layout's own seams; at the input's seams {m['seam_visibility']['input']:.2f} -> "
+                      f"{m['seam_visibility']['enhanced_at_input_seams']:.2f}")
     if "held_out_vs_ground_truth" in m:
         s = m["held_out_vs_ground_truth"]
         lines.append(f"held-out views vs ground truth: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB, "

@@ -1003,10 +1003,20 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
         "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),
                             "enhanced": round(seam_visibility(enhanced), 3)},
     }
+    if scan.is_textured and not _same_layout(scan, enhanced):
+        # a new layout's seams are not the input's: the input's seam steps, now inside the new charts, are read
+        # there too (the same surface points, through the new layout)
+        metrics["seam_visibility"]["enhanced_at_input_seams"] = round(seam_visibility(enhanced, edges), 3)
     metrics.update(scores)
     if scan.is_textured:
         metrics["patches"] = patches if patches is not None else patch_metrics(scan, enhanced, test_cams, caster)
     return metrics
+
+
+def _same_layout(scan: Scan, other: Scan) -> bool:
+    """Whether ``other`` keeps ``scan``'s UV layout (its texture coordinates and their indices)."""
+    return ((other.uvs is scan.uvs or np.array_equal(other.uvs, scan.uvs))
+            and (other.face_uvs is scan.face_uvs or np.array_equal(other.face_uvs, scan.face_uvs)))
 
 
 def patch_metrics(scan: Scan, enhanced: Scan, cameras: list[Camera], caster: RayCaster) -> dict:

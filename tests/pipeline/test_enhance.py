@@ -56,6 +56,22 @@ def test_texture_beats_input_against_ground_truth(toy_result):
     assert m["input"]["hole_faces"] > 0
 
 
+def test_a_new_layout_is_also_measured_at_the_input_seams(toy_demo, toy_result):
+    """Optimised, the toy wall merges its charts: the input's seam steps are then inside charts, where the
+    layout's own seams do not read them; the summary reads them at the input's seams too."""
+    from scantex.atlas.seams import seam_edges, seam_visibility
+    from scantex.cli import enhance_summary
+
+    assert "enhanced_at_input_seams" not in toy_result.metrics["seam_visibility"]  # the layout kept
+    result = enhance(toy_demo.scan, TOY.override(uv__mode="optimize"))
+    seams = result.metrics["seam_visibility"]
+    assert seams["enhanced_at_input_seams"] == pytest.approx(
+        seam_visibility(result.scan, seam_edges(toy_demo.scan)), abs=1e-3)
+    assert result.metrics["uv"]["after"]["shells"] < result.metrics["uv"]["before"]["shells"]
+    assert f"at the input's seams {seams['input']:.2f} -> {seams['enhanced_at_input_seams']:.2f}" in \
+        enhance_summary(result.metrics)
+
+
 def test_output_atlas_keeps_the_input_size_and_layout(toy_demo, toy_result):
     """The default bake keeps the input's texels on its layout, at its size; the field bake doubles it."""
     (img,) = [m.image for m in toy_result.scan.materials]
