@@ -530,8 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="texture layout: keep the input's (default), optimize it (flatten over-stretched "
                         "charts again, split those that still stretch, merge neighbours while they stay under the "
                         "stretch threshold; uniform texel density) or unwrap afresh; meshes without UVs are "
-                        "unwrapped. A new "
-                        "layout leaves the input's normal, occlusion and other maps out: they are drawn in its own")
+                        "unwrapped. A new layout leaves the input's normal, occlusion and other maps out: they are "
+                        "drawn in its own")
     p.add_argument("--views", type=whole(2, 10_000),
                    help="number of synthetic views, at least 2: one is held out (preset's by default)")
     p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")

@@ -89,6 +89,17 @@ class SeamEdges:
         return SeamEdges(self.faces[keep], self.corners[keep])
 
 
+def with_seams_of(edges: SeamEdges, other: SeamEdges) -> SeamEdges:
+    """``edges`` and the edges of ``other`` it lacks (two faces share one edge at most: an edge is its faces):
+    one layout's seams and another's on the same faces (the old layout's then lie inside the new charts)."""
+    def keys(e: SeamEdges) -> np.ndarray:
+        return np.sort(e.faces, axis=1) @ np.array([1, 1 << 32], np.int64) if len(e) else np.zeros(0, np.int64)
+
+    extra = ~np.isin(keys(other), keys(edges))
+    return SeamEdges(np.concatenate([edges.faces, other.faces[extra]]),
+                     np.concatenate([edges.corners, other.corners[extra]]))
+
+
 def seam_edges(scan: Scan) -> SeamEdges:
     """Find the seam edges (only edges shared by exactly two faces; non-manifold ones are skipped). Computed
     once per layout (:meth:`Scan.layout_memo`); read-only."""

@@ -21,7 +21,7 @@ from scantex.atlas.bake import SurfaceColour, bake, output_size
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces
 from scantex.atlas.levelling import chart_gains
-from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
+from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells, with_seams_of
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.views import score_views
 from scantex.photos.photoset import PhotoSet
@@ -832,7 +832,14 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
                                                       diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
             for m, img in zip(target.materials, images))
         baked = target.replace(materials=materials, source=None)
-        return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts) if blends else baked
+        if not blends:
+            return baked, baked
+        edges = None
+        if mode != "keep" and photo is None and bake_report["source"] == "input" and scan.is_textured:
+            # the input's texels moved onto a new layout carry the input's seam steps, inside the new charts
+            # where the layout's own seams no longer are: those are blended as well
+            edges = with_seams_of(seam_edges(baked), seam_edges(scan))
+        return baked, blend_seams(baked, band_texels=uc.band_texels, layouts=layouts, edges=edges)
 
     t = time.perf_counter() - bake_seconds
     baked, enhanced = bake_and_blend(colour, "baking the texture", workers)

@@ -83,6 +83,15 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
         # each side's segment and inward step, once: a side's band holds a few dozen texels that read it
         mine, theirs = seam_sides(scan, f, cf, inset_texels), seam_sides(scan, g, cg, inset_texels)
         side_shell = shells[f]
+        # an edge inside a chart (an old layout's seam, its colour step baked into the new one: both sides hold
+        # it at the same texture coordinates): each side moves only the texels on its own face's side of the
+        # edge, the side its third corner is on
+        inner = (np.stack([tri_uv[f, cf[:, 0]], tri_uv[f, cf[:, 1]]], axis=1)
+                 == np.stack([tri_uv[g, cg[:, 0]], tri_uv[g, cg[:, 1]]], axis=1)).all(axis=(1, 2))
+        third = uv_to_pixel(tri_uv[f, 3 - cf[:, 0] - cf[:, 1]], W, H)
+        d = seg[:, 1] - seg[:, 0]
+        facing = np.sign(d[:, 0] * (third[:, 1] - seg[:, 0, 1]) - d[:, 1] * (third[:, 0] - seg[:, 0, 0]))
+        facing[~inner] = 0  # 0: every texel of the side's chart within the band, as across a seam between charts
         scale = 1.0 / 255.0 if image.dtype == np.uint8 else 1.0
         new = image.copy()
         covered = np.zeros((H, W), bool)
@@ -101,7 +110,7 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
             covered[y0:y1] = face_id >= 0
             texel_shell = np.where(face_id >= 0, shells[np.maximum(face_id, 0)], -1)
             at, offset, weight, strongest = _strip_offsets(
-                scan, texel_shell, y0, W, side_shell, seg, mine, theirs, lo, hi, band_texels, core)
+                scan, texel_shell, y0, W, side_shell, seg, mine, theirs, lo, hi, band_texels, core, facing)
             touched = weight > 0  # only these change
             at, offset, weight, strongest = at[touched], offset[touched], weight[touched], strongest[touched]
             rgb = image[y0:y1].reshape(-1, image.shape[2])[at, :3].astype(np.float64) * scale
@@ -123,15 +132,16 @@ def blend_seams(scan: Scan, *, band_texels: float = 3.0, core_texels: float = 1.
 
 def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, side_shell: np.ndarray, seg: np.ndarray,
                    mine: SeamSides, theirs: SeamSides, lo: np.ndarray, hi: np.ndarray, band_texels: float,
-                   core: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   core: float, facing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The seam sides' pull on the texels of atlas rows ``y0 .. y0 + h`` (``texel_shell (h, W)``: the
     shell each texel shows, -1 for none; ``side_shell (N,)`` each side's shell; ``mine`` and ``theirs``
     each side's segment as its own face and the other side's face hold it): ``(at (n,), offsets (n, 3),
     weights (n,), strongest (n,))``, the summed weighted offsets, summed weights and strongest weight of
-    the ``n`` texels reached, ``at`` their indices in the strip's rows flattened, increasing. Candidate
-    texels are each seam side's bounding box within ``band_texels``, cut to the strip's rows, examined
-    ``CANDIDATES_PER_BATCH`` at a time; the sums are kept for the texels reached only (a few per cent of
-    a strip: dense sums over every texel of it took a third of the blending)."""
+    the ``n`` texels reached, ``at`` their indices in the strip's rows flattened, increasing. ``facing
+    (N,)``: for a side whose edge lies inside one chart, the sign of the side of its segment its texels are on
+    (0: any). Candidate texels are each seam side's bounding box within ``band_texels``, cut to the strip's
+    rows, examined ``CANDIDATES_PER_BATCH`` at a time; the sums are kept for the texels reached only (a few
+    per cent of a strip: dense sums over every texel of it took a third of the blending)."""
     h = texel_shell.shape[0]
     y1 = y0 + h
     rows = np.flatnonzero((hi[:, 1] >= y0) & (lo[:, 1] <= y1 - 1))  # the sides whose band reaches the strip
@@ -160,6 +170,9 @@ def _strip_offsets(scan: Scan, texel_shell: np.ndarray, y0: int, W: int, side_sh
         # the texel's distance from its side's segment, and where along it the nearest point is
         ax, ay = seg[e, 0, 0], seg[e, 0, 1]
         dx, dy = seg[e, 1, 0] - ax, seg[e, 1, 1] - ay
+        if facing.any():
+            own_side = (facing[e] == 0) | (np.sign(dx * (y - ay) - dy * (x - ax)) == facing[e])
+            e, x, y, ax, ay, dx, dy = (a[own_side] for a in (e, x, y, ax, ay, dx, dy))
         length2 = dx * dx + dy * dy
         t = np.clip(np.divide((x - ax) * dx + (y - ay) * dy, length2, out=np.zeros(len(e)), where=length2 > 0),
                     0.0, 1.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scantex.atlas.seams import seam_visibility
+from scantex.atlas.seams import SeamEdges, seam_edges, seam_visibility, with_seams_of
 from scantex.scan import Material, Scan
 from scantex.uv import blend_seams, plan_uvs, transfer_texture
 from tests.atlas.test_seams_holes_bake import cylinder_with_one_seam
@@ -147,3 +147,44 @@ def test_blending_with_the_bakes_layout_is_blending_without_it(rows, monkeypatch
     reused = blend_seams(baked, max_crease_deg=180, layouts=layouts)
     for a, b, before in zip(plain.materials, reused.materials, baked.materials):
         assert np.array_equal(a.image, b.image) and not np.array_equal(a.image, before.image)
+
+
+def wall_with_a_step() -> tuple[Scan, SeamEdges]:
+    """A one-chart wall whose texture steps from dark to bright along the mesh edges at u = 0.5 (an old
+    layout's seam, baked into a new chart), and those edges."""
+    from scantex.uv.unwrap import interior_edges
+
+    wall = grid_wall(n=9)
+    image = np.full((64, 64, 3), 50, np.uint8)
+    image[:, 32:] = 200  # texel centres (x + 0.5) / 64: the step at u = 0.5
+    wall = wall.replace(materials=(Material("wall", image),))
+    pairs, corners = interior_edges(wall.faces)
+    u = wall.uvs[:, 0]
+    ends = wall.faces[pairs[:, 0, None], corners[:, 0]]  # [E, 2] the edge's two vertices
+    on_line = np.isclose(u[ends], 0.5).all(axis=1)
+    return wall, SeamEdges(pairs[on_line], corners[on_line])
+
+
+def test_blending_an_old_seam_inside_a_chart_moves_each_side_towards_the_other():
+    """Both sides of an edge inside one chart are in the same chart: each side moves only the texels on its
+    own face's side (else the two pulls would cancel on every texel and the step would stay)."""
+    wall, edges = wall_with_a_step()
+    assert len(edges) == 8 and seam_visibility(wall, edges) > 100
+    blended = blend_seams(wall, band_texels=3.0, edges=edges)
+    before, after = wall.materials[0].image[..., 0].astype(int), blended.materials[0].image[..., 0].astype(int)
+    assert seam_visibility(blended, edges) < 0.2 * seam_visibility(wall, edges)
+    assert np.array_equal(after[:, :28], before[:, :28]) and np.array_equal(after[:, 36:], before[:, 36:])
+    # towards the mean from either side, never past it: the dark side brightens, the bright side darkens
+    assert (after[4:-4, 28:32] >= 50).all() and (after[4:-4, 28:32] <= 126).all()
+    assert (after[4:-4, 32:36] <= 200).all() and (after[4:-4, 32:36] >= 124).all()
+    assert abs(after[32, 31] - 125) <= 15 and abs(after[32, 32] - 125) <= 15
+
+
+def test_a_layouts_seams_with_an_old_layouts():
+    own = seam_edges(textured_cube(materials=1))
+    assert len(with_seams_of(own, own)) == len(own)  # an edge in both, once
+    flipped = SeamEdges(own.faces[:5, ::-1], own.corners[:5, ::-1])  # the same edges, sides swapped
+    assert len(with_seams_of(own, flipped)) == len(own)
+    _, old = wall_with_a_step()
+    both = with_seams_of(own, old)
+    assert len(both) == len(own) + len(old) and np.array_equal(both.faces[:len(own)], own.faces)
