@@ -277,10 +277,12 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     lo = triangles_uv.reshape(-1, 2).min(axis=0)
     scale = np.sqrt(texels / area)
     for _ in range(8):
-        if _texel_boxes(triangles_uv, lo, scale)[3].sum() <= 20_000_000:
+        boxes = _texel_boxes(triangles_uv, lo, scale)
+        if boxes[3].sum() <= 20_000_000:
             break
         scale *= 0.5
-    overlapped, covered = overlap_counts(triangles_uv, lo, scale)
+        boxes = None
+    overlapped, covered = overlap_counts(triangles_uv, lo, scale, boxes)
     return float(overlapped / max(covered, 1))
 
 
@@ -294,11 +296,13 @@ def _texel_boxes(triangles_uv: np.ndarray, lo: np.ndarray, scale: float):
     return pix, tmin, count, count[:, 0] * count[:, 1]
 
 
-def overlap_counts(triangles_uv: np.ndarray, lo: np.ndarray, scale: float) -> tuple[int, int]:
+def overlap_counts(triangles_uv: np.ndarray, lo: np.ndarray, scale: float, boxes: tuple | None = None
+                   ) -> tuple[int, int]:
     """Texels (of size ``1 / scale``, on the grid from ``lo``) whose centre lies strictly inside more than one
-    of the ``(n, 3, 2)`` triangles, and inside at least one (see :func:`overlap_share`)."""
+    of the ``(n, 3, 2)`` triangles, and inside at least one (see :func:`overlap_share`). ``boxes``: their
+    :func:`_texel_boxes` at that grid, where the caller has them."""
     n = len(triangles_uv)
-    pix, tmin, count, per = _texel_boxes(triangles_uv, lo, scale)
+    pix, tmin, count, per = boxes if boxes is not None else _texel_boxes(triangles_uv, lo, scale)
     tri = np.repeat(np.arange(n), per)
     offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
     w = np.maximum(count[tri, 0], 1)
