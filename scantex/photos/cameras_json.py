@@ -11,7 +11,8 @@ Conventions: scantex's own, so no conversion at all.
   a K from ``cv2.calibrateCamera`` goes in unchanged; a principal point from COLMAP, nerfstudio or ARKit
   would need ``- 0.5``.
 - ``image`` and ``depth`` paths are absolute or relative to the file; ``depth`` is a uint16 PNG in
-  millimetres. ``width``/``height`` default to the image's size.
+  millimetres, or a float map in metres (a 32-bit TIFF, a ``.npy``). ``width``/``height`` default to the
+  image's size.
 - ``distortion`` (optional, written by :func:`write_cameras_json` when a photo has one): ``{"model",
   "radial", "tangential", "radial_denominator"}`` as in :class:`~scantex.photos.photoset.Distortion`.
 - Other keys (``split``, the bolster's ``R`` and ``C``, ...) are ignored.
@@ -38,7 +39,7 @@ from scantex.views.camera import Camera
 
 FORMAT = "cameras.json"
 CONVENTION = ("OpenCV: x_cam = R X + t, +x right, +y down, +z forward; pixel = K x_cam / z with (0, 0) "
-              "the centre of the top-left pixel; depth PNG uint16 millimetres")
+              "the centre of the top-left pixel; depth PNG uint16 millimetres (a float map: metres)")
 
 
 def is_cameras_json(doc) -> bool:
@@ -102,7 +103,7 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
         photos: the photos.
         out_dir: the folder.
         copy_images: copy the photos (and depth maps) next to the file as ``photo_000.<ext>``
-            (``depth_000.png``) and refer to them by name; else refer to the originals by absolute path.
+            (``depth_000.<ext>``) and refer to them by name; else refer to the originals by absolute path.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -116,7 +117,7 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
                 name = str(image.resolve())
             frame = {"image": name, **cam.to_dict()}
             if depth is not None:
-                frame["depth"] = f"depth_{i:03d}.png" if copy_images else str(depth.resolve())
+                frame["depth"] = f"depth_{i:03d}{depth.suffix.lower()}" if copy_images else str(depth.resolve())
                 if copy_images:
                     copy_into(files, depth, out_dir / frame["depth"])
             distortion = photos.distortions[i]

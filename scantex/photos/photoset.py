@@ -26,7 +26,8 @@ from scantex.errors import ScanError
 from scantex.io.images import open_image
 from scantex.views.camera import Camera
 
-#: metres per depth-map unit in every format scantex reads: uint16 PNG in millimetres
+#: metres per unit of an integer depth map in every format scantex reads: uint16 PNG in millimetres (a float map,
+#: a 32-bit TIFF or a ``.npy``, is in metres)
 DEPTH_SCALE_MM = 0.001
 
 #: decoded photos kept in memory for the stages that read them again (the alignment check, pose refinement,
@@ -171,7 +172,8 @@ class PhotoSet:
     Attributes:
         cameras: one pinhole :class:`Camera` per photo, OpenCV convention, world frame = the mesh's.
         images: ``(N,)`` image files (any format Pillow reads); read by :meth:`load_image`.
-        depths: ``(N,)`` depth maps (uint16 PNG, ``depth_scale`` metres per unit) or ``None`` per photo.
+        depths: ``(N,)`` depth maps (uint16 PNG, ``depth_scale`` metres per unit; or float, in metres: a 32-bit
+            TIFF, a ``.npy``) or ``None`` per photo.
             A depth map may have another size than its photo (phones and the Kinect record depth at a
             lower resolution): :meth:`load_depth` returns it as stored and resizing it is the caller's
             business (it covers the same field of view, so its intrinsics are the photo's scaled by
@@ -282,7 +284,7 @@ class PhotoSet:
             for i in range(len(self)):
                 try:
                     self.load_image(i)
-                    self._depth_integers(i)  # what the cache keeps: no conversion to metres thrown away
+                    self._stored_depth(i)  # what the cache keeps: no conversion to metres thrown away
                 except Exception:  # noqa: BLE001 - the stage reading this photo says what is wrong with it
                     return
 
@@ -291,31 +293,58 @@ class PhotoSet:
         return thread
 
     def load_depth(self, i: int) -> np.ndarray | None:
-        """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement,
-        stored as 0), at the depth map's own size; ``None`` when the photo has no depth map. The decoded
-        integers are what :attr:`image_cache` keeps (half the size, and right for any ``depth_scale``)."""
-        raw = self._depth_integers(i)
+        """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement, stored
+        as 0, or as NaN or a negative value in a float map), at the depth map's own size; ``None`` when the
+        photo has no depth map. An integer map is in ``depth_scale`` units, a float map (a 32-bit TIFF, a
+        ``.npy``) in metres. The map as stored is what :attr:`image_cache` keeps (16-bit integers: half the
+        size, and right for any ``depth_scale``)."""
+        raw = self._stored_depth(i)
         if raw is None:
             return None
+        if raw.dtype.kind == "f":
+            depth = raw.astype(np.float32)
+            depth[~(depth > 0) | ~np.isfinite(depth)] = np.nan
+            return depth
         depth = raw.astype(np.float32) * np.float32(self.depth_scale)
         depth[raw == 0] = np.nan
         return depth
 
-    def _depth_integers(self, i: int) -> np.ndarray | None:
-        """Photo ``i``'s depth map as stored, ``(h, w)`` integers (the cache's copy when the set fits it)."""
+    def _stored_depth(self, i: int) -> np.ndarray | None:
+        """Photo ``i``'s depth map as stored, ``(h, w)`` integers or floats (the cache's copy when the set
+        fits it)."""
         path = self.depths[i]
         if path is None:
             return None
 
         def decode() -> np.ndarray:
-            with open_image(path, "depth map") as im:
-                im.load()  # decode inside the block: a truncated file becomes a clean error
-                raw = np.asarray(im)
-            if raw.ndim != 2 or raw.dtype.kind not in "ui":
-                raise ScanError(path, f"depth map is not a single-channel integer image (mode {im.mode})")
+            if path.suffix.lower() == ".npy":
+                raw = _load_npy(path)
+            else:
+                with open_image(path, "depth map") as im:
+                    im.load()  # decode inside the block: a truncated file becomes a clean error
+                    raw = np.asarray(im)
+            if raw.ndim != 2 or raw.dtype.kind not in "uif":
+                raise ScanError(path, f"depth map is not a single-channel integer or float image "
+                                      f"({raw.dtype} of shape {raw.shape})")
             return raw
 
         return self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    """A depth map saved by ``numpy.save``; its header is checked against the size limit before its data is read."""
+    from scantex.io.images import MAX_IMAGE_PIXELS
+
+    if not path.is_file():
+        raise ScanError(path, "depth map file not found")
+    try:
+        stored = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError, EOFError) as e:
+        raise ScanError(path, f"cannot read the depth map ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+                        ) from None
+    if stored.size > MAX_IMAGE_PIXELS:
+        raise ScanError(path, f"depth map has {stored.size:,} values, more than scantex reads")
+    return np.array(stored)
 
 
 def image_size(path: Path) -> tuple[int, int]:

@@ -448,6 +448,36 @@ def test_prefetched_photos_and_depth_maps_are_decoded_once(tmp_path):
         fresh.load_image(1)
 
 
+def test_float_depth_maps_are_read_in_metres(tmp_path):
+    """A float depth map (a 32-bit TIFF, a ``.npy``) is in metres whatever the set's ``depth_scale`` (which is for
+    integer maps); zero, negative and NaN depths are no measurement. A map of more than one channel is refused
+    with a one-line error naming the file."""
+    depth = np.full((H // 2, W // 2), 1.25, np.float32)
+    depth[0, 0], depth[0, 1], depth[0, 2] = 0.0, -1.0, np.nan
+    Image.fromarray(np.zeros((H, W, 3), np.uint8)).save(tmp_path / "p.png")
+    Image.fromarray(depth, mode="F").save(tmp_path / "d.tiff")
+    np.save(tmp_path / "d.npy", depth.astype(np.float64))
+    np.save(tmp_path / "bad.npy", np.ones((4, 4, 3), np.float32))
+    for name in ("d.tiff", "d.npy"):
+        photos = PhotoSet(cameras=(reference_camera(),), images=[tmp_path / "p.png"], depths=[tmp_path / name],
+                          depth_scale=1e-4, source=tmp_path, format="test")
+        read = photos.load_depth(0)
+        assert read.dtype == np.float32 and read.shape == depth.shape
+        assert np.isnan(read[0, :3]).all() and np.allclose(read[0, 3:], 1.25) and np.allclose(read[1:], 1.25)
+        # written with the photos copied, the map keeps its format: read back the same
+        back = load_photos(write_cameras_json(photos, tmp_path / f"copy_{name}", copy_images=True))
+        assert back.depths[0].suffix == (tmp_path / name).suffix
+        np.testing.assert_array_equal(back.load_depth(0), read)
+    bad = PhotoSet(cameras=(reference_camera(),), images=[tmp_path / "p.png"], depths=[tmp_path / "bad.npy"],
+                   source=tmp_path, format="test")
+    with pytest.raises(ScanError, match=r"bad\.npy.*not a single-channel"):
+        bad.load_depth(0)
+    (tmp_path / "broken.npy").write_bytes(b"not numpy")
+    broken = dataclasses.replace(bad, depths=(tmp_path / "broken.npy",))
+    with pytest.raises(ScanError, match="cannot read the depth map"):
+        broken.load_depth(0)
+
+
 # ---- the real bolster capture (skipped without ../shared/data) ---------------------------------
 
 def test_bolster_cameras_json():
