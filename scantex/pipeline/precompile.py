@@ -9,6 +9,7 @@ same loops with the same types a real scan's run does, and leaves the outputs no
 
 from __future__ import annotations
 
+import importlib.util
 import tempfile
 import time
 from dataclasses import dataclass
@@ -38,9 +39,7 @@ def precompile(work: str | Path | None = None) -> Precompiled | None:
     folder for the synthetic photos (default: a temporary one, removed)."""
     from scantex import jit
 
-    try:
-        import numba  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("numba") is None:
         return None
     start = time.perf_counter()
     loaded0, compiled0 = jit.cache_counts()
