@@ -81,6 +81,15 @@ class EnhanceResult:
     scoring's supersampled size by name (input, enhanced, ground truth): the report shows them"""
 
 
+def has_colour(scan: Scan) -> bool:
+    """Whether ``scan`` carries any colour of its own: a texture, vertex or face colours, or materials of
+    different base colours. Without photos, a scan that has none gives a plain colour whatever is trained."""
+    if scan.is_textured or scan.vertex_colors is not None or scan.face_colors is not None:
+        return True
+    bases = {tuple(np.round(np.asarray(m.diffuse[:3], np.float64), 4)) for m in scan.materials}
+    return len(bases) > 1
+
+
 def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
     """The scan's up direction: ``choice``, or with ``auto`` the one its file declares (glTF: y, by the
     format's rule; USD: the stage's), else z (OBJ and PLY scans are mostly z-up)."""
@@ -584,6 +593,10 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         photos.prefetch()  # decoded on a thread while the views are planned and rendered
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
+    if photos is None and not has_colour(scan):
+        raise ScanError(scan.source, "has no colour to enhance: no texture (or its texture files are missing), no "
+                                     "vertex or face colours, one plain material colour; give the capture's posed "
+                                     "photos (--photos) to texture it from them")
     from_vertex_colours = not scan.is_textured and scan.vertex_colors is not None
     if from_vertex_colours:
         t = time.perf_counter()

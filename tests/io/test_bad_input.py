@@ -144,6 +144,30 @@ def test_missing_texture_is_read_untextured_with_a_warning(tmp_path, caplog):
     assert scan.is_textured  # the other material keeps its atlas
 
 
+def test_a_scan_without_colour_and_without_photos_is_refused_before_any_work(tmp_path):
+    """An export whose only texture went missing (or a bare fused mesh) has no colour of its own: without photos
+    every run would write one plain colour after minutes of training. One line says so and what to give, exit 2,
+    nothing written; given photos, or vertex colours, or materials of different colours, it would go on."""
+    from scantex.pipeline.enhance import has_colour
+
+    obj = write_cube(tmp_path)
+    (tmp_path / "tex0.png").unlink()
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(obj), "-o", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[-1].startswith("scantex: error: ") and "cube.obj: has no colour to enhance" in lines[-1]
+    assert "--photos" in lines[-1] and "Traceback" not in proc.stderr
+    assert not out.exists() and not list(tmp_path.glob(".out*"))
+    scan = load_scan(obj)
+    assert not has_colour(scan)
+    V, F = len(scan.positions), len(scan.faces)
+    assert has_colour(scan.replace(vertex_colors=np.full((V, 4), 200, np.uint8)))
+    assert has_colour(scan.replace(face_colors=np.full((F, 4), 200, np.uint8)))
+    assert has_colour(textured_cube(materials=1))
+
+
 def test_degenerate_and_non_manifold_are_accepted_with_warning(tmp_path, caplog):
     (tmp_path / "m.obj").write_text(
         "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\n"
