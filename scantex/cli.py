@@ -361,6 +361,11 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"{n} held-out photos: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+        if "psnr_aligned" in s["input"] and "psnr_aligned" in s["enhanced"]:
+            lines.append(f"  each held-out photo's pose aligned to each texture, as the training photos' were: "
+                         f"colour-matched PSNR {s['input']['psnr_aligned']:.2f} -> {s['enhanced']['psnr_aligned']:.2f} "
+                         f"dB, SSIM {s['input']['ssim_aligned']:.3f} -> {s['enhanced']['ssim_aligned']:.3f} (the "
+                         f"texture's agreement with the photos, without the recorded poses' error)")
         if m.get("input", {}).get("textured", True):
             lines.append("  (held out from the result only: a capture app's input texture was most likely made from "
                          "these photos too, which favours the input)")

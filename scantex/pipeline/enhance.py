@@ -955,8 +955,10 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "alignment": alignment_metrics(photo.alignment),
     }}
     if photo.held_out:
+        # where the training photos' poses were refined, each held-out photo's pose is aligned too, to each texture
+        # on its own, for a second score: the texture's, where the recorded pose's error no longer counts
         out["held_out_photos"] = score_photos({"input": scan, "enhanced": enhanced}, photo.held_out, caster,
-                                              images=images)
+                                              images=images, align=photo.pose_mode != "off")
         if ground_truth is not None:
             out["held_out_photos_vs_ground_truth"] = score_views(
                 ground_truth, {"input": scan, "enhanced": enhanced}, [v.camera for v in photo.held_out], caster, holes)

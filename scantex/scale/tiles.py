@@ -639,7 +639,7 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
     if len(photos.held_out):
         held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side, visibility_settings(pc))
         both = {"input": scan, "enhanced": enhanced}
-        out["held_out_photos"] = score_photos(both, held, caster, images=images)
+        out["held_out_photos"] = score_photos(both, held, caster, images=images, align=photos.pose_mode != "off")
         if ground_truth is not None:
             out["held_out_photos_vs_ground_truth"] = score_views(ground_truth, both, [v.camera for v in held], caster,
                                                                  untextured_faces(scan))
