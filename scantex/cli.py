@@ -274,7 +274,22 @@ def _enhance_capture(args, config, capture) -> int:
     usdz = ", enhanced.usdz" if usd_input(result) else ""
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb{usdz}, "
                 f"metrics.json, config.json, report.html)")
+    compiled = compiled_note()
+    if compiled:
+        _echo(args, compiled)
     return 0
+
+
+def compiled_note() -> str | None:
+    """A line for a run that compiled scantex's loops (numba's cache had none of them yet), else ``None``."""
+    from scantex import jit
+
+    versions, seconds = jit.compile_seconds()
+    if versions == 0 or seconds < 1.0:
+        return None
+    kept = ("numba keeps them: later runs load them; 'scantex precompile' compiles them all ahead"
+            if jit.keeps_cache() else "numba cannot keep them here (NUMBA_CACHE_DIR names a folder it may write)")
+    return f"{seconds:.0f} s of this run compiled {versions} of scantex's loops ({kept})"
 
 
 def tile_count(args, scan, photos) -> int:

@@ -54,6 +54,19 @@ def cache_counts() -> tuple[int, int]:
             sum(sum(k.stats.cache_misses.values()) for k in kernels))
 
 
+def compile_seconds() -> tuple[int, float]:
+    """``(versions, seconds)``: the kernel versions compiled in this process (not loaded from numba's cache) and
+    the time numba spent compiling them (a first run on a machine, or the first after an update)."""
+    versions, seconds = 0, 0.0
+    for kernel, _ in _made.values():
+        for signature in kernel.stats.cache_misses:
+            result = kernel.overloads.get(signature)
+            timers = (getattr(result, "metadata", None) or {}).get("timers", {})
+            versions += 1
+            seconds += float(timers.get("compiler_lock", 0.0))
+    return versions, seconds
+
+
 @functools.cache
 def _uncached() -> None:
     """Says once a run, not once a kernel, that numba keeps no cache here."""

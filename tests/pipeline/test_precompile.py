@@ -49,3 +49,19 @@ def test_precompile_command(capsys, monkeypatch):
     assert precompile() is None
     assert main(["precompile"]) == 0
     assert "nothing to compile" in capsys.readouterr().out
+
+
+def test_a_run_that_compiled_says_so(monkeypatch):
+    """The first run on a machine is slower by the loops it compiles: its summary says how much, and what keeps
+    the next runs from it; a run that loaded them all says nothing."""
+    from scantex.cli import compiled_note
+
+    versions, seconds = jit.compile_seconds()
+    assert versions >= 0 and seconds >= 0.0
+    monkeypatch.setattr(jit, "compile_seconds", lambda: (17, 11.6))
+    note = compiled_note()
+    assert note.startswith("12 s of this run compiled 17 of scantex's loops") and "scantex precompile" in note
+    monkeypatch.setattr(jit, "keeps_cache", lambda: False)
+    assert "NUMBA_CACHE_DIR" in compiled_note()
+    monkeypatch.setattr(jit, "compile_seconds", lambda: (0, 0.0))
+    assert compiled_note() is None
