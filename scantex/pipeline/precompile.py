@@ -69,4 +69,4 @@ def _run(folder: Path) -> None:
     config = preset("default").override(bake__texture_size=256, views__n_views=8)
     enhance(scan, config)
     enhance(scan, config.override(photos__holdout=0, photos__refine_poses="input"), photos=photos)
-    plan_uvs(scan, "unwrap", texture_size=256)
+    plan_uvs(scan, "unwrap", texture_size=256, use_xatlas=False)  # its packing loop; xatlas is an optional extra
