@@ -462,8 +462,8 @@ def cmd_precompile(args) -> int:
                     f"compiles its loops again ({done.seconds:.0f} s now)")
         return 1
     else:
-        _echo(args, f"{done.compiled} loop versions compiled, {done.loaded} already compiled, in "
-                    f"{done.seconds:.0f} s: later runs load them from numba's cache")
+        _echo(args, f"{done.compiled} loop versions compiled and {done.loaded} loaded from numba's cache in "
+                    f"{done.seconds:.0f} s: later runs load them all from it")
     return 0
 
 
