@@ -383,7 +383,8 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
     Args:
         images: if given, receives for each scored photo (by its index in the set) one
             ``(H, W * (1 + len(scans)), 3) float32`` image: the photo, then each scan's render through its
-            camera, side by side (for people to look at).
+            camera, side by side (for people to look at); with ``align``, a second row below it: the photo
+            again, then each scan's render through the camera aligned to it (``(2 H, ...)``).
         align: also score each scan after aligning the held-out photo's pose to *its* texture
             (:func:`scantex.photos.poses.align_camera`, a small rotation, translation and focal change):
             ``psnr_aligned`` / ``ssim_aligned``, colour-matched. A recorded pose that is a few pixels off
@@ -405,6 +406,7 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         # every render's SSIM against the photo, the photo's own filtering done once
         maps = iter(ssim_maps([image for name in scans for image in (renders[name][0], matched[name])], view.image))
         out = {}
+        aligned_row = [view.image]
         for name, scan in scans.items():
             img, _ = renders[name]
             row.append(img)
@@ -416,11 +418,15 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                                       caster, PoseSettings(max_side=max(view.camera.width, view.camera.height)),
                                       index=view.index)
                 moved, alpha = render(scan, fitted.camera, caster, supersample=supersample)
+                aligned_row.append(moved)
                 covered = mask & (alpha > 0.999)
                 moved = colour_match(moved, view.image, covered)
                 s.update(psnr_aligned=psnr(moved, view.image, covered), ssim_aligned=ssim(moved, view.image, covered),
                          aligned_by_deg=fitted.rotation_deg)
-        return out, np.concatenate(row, axis=1)
+        sheet = np.concatenate(row, axis=1)
+        if align:
+            sheet = np.concatenate([sheet, np.concatenate(aligned_row, axis=1)], axis=0)
+        return out, sheet
 
     # the photos side by side: Embree, numpy and scipy's filtering release the interpreter lock
     with ThreadPoolExecutor(PAIR_THREADS) as pool:

@@ -111,11 +111,15 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
     ]
     if getattr(result, "comparisons", None):
         remade = (metrics.get("photos", {}).get("final_texture") or {}).get("mode") == "all"
-        sections.append(_section("Held-out photos", _comparisons(result.comparisons),
-                                 "Photos the result was made without | the input rendered through their cameras "
-                                 "| the result." + (" The texture written was then made again from every photo, "
-                                                    "these included (photos.final); these images and their scores "
-                                                    "are of the texture made without them." if remade else "")))
+        aligned = "psnr_aligned" in (metrics.get("held_out_photos") or {}).get("enhanced", {})
+        caption = "Photos the result was made without | the input rendered through their cameras | the result."
+        if aligned:
+            caption += (" Below each, as the training photos' poses were refined: the same, each render's camera "
+                        "aligned to the photo (recorded poses are a few pixels off).")
+        if remade:
+            caption += (" The texture written was then made again from every photo, these included (photos.final); "
+                        "these images and their scores are of the texture made without them.")
+        sections.append(_section("Held-out photos", _comparisons(result.comparisons), caption))
     if before is not None:
         sections.append(_section("Atlas", _atlases(before, after),
                                  "The texture images themselves: whole (scaled to fit), then one region of the UV "

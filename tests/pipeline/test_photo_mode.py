@@ -210,7 +210,8 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     assert len(sheets) == 2
     from PIL import Image
 
-    assert Image.open(sheets[0]).size == (3 * 128, 96)  # photo | input | result
+    # photo | input | result, and below (the poses were refined) the same with each render's camera aligned
+    assert Image.open(sheets[0]).size == (3 * 128, 2 * 96)
     report = (out / "report.html").read_text()
     assert "Held-out photos" in report and "colour-matched" in report
     bad = subprocess.run(cmd[:-6] + ["--photos", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out2")],
