@@ -47,8 +47,8 @@ def remove_work_dir(work: Path, keep_checkpoint: bool, remove_folder: bool = Tru
 
 def write_outputs(result, out_dir: str | Path) -> None:
     """``enhanced.obj`` (+ MTL, PNG), ``enhanced.glb``, ``enhanced.usdz`` (a USD input's), ``metrics.json``,
-    ``config.json``, ``renders/``, ``comparisons/`` (photo mode: held-out photo | input | result, and with refined poses a
-    second row aligned to the photo), ``report.html``."""
+    ``config.json``, ``renders/``, ``comparisons/`` (photo mode: held-out photo | input | result, and with
+    refined poses a second row aligned to the photo), ``report.html``."""
     from concurrent.futures import ThreadPoolExecutor
 
     from scantex.io.images import png_bytes
