@@ -184,6 +184,7 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
     t0 = time.perf_counter()
     record = {**pending_record(scan), "host": socket.gethostname(), "threads": threads}
     out = Path(out_root) / scan.name
+    work = None
     try:
         import torch
 
@@ -220,6 +221,10 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
                       traceback=traceback.format_exc())
     if record["status"] == "failed":
         record.update(seconds=round(time.perf_counter() - t0, 2), peak_memory_gib=round(peak_memory() / GiB, 3))
+        if work is not None:  # no empty work folder left beside the outputs; a field checkpoint stays for a rerun
+            from scantex.pipeline.outputs import remove_work_dir
+
+            remove_work_dir(work, keep_checkpoint=True)
     return record
 
 

@@ -132,3 +132,21 @@ def test_pool_blames_only_the_job_whose_worker_died():
     results = {job.key: out for job, out in LocalPool(workers=2).run(jobs)}
     assert isinstance(results["dies"], WorkerLost)
     assert results["a"] == 9 and results["b"] == 16
+
+
+def test_a_scan_refused_after_its_work_folder_was_made_leaves_none(tmp_path):
+    """A scan that loads but is refused by ``enhance`` (here: no colour and no photos) fails with its one-line
+    error, and its empty work folder ``<name>.partial`` is not left beside the other scans' outputs."""
+    from scantex.io import save_scan
+    from scantex.pipeline.config import preset
+    from scantex.scale.batch import enhance_one
+    from scantex.scale.inputs import ScanInput
+    from scantex.scan import Scan
+    from tests.conftest import textured_cube
+
+    cube = textured_cube(materials=1)
+    save_scan(Scan(cube.positions, cube.faces), tmp_path / "bare.obj")
+    out = tmp_path / "out"
+    record = enhance_one(ScanInput(tmp_path / "bare.obj", name="bare"), preset("fast").to_dict(), str(out), 1, False)
+    assert record["status"] == "failed" and "has no colour to enhance" in record["error"]
+    assert not (out / "bare.partial").exists() and not (out / "bare").exists()
