@@ -54,6 +54,7 @@ def _run(folder: Path) -> None:
     """Mesh-only, then photo mode (4 photos with depth maps, the poses aligned to the input texture as for a
     small capture), then a fresh UV layout, on a 2,400-face wall; the defaults otherwise."""
     from scantex.io import load_scan
+    from scantex.photos.alignment import check_alignment
     from scantex.pipeline.config import preset
     from scantex.pipeline.enhance import enhance
     from scantex.synth import make_wall, write_demo
@@ -68,5 +69,8 @@ def _run(folder: Path) -> None:
     scan = load_scan(write_demo(demo, folder)["scan"])  # read from a file, as a user's scan is (read-only arrays)
     config = preset("default").override(bake__texture_size=256, views__n_views=8)
     enhance(scan, config)
-    enhance(scan, config.override(photos__holdout=0, photos__refine_poses="input"), photos=photos)
+    # the alignment check's loops run whatever its verdict on this capture; its verdict does not stop the run
+    check_alignment(scan, photos)
+    enhance(scan, config.override(photos__holdout=0, photos__refine_poses="input", photos__check_alignment=False),
+            photos=photos)
     plan_uvs(scan, "unwrap", texture_size=256, use_xatlas=False)  # its packing loop; xatlas is an optional extra
