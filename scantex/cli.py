@@ -444,7 +444,23 @@ def cmd_info(args) -> int:
     print(f"{args.mesh}: {scan.summary()}")
     print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
     print(f"surface area: {scan.face_areas.sum():.4g}")
+    print(f"colour: {colour_source(scan)}")
     return 0
+
+
+def colour_source(scan) -> str:
+    """What colour ``scan`` carries, for ``scantex info``; and, where none, what enhancing it needs."""
+    from scantex.pipeline.enhance import has_colour
+
+    if scan.is_textured:
+        return "texture atlas (enhance improves it; with --photos, from the capture's photos)"
+    if scan.vertex_colors is not None:
+        return "vertex colours (enhance bakes them into a texture first)"
+    if scan.face_colors is not None:
+        return "face colours"
+    if has_colour(scan):
+        return "material colours only"
+    return "none: enhance needs the capture's posed photos (--photos) to texture it"
 
 
 def cmd_precompile(args) -> int:

@@ -160,6 +160,9 @@ def test_a_scan_without_colour_and_without_photos_is_refused_before_any_work(tmp
     assert lines[-1].startswith("scantex: error: ") and "cube.obj: has no colour to enhance" in lines[-1]
     assert "--photos" in lines[-1] and "Traceback" not in proc.stderr
     assert not out.exists() and not list(tmp_path.glob(".out*"))
+    info = subprocess.run([sys.executable, "-m", "scantex", "info", str(obj)], capture_output=True, text=True,
+                          timeout=120)
+    assert "colour: none: enhance needs the capture's posed photos (--photos)" in info.stdout  # info says so too
     scan = load_scan(obj)
     assert not has_colour(scan)
     V, F = len(scan.positions), len(scan.faces)
