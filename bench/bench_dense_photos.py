@@ -27,7 +27,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.bench_real_photos import CAPTURES, DATA, training_frames  # noqa: E402
+from bench.bench_real_photos import capture_files, training_frames  # noqa: E402
 from bench.bench_texrecon import timed  # noqa: E402
 
 
@@ -62,15 +62,14 @@ def main() -> None:
     parser.add_argument("--tiles", type=int, nargs="+", default=[1], help="tiles (1: the scan whole)")
     parser.add_argument("--score", action="store_true", help="score each output through the held-out photos")
     args = parser.parse_args()
-    cams, mesh, held = CAPTURES["bolster"]
-    cameras = DATA / cams
-    if not cameras.exists():
-        print(f"skipped: {cameras} not found")
+    files = capture_files("bolster")
+    if files is None:
         return
+    cameras, mesh, held = files
     from scantex.io import load_scan, save_scan
 
     train = training_frames(cameras, held)
-    base = load_scan(DATA / mesh)
+    base = load_scan(mesh)
     print("| faces | tiles | wall s | peak MiB | held-out PSNR input -> output (SSIM) | stages s (metrics.json) |")
     print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:

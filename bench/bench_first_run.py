@@ -30,7 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.bench_real_photos import CAPTURES, DATA, training_frames  # noqa: E402
+from bench.bench_real_photos import capture_files, training_frames  # noqa: E402
 from bench.bench_texrecon import timed  # noqa: E402
 
 
@@ -38,11 +38,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-n", "--rounds", type=int, default=1, help="rounds, each with fresh caches")
     args = parser.parse_args()
-    cams, mesh, held = CAPTURES["bolster"]
-    cameras = DATA / cams
-    if not cameras.exists():
-        print(f"skipped: {cameras} not found")
+    files = capture_files("bolster")
+    if files is None:
         return
+    cameras, mesh, held = files
     runs: dict[str, list[tuple[float, float]]] = {"first run": [], "second run": [], "scantex precompile": [],
                                                   "first run after precompile": []}
     same = []
@@ -52,7 +51,7 @@ def main() -> None:
         scantex = [sys.executable, "-m", "scantex"]
 
         def enhance(out: str) -> list[str]:
-            return [*scantex, "enhance", str(DATA / mesh), "--photos", str(work / "cameras.json"), "--holdout", "0",
+            return [*scantex, "enhance", str(mesh), "--photos", str(work / "cameras.json"), "--holdout", "0",
                     "-o", str(work / out), "--overwrite", "--quiet"]
 
         for r in range(args.rounds):

@@ -37,6 +37,16 @@ CAPTURES = {
 UNTEXTURED = {"bolster_bare"}
 
 
+def capture_files(name: str) -> tuple[Path, Path, list[int]] | None:
+    """``(cameras.json, mesh, held-out photos)`` of ``CAPTURES[name]`` in ``../shared/data``, or ``None`` (and a
+    line saying so) where the data is absent."""
+    cams, mesh, held = CAPTURES[name]
+    if not (DATA / cams).exists():
+        print(f"skipped: {DATA / cams} not found")
+        return None
+    return DATA / cams, DATA / mesh, held
+
+
 def training_frames(cameras: Path, held) -> list[dict]:
     """The frames of ``cameras`` (a ``cameras.json``) but those at ``held``, their image and depth paths made
     absolute: a ``cameras.json`` of the training photos alone, to write anywhere."""
