@@ -395,8 +395,9 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
     from scantex.photos.poses import PoseSettings, align_camera
     from scantex.views.render import render, render_scans, shade_hits
 
-    def score(view: PhotoView) -> tuple[dict[str, dict[str, float]], np.ndarray] | None:
-        """Each scan's scores through ``view``, and the side-by-side image (``None``: too few pixels)."""
+    def score(view: PhotoView) -> tuple[dict[str, dict[str, float]], np.ndarray | None] | None:
+        """Each scan's scores through ``view``, and the side-by-side image when ``images`` asks for it
+        (``None``: too few pixels)."""
         mask = view.valid
         if mask.sum() < 64:
             return None
@@ -423,10 +424,10 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                 moved = colour_match(moved, view.image, covered)
                 s.update(psnr_aligned=psnr(moved, view.image, covered), ssim_aligned=ssim(moved, view.image, covered),
                          aligned_by_deg=fitted.rotation_deg)
-        sheet = np.concatenate(row, axis=1)
-        if align:
-            sheet = np.concatenate([sheet, np.concatenate(aligned_row, axis=1)], axis=0)
-        return out, sheet
+        if images is None:
+            return out, None
+        rows = [row, aligned_row] if align else [row]
+        return out, np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
 
     # the photos side by side: Embree, numpy and scipy's filtering release the interpreter lock
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
