@@ -33,8 +33,8 @@ from scantex.photos.conventions import (
     check_intrinsics,
     check_pose,
 )
-from scantex.photos.files import load_frames_file, check_sizes, copy_into, need, resolve_file
-from scantex.photos.photoset import Distortion, PhotoSet, image_size
+from scantex.photos.files import check_sizes, copy_into, load_frames_file, need, resolve_file, write_depth
+from scantex.photos.photoset import DEPTH_SCALE_MM, Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
 FORMAT = "cameras.json"
@@ -117,9 +117,10 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
                 name = str(image.resolve())
             frame = {"image": name, **cam.to_dict()}
             if depth is not None:
-                frame["depth"] = f"depth_{i:03d}{depth.suffix.lower()}" if copy_images else str(depth.resolve())
-                if copy_images:
-                    copy_into(files, depth, out_dir / frame["depth"])
+                # an integer map in other units than millimetres is written as millimetres even when the photos
+                # are not copied: referred to as it is, it would be read a thousand times too near or far
+                frame["depth"] = (write_depth(files, photos, i, out_dir / f"depth_{i:03d}", floats=True).name
+                                  if copy_images or photos.depth_scale != DEPTH_SCALE_MM else str(depth.resolve()))
             distortion = photos.distortions[i]
             if distortion is not None and not distortion.is_zero:
                 frame["distortion"] = {"model": distortion.model, "radial": list(distortion.radial),

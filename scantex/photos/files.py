@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.photoset import image_size
+from scantex.photos.photoset import DEPTH_SCALE_MM, PhotoSet, image_size
 from scantex.views.camera import Camera
 
 
@@ -84,3 +84,26 @@ def copy_into(files, src: Path, dst: Path) -> None:
     import shutil
 
     shutil.copyfile(src, files.path(dst))
+
+
+def write_depth(files, photos: PhotoSet, i: int, stem: Path, *, floats: bool) -> Path:
+    """Photo ``i``'s depth map written through an :class:`~scantex.io.atomic.AtomicFiles` group as ``stem`` plus a
+    suffix; returns the path. The file is copied as it is where a reader takes it so: an integer map in
+    millimetres (kept as a ``.png`` only when it is one), or a float map in metres where the format reads ``floats``.
+    Any other map (a float map for a format without floats, integers in other units) is written as what every
+    format reads: a uint16 PNG of millimetres, 0 where there is no measurement or the depth is beyond 65.535 m."""
+    src = photos.depths[i]
+    stored = photos.stored_depth(i)
+    as_is = (stored.dtype.kind == "f" and floats) or (
+        stored.dtype.kind in "ui" and photos.depth_scale == DEPTH_SCALE_MM and (floats or src.suffix.lower() == ".png"))
+    if as_is:
+        dst = stem.with_name(stem.name + src.suffix.lower())
+        copy_into(files, src, dst)
+        return dst
+    from PIL import Image
+
+    mm = np.round(photos.load_depth(i).astype(np.float64) * 1000.0)
+    mm[~(mm <= np.iinfo(np.uint16).max) | ~(mm > 0)] = 0  # NaN, too far, or rounded to nothing: no measurement
+    dst = stem.with_name(stem.name + ".png")
+    Image.fromarray(mm.astype(np.uint16)).save(files.path(dst), format="PNG")
+    return dst

@@ -284,7 +284,7 @@ class PhotoSet:
             for i in range(len(self)):
                 try:
                     self.load_image(i)
-                    self._stored_depth(i)  # what the cache keeps: no conversion to metres thrown away
+                    self.stored_depth(i)  # what the cache keeps: no conversion to metres thrown away
                 except Exception:  # noqa: BLE001 - the stage reading this photo says what is wrong with it
                     return
 
@@ -298,7 +298,7 @@ class PhotoSet:
         photo has no depth map. An integer map is in ``depth_scale`` units, a float map (a 32-bit TIFF, a
         ``.npy``) in metres. The map as stored is what :attr:`image_cache` keeps (16-bit integers: half the
         size, and right for any ``depth_scale``)."""
-        raw = self._stored_depth(i)
+        raw = self.stored_depth(i)
         if raw is None:
             return None
         if raw.dtype.kind == "f":
@@ -309,7 +309,7 @@ class PhotoSet:
         depth[raw == 0] = np.nan
         return depth
 
-    def _stored_depth(self, i: int) -> np.ndarray | None:
+    def stored_depth(self, i: int) -> np.ndarray | None:
         """Photo ``i``'s depth map as stored, ``(h, w)`` integers or floats (the cache's copy when the set
         fits it)."""
         path = self.depths[i]

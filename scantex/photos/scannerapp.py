@@ -36,7 +36,7 @@ from scantex.photos.conventions import (
     opengl_camera_to_world,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import copy_into, load_json, need
+from scantex.photos.files import copy_into, load_json, need, write_depth
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -102,9 +102,9 @@ def load_3dscannerapp(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
 
 
 def write_3dscannerapp(photos: PhotoSet, out_dir: str | Path) -> Path:
-    """Write ``frame_00000.<ext>`` + ``frame_00000.json`` (+ ``depth_00000.png``) per photo into
-    ``out_dir``; returns ``out_dir``. Lens distortions are not written (the format has none): a
-    non-zero one is dropped with a warning."""
+    """Write ``frame_00000.<ext>`` + ``frame_00000.json`` (+ ``depth_00000.png``, uint16 millimetres as the app
+    writes them: another map is converted) per photo into ``out_dir``; returns ``out_dir``. Lens distortions are
+    not written (the format has none): a non-zero one is dropped with a warning."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
@@ -119,5 +119,5 @@ def write_3dscannerapp(photos: PhotoSet, out_dir: str | Path) -> Path:
             copy_into(files, image, out_dir / f"{stem}{image.suffix.lower()}")
             files.path(out_dir / f"{stem}.json").write_text(json.dumps(doc, indent=1))
             if photos.depths[i] is not None:
-                copy_into(files, photos.depths[i], out_dir / f"depth_{i:05d}.png")
+                write_depth(files, photos, i, out_dir / f"depth_{i:05d}", floats=False)
     return out_dir

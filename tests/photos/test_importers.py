@@ -8,6 +8,7 @@ import json
 import logging
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -468,6 +469,10 @@ def test_float_depth_maps_are_read_in_metres(tmp_path):
         back = load_photos(write_cameras_json(photos, tmp_path / f"copy_{name}", copy_images=True))
         assert back.depths[0].suffix == (tmp_path / name).suffix
         np.testing.assert_array_equal(back.load_depth(0), read)
+        # a 3D Scanner App folder holds uint16 millimetre PNGs only: the float map is converted
+        app = load_photos(write_3dscannerapp(photos, tmp_path / f"app_{name}"))
+        assert app.depths[0].suffix == ".png" and app.stored_depth(0).dtype == np.uint16
+        np.testing.assert_array_equal(app.load_depth(0), read)
     bad = PhotoSet(cameras=(reference_camera(),), images=[tmp_path / "p.png"], depths=[tmp_path / "bad.npy"],
                    source=tmp_path, format="test")
     with pytest.raises(ScanError, match=r"bad\.npy.*not a single-channel"):
@@ -476,6 +481,31 @@ def test_float_depth_maps_are_read_in_metres(tmp_path):
     broken = dataclasses.replace(bad, depths=(tmp_path / "broken.npy",))
     with pytest.raises(ScanError, match="cannot read the depth map"):
         broken.load_depth(0)
+
+
+def test_integer_depth_in_other_units_is_written_in_millimetres(tmp_path):
+    """An integer depth map in other units than millimetres (``depth_scale`` set in code: say a Kinect's 0.2 mm) is
+    written as millimetres by both writers, whether the photos are copied or not: the formats read integers as
+    millimetres, and the same map copied as it is would be read five times too far. A millimetre PNG is copied as
+    it is."""
+    raw = np.full((H // 2, W // 2), 6250, np.uint16)  # 1.25 m in units of 0.2 mm
+    raw[0, 0] = 0
+    Image.fromarray(np.zeros((H, W, 3), np.uint8)).save(tmp_path / "p.png")
+    Image.fromarray(raw).save(tmp_path / "d.png")
+    photos = PhotoSet(cameras=(reference_camera(),), images=[tmp_path / "p.png"], depths=[tmp_path / "d.png"],
+                      depth_scale=2e-4, source=tmp_path, format="test")
+    read = photos.load_depth(0)
+    assert np.isnan(read[0, 0]) and np.allclose(read.flat[1:], 1.25)
+    written = [write_cameras_json(photos, tmp_path / "copied"), write_cameras_json(photos, tmp_path / "referred",
+                                                                                 copy_images=False),
+               write_3dscannerapp(photos, tmp_path / "app")]
+    for path in written:
+        back = load_photos(path)
+        assert back.depths[0].parent == Path(path if path.is_dir() else path.parent)
+        np.testing.assert_allclose(back.load_depth(0), read)
+    millimetres = dataclasses.replace(photos, depth_scale=1e-3)
+    back = load_photos(write_3dscannerapp(millimetres, tmp_path / "app_mm"))
+    assert back.depths[0].read_bytes() == (tmp_path / "d.png").read_bytes()
 
 
 # ---- the real bolster capture (skipped without ../shared/data) ---------------------------------
