@@ -744,8 +744,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         # is baked at (gutters and all): a layout made for a smaller atlas and baked larger wastes its texels
         size = untextured_atlas_size(scan, photos_px_per_cm)
     with reporter.stage(f"UV layout ({mode})") as update:
-        plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s)
-        update(1, 1)
+        plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s,
+                        progress=update)
     timings["uv"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -7,12 +7,23 @@ texel density when densities are kept), so a single scale turns every chart into
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
 
 from scantex.uv.param import Distortion, distortions
+
+#: how far a layout's planning has got, ``0..1`` (the UV stages call it; ``None`` reports nothing)
+Progress = Callable[[float], None] | None
+
+
+def span(progress: Progress, lo: float, hi: float) -> Progress:
+    """``progress`` for a part of the work that runs from ``lo`` to ``hi`` of the whole."""
+    if progress is None:
+        return None
+    return lambda done: progress(lo + (hi - lo) * min(max(done, 0.0), 1.0))
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scantex.arrays import unique_rows
+from scantex.uv.charts import Progress
 from scantex.uv.param import lscm, overlap_counts, planar_projection, stretch_of_sums, stretch_sums
 
 #: unions larger than this are not tried with LSCM (a sparse solve per attempt costs seconds there)
@@ -302,13 +303,21 @@ class Merger:
         boxes = np.concatenate([boxes_big, boxes] if big == a else [boxes, boxes_big])
         return uv, (sums, False, boxes)
 
-    def run(self, deadline: float, record: MergeLog) -> list[Piece]:
-        """Merge until no pair is left or ``deadline`` (``time.perf_counter()``) passes; the charts."""
+    def run(self, deadline: float, record: MergeLog, progress: Progress = None) -> list[Piece]:
+        """Merge until no pair is left or ``deadline`` (``time.perf_counter()``) passes; the charts.
+        ``progress`` hears the share of queued pairs settled, or of the time to the deadline used where that
+        is further (a merge queues its union's pairs: the queue's length is only an estimate)."""
+        start, popped, shown = time.perf_counter(), 0, 0.0
         while self.heap:
-            if time.perf_counter() > deadline:
+            now = time.perf_counter()
+            if now > deadline:
                 record.out_of_time = True
                 break
+            if progress is not None:  # never backwards: a merge lengthens the queue
+                shown = max(shown, popped / (popped + len(self.heap)), (now - start) / max(deadline - start, 1e-9))
+                progress(shown)
             _, a, b = heapq.heappop(self.heap)
+            popped += 1
             if a not in self.pieces or b not in self.pieces:
                 continue  # one of them was merged since this pair was queued
             record.attempts += 1

@@ -27,7 +27,7 @@ import numpy as np
 
 from scantex.atlas.seams import texture_vertices, uv_shells
 from scantex.scan import Scan
-from scantex.uv.charts import Charts, assemble, compact
+from scantex.uv.charts import Charts, Progress, assemble, compact, span
 from scantex.uv.merge import LSCM_MAX_FACES, MergeLog, Merger, Piece
 from scantex.uv.param import lscm
 from scantex.uv.shells import texel_uvs
@@ -101,8 +101,10 @@ def _reflattened(positions: np.ndarray, faces: np.ndarray, shell: Piece, triangl
 
 def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: int = 1024,
              equalise_density: bool = True, merge: bool = True, time_budget_s: float = 60.0,
-             record: OptimizeLog | None = None, unwrap_record: UnwrapLog | None = None) -> Charts:
-    """Split and merge the scan's UV shells under ``options.threshold`` (see the module docstring)."""
+             record: OptimizeLog | None = None, unwrap_record: UnwrapLog | None = None,
+             progress: Progress = None) -> Charts:
+    """Split and merge the scan's UV shells under ``options.threshold`` (see the module docstring);
+    ``progress`` hears how far it has got (the merges are most of the time)."""
     if not scan.has_uvs:
         raise ValueError("optimising a UV layout needs UVs; unwrap the scan instead")
     start = time.perf_counter()
@@ -116,7 +118,9 @@ def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: 
     pairs, corners = interior_edges(faces)
     pieces: list[Piece] = []
     split: list[Piece] = []
-    for p in shells:
+    for k, p in enumerate(shells):
+        if progress is not None:
+            progress(0.05 * k / len(shells))
         if acceptable(tri3[p.faces], p.node_uv[p.corner_node], options.threshold):
             pieces.append(p)
             continue
@@ -137,9 +141,11 @@ def optimize(scan: Scan, options: UnwrapOptions | None = None, *, texture_size: 
         record.shells_split += len(split)
         record.charts_from_splits += len(parts)
         pieces += [Piece(*part) for part in parts]
+    if progress is not None:
+        progress(0.05)
     if merge and len(pieces) > 1:
         merger = Merger(positions, faces, pieces, pairs, corners, options.threshold, retry=False)
-        pieces = merger.run(start + time_budget_s, record.merge)
+        pieces = merger.run(start + time_budget_s, record.merge, span(progress, 0.05, 1.0))
         if record.merge.out_of_time:
             record.fallbacks.append(f"merging stopped at the {time_budget_s:g} s budget")
     log.info("UV optimisation: %d shells -> %d charts (%d split, %d merges of %d tried) in %.1f s",

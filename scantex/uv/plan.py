@@ -13,12 +13,13 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from scantex.scan import Material, Scan
-from scantex.uv.charts import Charts
+from scantex.uv.charts import Charts, span
 from scantex.uv.optimize import OptimizeLog, charts_distortion, optimize
 from scantex.uv.pack import pack
 from scantex.uv.shells import stats, summarise
@@ -65,7 +66,8 @@ def _summary(scan: Scan, size: int) -> dict | None:
 
 def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_size: int = 0,
              time_budget_s: float = 60.0, equalise_density: bool = True, seed: int = 0,
-             gutter_texels: int = 4, max_angle_deg: float = 50.0, use_xatlas: bool = True) -> UVPlan:
+             gutter_texels: int = 4, max_angle_deg: float = 50.0, use_xatlas: bool = True,
+             progress: Callable[[int, int], None] | None = None) -> UVPlan:
     """Plan the texture layout of ``scan``.
 
     Args:
@@ -82,6 +84,8 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
         gutter_texels: empty texels kept around each chart in the atlas.
         max_angle_deg: widest normal cone of a planar chart.
         use_xatlas: hand the curved leftovers of an unwrap to xatlas (in a subprocess).
+        progress: hears ``(done, 100)``: the percentage of the planning done (optimize's merges and unwrap's
+            xatlas charting are most of it; packing the last 5 %).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -102,26 +106,42 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
     if mode == "keep":
         report["after"] = report["before"]
         report["time_s"] = time.perf_counter() - start
+        if progress is not None:
+            progress(100, 100)
         return UVPlan(scan, report)
 
+    said = [-1]
+
+    def percent(done: float) -> None:
+        """``progress`` in whole percent, each said once."""
+        value = min(99, int(100 * done))
+        if value > said[0]:
+            said[0] = value
+            progress(value, 100)
+
+    charting = span(percent if progress is not None else None, 0.0, 0.95)
     options = UnwrapOptions(threshold=threshold, max_angle_deg=max_angle_deg, xatlas=use_xatlas)
     unwrap_log = UnwrapLog()
     if mode == "optimize":
         optimize_log = OptimizeLog()
         charts = optimize(scan, options, texture_size=size, equalise_density=equalise_density,
-                          time_budget_s=time_budget_s, record=optimize_log, unwrap_record=unwrap_log)
+                          time_budget_s=time_budget_s, record=optimize_log, unwrap_record=unwrap_log,
+                          progress=charting)
         report["optimize"] = optimize_log.as_dict()
         report["fallbacks"] += optimize_log.fallbacks
     else:
         # on the distinct positions: a mesh that repeats a position per face (STL, some glTF and OBJ writers)
         # would otherwise have no edge two faces share, and every face would be a chart of its own
         positions, faces = scan.welded_geometry()
-        charts = unwrap(positions, faces, options, time_budget_s=time_budget_s, record=unwrap_log)
+        charts = unwrap(positions, faces, options, time_budget_s=time_budget_s, record=unwrap_log,
+                        progress=charting)
     report["unwrap"] = unwrap_log.as_dict()
     report["fallbacks"] += unwrap_log.fallbacks
     planned = _packed_scan(scan, charts, size, gutter_texels, report)
     report["after"] = _summary(planned, size)
     report["time_s"] = time.perf_counter() - start
+    if progress is not None:
+        progress(100, 100)
     log.info("UV plan (%s): %s -> %s shells in %.1f s", mode,
              report["before"]["shells"] if report["before"] else "-", report["after"]["shells"], report["time_s"])
     return UVPlan(planned, report)

@@ -32,7 +32,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from scantex.uv.charts import Charts, assemble, compact
+from scantex.uv.charts import Charts, Progress, assemble, compact, span
 from scantex.uv.param import distortion, distortions, overlap_share, overlap_shares, planar_projection, \
     planar_projections
 
@@ -329,8 +329,9 @@ def xatlas_pieces(positions: np.ndarray, faces: np.ndarray, region: np.ndarray,
 
 
 def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | None = None, *,
-           time_budget_s: float = 60.0, record: UnwrapLog | None = None) -> Charts:
-    """Charts covering every face of the mesh, each within ``options.threshold`` stretch."""
+           time_budget_s: float = 60.0, record: UnwrapLog | None = None, progress: Progress = None) -> Charts:
+    """Charts covering every face of the mesh, each within ``options.threshold`` stretch; ``progress`` hears
+    how far it has got."""
     start = time.perf_counter()
     options = options if options is not None else UnwrapOptions()
     record = record if record is not None else UnwrapLog()
@@ -340,13 +341,15 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
     normals = np.divide(cross, area2[:, None], out=np.zeros_like(cross), where=area2[:, None] > 0)
     pairs, corners = interior_edges(faces)
     pieces = planar_charts(positions, faces, normals, 0.5 * area2, pairs, options, record=record)
+    if progress is not None:
+        progress(0.2)
     if any(len(p[0]) < options.min_chart_faces for p in pieces):
         from scantex.uv.merge import ABSORB_FACES, MergeLog, Merger, Piece
 
         merge_log = MergeLog()
         merger = Merger(positions, faces, [Piece(*p) for p in pieces], pairs, corners, options.threshold,
                         small_faces=options.min_chart_faces, absorb_faces=ABSORB_FACES)
-        merged = merger.run(start + 0.5 * time_budget_s, merge_log)
+        merged = merger.run(start + 0.5 * time_budget_s, merge_log, span(progress, 0.2, 0.5))
         pieces = [(p.faces, p.corner_node, p.node_uv) for p in merged]
         record.small_merged = merge_log.merges
         if merge_log.out_of_time:
@@ -394,8 +397,12 @@ def unwrap(positions: np.ndarray, faces: np.ndarray, options: UnwrapOptions | No
     # largest first, so a late small region is what misses the deadline
     eligible.sort(key=len, reverse=True)
     missed: dict[str, list[int]] = {"failed or ran out of time": [], "overlapped": []}  # region sizes
+    total, done = sum(len(r) for r in eligible), 0
     with ThreadPoolExecutor(max_workers=max(1, options.workers)) as pool:
         for region, result in pool.map(work, eligible):
+            done += len(region)
+            if progress is not None:
+                progress(0.5 + 0.5 * done / total)
             got = xatlas_pieces(positions, faces, region, result) if result is not None else None
             if got is not None and all(acceptable(tri[p[0]], p[2][p[1]], np.inf) for p in got):
                 out += got

@@ -327,3 +327,18 @@ def test_keep_returns_the_scan_itself(cube):
     plan = plan_uvs(cube, "keep")
     assert plan.scan is cube and plan.report["before"] == plan.report["after"]
     assert plan.report["before"]["shells"] == 6 and len(seam_edges(cube)) == 12
+
+
+def test_plan_reports_its_progress_in_percent_forwards_to_the_end(demo_wall, cube):
+    """The UV stage's bar: whole percentages of 100, never backwards (a merge lengthens the merge queue), each
+    said once, ending at 100, in every mode. The same layout as without a progress callback."""
+    sphere = trimesh.creation.icosphere(2)
+    for scan, mode in ((demo_wall.scan, "optimize"), (Scan(sphere.vertices, sphere.faces), "unwrap"), (cube, "keep")):
+        said = []
+        plan = plan_uvs(scan, mode, texture_size=128, progress=lambda done, total: said.append((done, total)))
+        assert {t for _, t in said} == {100} and said[-1] == (100, 100)
+        done = [d for d, _ in said]
+        assert all(0 <= a < b for a, b in zip(done, done[1:]))
+        if mode != "keep":
+            assert len(done) > 3  # steps between the start and the end
+            assert np.array_equal(plan.scan.uvs, plan_uvs(scan, mode, texture_size=128).scan.uvs)
