@@ -293,15 +293,19 @@ def compiled_note() -> str | None:
 
 
 def tile_count(args, scan, photos) -> int:
-    """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans
-    in the kept UV layout, with photos or without; others run whole)."""
+    """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans in
+    the kept UV layout, with photos or without; untextured ones with photos or vertex colours, in a layout made
+    for the whole scan; others run whole)."""
     from scantex.pipeline.config import TilingConfig
+
+    from scantex.pipeline.enhance import has_colour
 
     auto = args.tiles == "auto"
     n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
-    if n <= 1:
+    if n <= 1 or (photos is None and not has_colour(scan)):  # nothing to enhance: enhance says so
         return 1
-    why = ("an untextured scan" if not scan.is_textured
+    why = (("an untextured scan without photos or vertex colours" if photos is None and scan.vertex_colors is None
+            else None) if not scan.is_textured
            else f"--uv {args.uv}" if args.uv not in (None, "keep") else None)
     if why is None:
         return n
@@ -633,7 +637,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
                    help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
                         "or Ray tasks with --ray) and fuse them with smooth weights; with --photos, each tile is "
-                        "textured from the photos that see it and the held-out photos score the fused result; "
+                        "textured from the photos that see it and the held-out photos score the fused result; an "
+                        "untextured scan (with --photos, or vertex colours) is laid out whole first; "
                         "auto: one tile per --tile-faces faces (default: auto)")
     p.add_argument("--tile-faces", type=int, default=1_000_000, metavar="F",
                    help="--tiles auto: the most faces one tile holds (default: 1000000)")

@@ -463,6 +463,13 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     return colour, {"mode": "projective", **sampled, **report}
 
 
+def vertex_texture_note(size: int, blends: bool) -> str:
+    """What the metrics say of a texture baked from the vertex colours (``size`` square; ``blends``: its seams
+    blended)."""
+    return (f"baked from the vertex colours ({size}x{size}; not levelled{'' if blends else ' nor blended'} at its "
+            "seams: the colours are continuous across them)")
+
+
 def photo_atlas_scale(scan: Scan, photos_px_per_cm: float) -> tuple[int, dict]:
     """How much finer than the input atlas photo mode bakes: 2 when the photos resolve the surface at least
     ``PHOTO_DENSITY_FOR_2X`` (2) times finer than the input atlas's texels do (median over the training
@@ -897,9 +904,7 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         metrics = measure(scan, enhanced, ground_truth, tv, holes, charts, caster, coverage, fitted, patches,
                           renders=shown)
         if from_vertex_colours:
-            metrics["input"]["texture"] = (f"baked from the vertex colours ({vertex_atlas}x{vertex_atlas}; not levelled"
-                                         f"{'' if blends else ' nor blended'} at its seams: the colours are "
-                                         f"continuous across them)")
+            metrics["input"]["texture"] = vertex_texture_note(vertex_atlas, blends)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
         metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())

@@ -21,7 +21,14 @@ tile sees too little of a photo to judge it). Each tile is textured from the tra
 holds nothing out; its photos are levelled onto the input texture's appearance, which all tiles share. The
 held-out photos score the fused result, input against output, as ``enhance`` scores its own.
 
-The output is the input's geometry, bit for bit, and its UV layout, with the fused atlas.
+An untextured scan has no layout to share: one is made for the whole scan before the tiles. A scan with vertex
+colours (a fused RGB-D mesh) has them baked into a texture first, as ``enhance`` does, and is then tiled as a
+textured scan. A bare mesh with photos is unwrapped whole at the atlas size its photos call for (``enhance``'s
+rule, from the photos' pixels per centimetre measured by the same ray casts), and each tile textures its part of
+that layout from the photos, as an untiled run textures a bare mesh (its poses refined among the tile's photos,
+``consensus``, as an untiled run of fewer than 50 photos does).
+
+The output is the input's geometry, bit for bit, and its UV layout (or the one made for it), with the fused atlas.
 """
 
 from __future__ import annotations
@@ -193,6 +200,8 @@ class TilePhotos:
         pose_mode: the pose refinement applied (``off``, ``input``; ``consensus`` is left to each tile).
         corrections: the training photos' pose corrections (``input`` mode).
         alignment: the alignment check's report (``None`` when it was skipped).
+        px_per_cm: how finely the training photos resolve the surface (:func:`scantex.pipeline.enhance.photo_density`'s
+            measure, from the ray casts of :func:`tiles_seen`).
     """
 
     photos: PhotoSet
@@ -204,6 +213,7 @@ class TilePhotos:
     pose_mode: str
     corrections: list
     alignment: object | None
+    px_per_cm: float = 0.0
 
     def for_tile(self, tile: int) -> PhotoSet | None:
         """Tile ``tile``'s training photos, their pixels that other tiles hide masked (``None``: no photo sees
@@ -251,18 +261,21 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
         photos, corrections = refine_poses(scan, photos, train, partial(shade_hits, scan), caster,
                                            update=update and (lambda done, total: update(done, steps)))
     first = steps - len(train)
-    per_tile, hidden, factors = tiles_seen(scan, plan, photos, train, caster, pc.max_side, pc.depth_tolerance,
-                                           update and (lambda done, total: update(first + done, steps)))
+    per_tile, hidden, factors, density = tiles_seen(scan, plan, photos, train, caster, pc.max_side,
+                                                    pc.depth_tolerance,
+                                                    update and (lambda done, total: update(first + done, steps)))
     log.info("photos per tile: %s", [len(p) for p in per_tile])
-    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report)
+    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report, density)
 
 
 def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, max_side: int,
-               depth_tolerance: float = 0.05, update=None) -> tuple[list[np.ndarray], list[dict], dict]:
+               depth_tolerance: float = 0.05, update=None) -> tuple[list[np.ndarray], list[dict], dict, float]:
     """Per tile, the photos of ``indices`` that see any of its faces; in each, the pixels another tile's
-    surface takes (``{photo: (packed rows, width)}``); and each photo's depth map judged against the whole
-    scan (see :class:`TilePhotos`): each photo ray-cast against the whole scan at its working size
-    (``max_side``), the nearest surface at each pixel's centre. ``update(done, total)``: progress, in photos."""
+    surface takes (``{photo: (packed rows, width)}``); each photo's depth map judged against the whole
+    scan (see :class:`TilePhotos`); and how finely the photos resolve the surface (the median over the photos of
+    their surface pixels' median full-resolution pixels per centimetre): each photo ray-cast against the whole
+    scan at its working size (``max_side``), the nearest surface at each pixel's centre. ``update(done, total)``:
+    progress, in photos."""
     from scipy import ndimage
 
     from scantex.photos.training import depth_factor, resize_depth, working_camera
@@ -272,12 +285,15 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
     seen: list[list[int]] = [[] for _ in range(len(plan))]
     hidden: list[dict] = [{} for _ in range(len(plan))]
     factors: dict = {}
+    densities = []
     for k, i in enumerate(indices):
         if update:
             update(k, len(indices))
         g = cast_gbuffer(caster, working_camera(photos.cameras[int(i)], max_side))
         face_id = g.face_id
         hit = face_id >= 0
+        if hit.any():
+            densities.append(float(np.median(photos.cameras[int(i)].K[0, 0] / g.depth[hit])) / 100.0)
         measured = photos.load_depth(int(i))
         if measured is not None:  # judged where the whole scan's surface is smooth, as prepare_photo judges it
             clean = ndimage.binary_erosion(hit, iterations=2) & np.isfinite(g.depth)
@@ -290,7 +306,8 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
                 hidden[t][int(i)] = (np.packbits(other, axis=1), other.shape[1])
     if update:
         update(len(indices), len(indices))
-    return [np.array(s, np.int64) for s in seen], hidden, factors
+    density = float(np.median(densities)) if densities else 0.0
+    return [np.array(s, np.int64) for s in seen], hidden, factors, density
 
 
 def enhance_tile(index: int, sub: Scan, config: dict, threads: int, photos: PhotoSet | None = None) -> dict:
@@ -481,8 +498,9 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
     """Enhance ``scan`` as overlapping tiles (one job each on ``runner``) and fuse them.
 
     Args:
-        scan: a textured scan with UVs (the tiles share its UV layout, which is kept).
-        config: the enhance settings of every tile (``uv.mode`` must be ``keep``).
+        scan: the scan. A textured one keeps its UV layout, which the tiles share; an untextured one with vertex
+            colours, or with ``photos``, gets a layout made for it first (see the module docstring).
+        config: the enhance settings of every tile (``uv.mode`` must be ``keep`` for a textured scan).
         tiling: how many tiles, their overlap, colour levelling.
         ground_truth: the true texture on the same geometry, if known: the whole result is scored on it.
         photos: the capture's posed photos (photo mode): each tile textures itself from the training photos that
@@ -501,17 +519,20 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):
         raise ScanError(ground_truth.source, "the ground truth does not have the scan's geometry")
-    if not scan.is_textured:
-        raise ScanError(scan.source, "tiled enhancement needs a textured scan with UVs (the tiles share its layout)")
-    if config.uv.mode != "keep":
+    timings: dict[str, float] = {}
+    extra: dict = {}  # metrics of the layout made for an untextured scan
+    if scan.is_textured and config.uv.mode != "keep":
         raise ScanError(scan.source, f"tiled enhancement keeps the input's UV layout; uv.mode '{config.uv.mode}' "
                                      "is not supported with tiles")
+    if not scan.is_textured and scan.vertex_colors is not None:
+        scan, config, extra = _textured_from_vertex_colours(scan, config, photos is not None, reporter, timings)
+    elif not scan.is_textured and photos is None:
+        raise ScanError(scan.source, "has no texture or vertex colours to enhance in tiles; give the capture's posed "
+                                     "photos (--photos) to texture it from them")
     n = tiling.count(scan.n_faces)
     runner = runner or LocalPool()
-    timings: dict[str, float] = {}
     t = time.perf_counter()
     plan = plan_tiles(scan, n, tiling.overlap)
-    subs = [tile_scan(scan, f) for f in plan.faces]
     timings["tiling"] = time.perf_counter() - t
     log.info("%d tiles (%d x %d), faces per tile %s", n, *plan.grid, [len(f) for f in plan.faces])
     caster, shared = None, None
@@ -523,13 +544,56 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
         with reporter.stage("reading photos (the whole capture)") as update:
             shared = photos_for_tiles(scan, plan, photos, config, caster, update)
         timings["photos"] = time.perf_counter() - t
+    if not scan.is_textured:  # a bare mesh with photos: one layout for the whole scan, which every tile bakes into
+        scan, config, extra = _laid_out_for_photos(scan, config, shared.px_per_cm, reporter, timings)
+    subs = [tile_scan(scan, f) for f in plan.faces]
 
     t = time.perf_counter()
     with reporter.stage(f"enhancing {n} tiles ({runner.name})") as update:
         outputs = run_tiles(scan, plan, subs, config, runner, update, shared)
     timings["tiles"] = time.perf_counter() - t
-    return assemble_tiles(scan, plan, outputs, config, tiling, runner.name, timings,
-                          ground_truth=ground_truth, reporter=reporter, photos=shared, caster=caster)
+    result = assemble_tiles(scan, plan, outputs, config, tiling, runner.name, timings,
+                            ground_truth=ground_truth, reporter=reporter, photos=shared, caster=caster)
+    for key, value in extra.items():
+        result.metrics.setdefault(key, {}).update(value)
+    return result
+
+
+def _textured_from_vertex_colours(scan: Scan, config: EnhanceConfig, with_photos: bool, reporter,
+                                  timings: dict) -> tuple[Scan, EnhanceConfig, dict]:
+    """An untextured scan's vertex colours as a texture the tiles share, made and treated as ``enhance`` makes
+    and treats it (not levelled; its seams not blended in mesh-only mode): the scan, the tiles' settings, and
+    the metrics saying so."""
+    from scantex.atlas.bake import texture_from_vertex_colours
+    from scantex.pipeline.enhance import TEXELS_PER_VERTEX, VERTEX_COLOUR_ATLAS, vertex_texture_note
+
+    t = time.perf_counter()
+    with reporter.stage("texture from the vertex colours") as update:
+        textured = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS, texels_per_vertex=TEXELS_PER_VERTEX)
+        update(1, 1)
+    timings["vertex_colours"] = time.perf_counter() - t
+    blends = config.uv.blend_seams and with_photos
+    config = config.override(bake__levelling=False, uv__mode="keep", uv__blend_seams=blends)
+    return textured, config, {"input": {"texture": vertex_texture_note(textured.materials[0].image.shape[0], blends)}}
+
+
+def _laid_out_for_photos(scan: Scan, config: EnhanceConfig, px_per_cm: float, reporter,
+                         timings: dict) -> tuple[Scan, EnhanceConfig, dict]:
+    """A bare mesh unwrapped whole for its photos (see the module docstring): the scan with the new layout and
+    no texture, the tiles' settings (that layout kept, baked at its size), and the layout's metrics."""
+    from scantex.pipeline.enhance import untextured_atlas_size
+    from scantex.uv import plan_uvs
+
+    uc = config.uv
+    size = config.bake.texture_size or untextured_atlas_size(scan, px_per_cm)
+    t = time.perf_counter()
+    with reporter.stage("UV layout (unwrap, the whole scan)") as update:
+        planned = plan_uvs(scan, "unwrap", threshold=uc.threshold, texture_size=size,
+                           time_budget_s=uc.time_budget_s, progress=update)
+    timings["uv"] = time.perf_counter() - t
+    bare = planned.scan.replace(materials=tuple(dataclasses.replace(m, image=None) for m in planned.scan.materials))
+    return bare, config.override(bake__texture_size=size, uv__mode="keep"), {"uv": {"mode": "unwrap",
+                                                                                     **planned.report}}
 
 
 def run_tiles(scan: Scan, plan: TilePlan, subs: list[Scan], config: EnhanceConfig, runner, update=None,
@@ -688,7 +752,7 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
         metrics["held_out_vs_ground_truth"] = score_views(ground_truth, {"input": scan, "enhanced": enhanced}, test,
                                                           caster, holes, renders=renders, reference_name="ground truth",
                                                           scored=scored)
-    else:
+    elif scan.is_textured:  # how faithfully the result reproduces the input, where the input has colour
         metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test, caster, holes, renders=renders,
                                                    reference_name="input", scored=scored)
     fill_held_out(views.views, scored)

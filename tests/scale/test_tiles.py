@@ -131,7 +131,8 @@ def test_tiled_enhance_end_to_end(tmp_path, wall):
 def test_tiles_refuse_what_they_cannot_fuse(wall):
     with pytest.raises(ScanError, match="uv.mode 'unwrap'"):
         enhance_tiled(wall.scan, TINY.override(uv__mode="unwrap"), TilingConfig(tiles=2))
-    with pytest.raises(ScanError, match="textured scan"):
+    with pytest.raises(ScanError, match="no texture or vertex colours to enhance in tiles; give the capture's posed "
+                                        r"photos \(--photos\)"):
         enhance_tiled(wall.scan.replace(uvs=None, face_uvs=None), TINY, TilingConfig(tiles=2))
 
 
@@ -140,6 +141,7 @@ def test_cli_refuses_tiles_it_cannot_fuse(tmp_path, wall):
     import sys
 
     from scantex.io import save_scan
+    from scantex.scan import Scan
 
     save_scan(wall.scan, tmp_path / "scan.obj")
     proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "-o",
@@ -148,6 +150,12 @@ def test_cli_refuses_tiles_it_cannot_fuse(tmp_path, wall):
     assert proc.returncode == 2
     assert proc.stderr.strip().endswith("scan.obj: --tiles is not supported with --uv unwrap (tiles share the input's "
                                         "UV layout)")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+    # a bare mesh without photos has nothing to enhance, tiled or not: said before any tile is cut
+    save_scan(Scan(wall.scan.positions, wall.scan.faces), tmp_path / "bare.obj")
+    proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(tmp_path / "bare.obj"), "-o",
+                           str(tmp_path / "out"), "--tiles", "2"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "bare.obj: has no colour to enhance" in proc.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
 
 
@@ -168,8 +176,11 @@ def test_each_tile_gets_the_photos_that_see_it(tmp_path):
     behind = Camera.look_at((2.0, -6.0, 1.0), (2.0, -12.0, 1.0), fov_deg=45, width=64, height=48)  # looks away
     photos = PhotoSet(cameras=(corner, whole, behind), images=[tmp_path / f"{i}.png" for i in range(3)],
                       source=tmp_path, format="test")
-    seen, hidden, factors = tiles_seen(scan, plan, photos, [0, 1, 2], RayCaster(scan.positions, scan.faces), 64)
+    seen, hidden, factors, density = tiles_seen(scan, plan, photos, [0, 1, 2], RayCaster(scan.positions, scan.faces),
+                                                64)
     assert factors == {}  # no depth maps
+    # the photos' pixels per centimetre on the wall, the median of the two that see it (0.4 and 6 m away, square on)
+    assert np.isclose(density, np.median([corner.K[0, 0] / 0.4, whole.K[0, 0] / 6.0]) / 100, rtol=0.03)
     home = plan.home[np.argmin(np.linalg.norm(scan.triangles.mean(axis=1) - [0.2, 0.0, 0.2], axis=1))]
     assert [list(s) for s in seen] == [[0, 1] if t == home else [1] for t in range(2)]
     # the whole wall's photo: in each tile, the pixels of the other tile's cell (beyond the overlap) are masked
@@ -247,3 +258,54 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
     assert "enhancing in 2 overlapping tiles" in run.stdout and "1 held-out photos" in run.stdout
     metrics = json.loads((tmp_path / "cli" / "metrics.json").read_text())
     assert metrics["tiles"]["count"] == 2 and metrics["photos"]["final_texture"]["mode"] == "training"
+
+
+def test_an_untextured_scan_is_laid_out_whole_and_tiled_with_its_photos(toy_demo, toy_photos):
+    """A bare mesh with photos: one layout made for the whole scan at the atlas size the photos call for, each tile
+    textured from its photos into it; as good as the untiled run on the held-out photos."""
+    from scantex.pipeline.enhance import enhance
+    from scantex.scan import Scan
+    from tests.pipeline.test_enhance import TOY
+
+    bare = Scan(toy_demo.scan.positions, toy_demo.scan.faces)
+    config = TOY.override(photos__check_alignment=False)
+    whole = enhance(bare, config, ground_truth=toy_demo.ground_truth, photos=toy_photos)
+    tiled = enhance_tiled(bare, config, TilingConfig(tiles=2), ground_truth=toy_demo.ground_truth, photos=toy_photos,
+                          runner=LocalPool(workers=2))
+    out, m = tiled.scan, tiled.metrics
+    assert out.positions is bare.positions and out.faces is bare.faces and m["geometry"]["arrays_identical"]
+    # the layout and the atlas size are the untiled run's (the photos' density from the tiles' own ray casts)
+    assert m["uv"]["mode"] == "unwrap" and m["uv"]["texture_size"] == whole.metrics["uv"]["texture_size"]
+    assert out.materials[0].image.shape == whole.scan.materials[0].image.shape
+    assert m["photos"]["pose_refinement"] == "consensus"  # left to each tile, as an untiled run refines them
+    assert "held_out_vs_input" not in m  # no input texture to be faithful to
+    truth, untiled = m["held_out_photos_vs_ground_truth"], whole.metrics["held_out_photos_vs_ground_truth"]
+    assert truth["enhanced"]["psnr"] > truth["input"]["psnr"] + 3
+    assert abs(truth["enhanced"]["psnr"] - untiled["enhanced"]["psnr"]) < 1.0
+
+
+def test_a_vertex_coloured_scan_is_tiled_as_the_texture_of_its_colours(wall):
+    """A fused depth scan's colour per vertex: baked into a texture for the whole scan first, as enhance does, then
+    tiled as a textured scan; the result shows the colours."""
+    from scantex.scan import Scan
+    from scantex.views.render import shade_hits
+
+    scan = wall.scan
+    rgb = np.round(255 * shade_hits(wall.ground_truth, *_vertex_samples(scan)))
+    coloured = Scan(scan.positions, scan.faces, vertex_colors=rgb.astype(np.uint8))
+    result = enhance_tiled(coloured, TINY, TilingConfig(tiles=2), runner=LocalPool(workers=2))
+    m = result.metrics
+    assert result.scan.positions is coloured.positions and m["geometry"]["arrays_identical"]
+    assert m["input"]["texture"].startswith("baked from the vertex colours") and m["tiles"]["count"] == 2
+    rng = np.random.default_rng(0)
+    f, b = rng.integers(0, scan.n_faces, 2000), rng.dirichlet(np.ones(3), 2000)[:, 1:]
+    assert np.abs(shade_hits(result.scan, f, b) - shade_hits(result.input_scan, f, b)).mean() < 3 / 255
+
+
+def _vertex_samples(scan):
+    """A face and the barycentric coordinates of each vertex of ``scan`` (to read a colour there)."""
+    face = np.zeros(scan.n_vertices, int)
+    corner = np.zeros(scan.n_vertices, int)
+    for k in range(3):
+        face[scan.faces[:, k]], corner[scan.faces[:, k]] = np.arange(scan.n_faces), k
+    return face, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[corner]
