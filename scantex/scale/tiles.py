@@ -742,7 +742,8 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
                                   render_test=not held_out_rendered_when_scored(scan, trains_on_views))
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
-        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "hole_faces": int(holes.sum())},
+        "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "textured": scan.is_textured,
+                  "hole_faces": int(holes.sum())},
         "views": {"total": len(views.views), "test": len(views.views.test)},
         "seam_visibility": {"input": round(seam_visibility(scan), 3), "enhanced": round(seam_visibility(enhanced), 3)},
     }

@@ -279,6 +279,10 @@ def test_an_untextured_scan_is_laid_out_whole_and_tiled_with_its_photos(toy_demo
     assert out.materials[0].image.shape == whole.scan.materials[0].image.shape
     assert m["photos"]["pose_refinement"] == "consensus"  # left to each tile, as an untiled run refines them
     assert "held_out_vs_input" not in m  # no input texture to be faithful to
+    # nor one that may have seen the held-out photos: the summary does not warn that it may have
+    from scantex.cli import enhance_summary
+
+    assert m["input"]["textured"] is False and "held out from the result only" not in enhance_summary(m)
     truth, untiled = m["held_out_photos_vs_ground_truth"], whole.metrics["held_out_photos_vs_ground_truth"]
     assert truth["enhanced"]["psnr"] > truth["input"]["psnr"] + 3
     assert abs(truth["enhanced"]["psnr"] - untiled["enhanced"]["psnr"]) < 1.0
