@@ -297,16 +297,17 @@ def tile_count(args, scan, photos) -> int:
     the kept UV layout, with photos or without; untextured ones with photos or vertex colours, in a layout made
     for the whole scan; others run whole)."""
     from scantex.pipeline.config import TilingConfig
-
     from scantex.pipeline.enhance import has_colour
 
     auto = args.tiles == "auto"
     n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
     if n <= 1 or (photos is None and not has_colour(scan)):  # nothing to enhance: enhance says so
         return 1
-    why = (("an untextured scan without photos or vertex colours" if photos is None and scan.vertex_colors is None
-            else None) if not scan.is_textured
-           else f"--uv {args.uv}" if args.uv not in (None, "keep") else None)
+    if not scan.is_textured:  # laid out whole first, for the photos or the vertex colours; else nothing to lay out
+        why = None if photos is not None or scan.vertex_colors is not None else \
+            "an untextured scan without photos or vertex colours"
+    else:
+        why = f"--uv {args.uv}" if args.uv not in (None, "keep") else None
     if why is None:
         return n
     if auto:
