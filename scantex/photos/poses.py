@@ -366,20 +366,26 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
         ``(photos, views, corrections)``: the refined photo set, its training G-buffers, and the corrections
         (each photo's last round, against its recorded pose).
     """
+    from scantex.threads import side_by_side
+
     recorded = {v.index: photos.cameras[v.index] for v in views}
     corrections: dict[int, PoseCorrection] = {}
     total, done = iterations * len(views), 0
     for _ in range(iterations):
         cameras = list(photos.cameras)
         consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature)
-        for k, view in enumerate(views):
+
+        def align(k: int, consensus=consensus) -> PoseCorrection:
             # from the recorded pose every round (its prior stays the recorded pose): a photo that a first,
             # ghosted consensus pulled into a wrong minimum is not held there
-            i = view.index
-            c = align_camera(scan, recorded[i], photos.load_image(i), lambda f, b, k=k: consensus(f, b, without=k),
-                             caster, settings, None, i)
-            cameras[i] = c.camera
-            corrections[i] = c
+            i = views[k].index
+            return align_camera(scan, recorded[i], photos.load_image(i), lambda f, b: consensus(f, b, without=k),
+                                caster, settings, None, i)
+
+        # each photo against the same consensus: side by side, the same fits whatever the number of threads
+        for c in side_by_side(align, range(len(views))):
+            cameras[c.index] = c.camera
+            corrections[c.index] = c
             done += 1
             if update:
                 update(done, total)
