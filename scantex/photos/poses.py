@@ -75,7 +75,7 @@ class PoseSettings:
 #: size, with twice the points, searching the same angles. Aligned to an input texture, a photo is as precise as that
 #: texture (the real bolster's held-out photos, each aligned to the result: 22.62 dB at 480 px, 22.64 at 960);
 #: aligned to the photos themselves, as precise as its working size lets it be (the bare bolster, each photo against
-#: the others: 23.10 dB, SSIM 0.832 at 480 px and 3000 points; 24.91, 0.893 here; 14 -> 17 s; bench/RESULTS.md)
+#: the others: 23.10 dB, SSIM 0.832 at 480 px and 3000 points; 24.91, 0.893 here; bench/RESULTS.md)
 CONSENSUS_SETTINGS = PoseSettings(max_side=960, n_points=6000, coarse_points=2000, search_px=32)
 
 
