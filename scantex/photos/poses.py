@@ -71,14 +71,6 @@ class PoseSettings:
     not applied: below the alignment's own precision, it only adds noise to a pose that was already right"""
 
 
-#: how photos are aligned to the other photos' consensus (``photos.refine_poses`` consensus): at twice the working
-#: size, with twice the points, searching the same angles. Aligned to an input texture, a photo is as precise as that
-#: texture (the real bolster's held-out photos, each aligned to the result: 22.62 dB at 480 px, 22.64 at 960);
-#: aligned to the photos themselves, as precise as its working size lets it be (the bare bolster, each photo against
-#: the others: 23.10 dB, SSIM 0.832 at 480 px and 3000 points; 24.91, 0.893 here; bench/RESULTS.md)
-CONSENSUS_SETTINGS = PoseSettings(max_side=960, n_points=6000, coarse_points=2000, search_px=32)
-
-
 @dataclass(frozen=True)
 class PoseCorrection:
     """One photo's refined pose.
@@ -344,7 +336,7 @@ def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, ca
 
 
 def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, caster, fallback,
-                    iterations: int = 1, temperature: float = 5.0, settings: PoseSettings = CONSENSUS_SETTINGS,
+                    iterations: int = 1, temperature: float = 5.0, settings: PoseSettings = PoseSettings(),
                     prepare: Callable[[PhotoSet], list] | None = None,
                     update: Callable[[int, int], None] | None = None
                     ) -> tuple[PhotoSet, list, list[PoseCorrection]]:
@@ -417,7 +409,7 @@ def consensus_reference(scan: Scan, photos: PhotoSet, views: list, canonicalise,
 
 
 def align_to_consensus(scan: Scan, photos: PhotoSet, indices, views: list, canonicalise, caster, fallback,
-                       temperature: float = 5.0, settings: PoseSettings = CONSENSUS_SETTINGS
+                       temperature: float = 5.0, settings: PoseSettings = PoseSettings()
                        ) -> tuple[PhotoSet, list[PoseCorrection]]:
     """``photos`` with the cameras at ``indices`` (photos not among ``views``) aligned to the consensus of
     ``views``' photos, and the corrections: how photos held out of a consensus refinement join its frame."""
