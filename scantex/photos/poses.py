@@ -446,6 +446,12 @@ def reference_faces(scan: Scan) -> np.ndarray:
     return ~untextured_faces(scan) & ~border
 
 
+def rotation_between(a: Camera, b: Camera) -> float:
+    """The angle (degrees) of the rotation that turns camera ``b``'s axes into ``a``'s."""
+    cos = (np.trace(a.R @ b.R.T) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
 def reprojection_error(scan: Scan, estimated: Camera, truth: Camera, caster, n: int = 5000) -> float:
     """Mean distance (pixels) between where ``estimated`` and ``truth`` project the surface points
     ``truth`` sees (a grid of its pixels' hits)."""

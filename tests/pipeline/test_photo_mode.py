@@ -71,6 +71,36 @@ def test_photo_mode_keeps_geometry_and_beats_the_input(toy_demo, photo_result):
     assert photos["enhanced"]["psnr_aligned"] >= photos["enhanced"]["psnr_matched"] - 0.5
 
 
+def test_each_texture_is_aligned_from_the_others_aligned_poses_too(toy_demo, toy_photos, photo_result):
+    """A sharp texture's photometric basin is narrow: a held-out photo aligned to it from the recorded pose can stop
+    where its alignment to another texture went on. Each texture is also aligned from the other textures' aligned
+    poses and scored at the one that agrees best with the photo: scored beside another texture, it never scores
+    below itself scored alone; its turn is measured from the recorded pose."""
+    from scantex.photos.training import prepare_photos, score_photos
+    from scantex.pipeline.enhance import visibility_settings
+    from scantex.views.raycast import RayCaster
+
+    pc = TOY.photos
+    caster = RayCaster(toy_demo.scan.positions, toy_demo.scan.faces)
+    views = prepare_photos(toy_demo.scan, toy_photos, photo_result.metrics["photos"]["held_out"], caster, pc.max_side,
+                           visibility_settings(pc))
+    both = score_photos({"input": toy_demo.scan, "enhanced": photo_result.scan}, views, caster, align=True)
+    alone = score_photos({"enhanced": photo_result.scan}, views, caster, align=True)
+    assert both["enhanced"]["psnr_aligned"] >= alone["enhanced"]["psnr_aligned"]
+    assert both["enhanced"]["psnr_matched"] == alone["enhanced"]["psnr_matched"]
+    assert 0 <= both["enhanced"]["aligned_by_deg"] < 3
+
+
+def test_rotation_between_two_cameras():
+    from scantex.photos.poses import rotation_between
+    from scantex.views.camera import Camera
+
+    a = Camera.look_at((0, -2, 0), (0, 0, 0), width=64, height=48)
+    b = Camera.look_at((0, -2, 0), (np.tan(np.radians(5)) * 2, 0, 0), width=64, height=48)  # turned 5 degrees
+    assert rotation_between(a, a) == 0 and np.isclose(rotation_between(a, b), 5.0, atol=1e-6)
+    assert np.isclose(rotation_between(b, a), 5.0, atol=1e-6)
+
+
 def test_a_small_capture_of_a_textured_scan_refines_its_poses_by_default(toy_demo, photo_result):
     """photos.refine_poses auto: below REFINE_BELOW photos, a textured scan's photos are aligned to its texture
     (each reported in metrics.json) and an untextured scan's to one another (it has no texture); a larger
