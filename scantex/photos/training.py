@@ -386,8 +386,9 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             camera, side by side (for people to look at); with ``align``, a second row below it: the photo
             again, then each scan's render through the camera aligned to it (``(2 H, ...)``).
         align: also score each scan after aligning the held-out photo's pose to *its* texture
-            (:func:`scantex.photos.poses.align_camera`, a small rotation, translation and focal change):
-            ``psnr_aligned`` / ``ssim_aligned``, colour-matched. A recorded pose that is a few pixels off
+            (:func:`scantex.photos.poses.align_camera`, a small rotation, translation and focal change, from the
+            recorded pose and from each other scan's aligned pose, the one that agrees better with the photo kept):
+            ``psnr_aligned`` / ``ssim_aligned``, colour-matched, and ``aligned_by_deg``, the turn from the recorded pose. A recorded pose that is a few pixels off
             penalises a sharp texture more than a blurred one; aligning each scan's view on its own
             (as pose-refining NeRFs are evaluated) scores the texture rather than the held-out pose.
     """
