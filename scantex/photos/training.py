@@ -388,9 +388,10 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         align: also score each scan after aligning the held-out photo's pose to *its* texture
             (:func:`scantex.photos.poses.align_camera`, a small rotation, translation and focal change, from the
             recorded pose and from each other scan's aligned pose, the one that agrees better with the photo kept):
-            ``psnr_aligned`` / ``ssim_aligned``, colour-matched, and ``aligned_by_deg``, the turn from the recorded pose. A recorded pose that is a few pixels off
-            penalises a sharp texture more than a blurred one; aligning each scan's view on its own
-            (as pose-refining NeRFs are evaluated) scores the texture rather than the held-out pose.
+            ``psnr_aligned`` / ``ssim_aligned``, colour-matched, and ``aligned_by_deg``, the turn from the recorded
+            pose. A recorded pose that is a few pixels off penalises a sharp texture more than a blurred one;
+            aligning each scan's view on its own (as pose-refining NeRFs are evaluated) scores the texture rather
+            than the held-out pose.
     """
     from scantex.metrics.image import psnr, ssim, ssim_maps
     from scantex.photos.poses import PoseSettings, align_camera, reprojection_error, rotation_between
