@@ -463,6 +463,22 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     return colour, {"mode": "projective", **sampled, **report}
 
 
+def vertex_colour_texture(scan: Scan, reporter: Reporter) -> Scan:
+    """``scan``'s vertex colours baked into a texture (a stage of its own), on a new layout; positions and faces are
+    the same arrays.
+
+    A fused RGB-D mesh's colour per vertex, made a texture that both modes treat as a capture app's atlas: mesh-only
+    mode keeps its texels (holes filled, seams blended; a field trained on its renders took 145 s on a 12,712-face
+    scan and drew seams the colours do not have), photo mode takes it as the photos' colour reference, the fill
+    where no photo reaches, and texture edges for the alignment check."""
+    from scantex.atlas.bake import texture_from_vertex_colours
+
+    with reporter.stage("texture from the vertex colours") as update:
+        textured = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS, texels_per_vertex=TEXELS_PER_VERTEX)
+        update(1, 1)
+    return textured
+
+
 def vertex_texture_note(size: int, blends: bool) -> str:
     """What the metrics say of a texture baked from the vertex colours (``size`` square; ``blends``: its seams
     blended)."""
@@ -486,9 +502,15 @@ def photo_atlas_scale(scan: Scan, photos_px_per_cm: float) -> tuple[int, dict]:
 def photo_density(photo: PhotoData) -> float:
     """How finely the training photos resolve the surface: the median over the photos of their usable pixels'
     median full-resolution pixels per centimetre (0 when none has usable pixels)."""
-    per_photo = [float(np.median(photo.photos.cameras[v.index].K[0, 0] / v.depth[v.valid])) / 100.0
-                 for v in photo.train if v.valid.any()]
+    per_photo = [photo_px_per_cm(photo.photos.cameras[v.index], v.depth[v.valid]) for v in photo.train
+                 if v.valid.any()]
     return float(np.median(per_photo)) if per_photo else 0.0
+
+
+def photo_px_per_cm(camera: Camera, depths: np.ndarray) -> float:
+    """How finely one photo resolves the surface: the median full-resolution pixels per centimetre of its pixels
+    that see it, from ``camera`` and those pixels' depths (metres; at least one)."""
+    return float(np.median(camera.K[0, 0] / depths)) / 100.0
 
 
 def untextured_atlas_size(scan: Scan, photos_px_per_cm: float) -> int:
@@ -607,16 +629,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     from_vertex_colours = not scan.is_textured and scan.vertex_colors is not None
     if from_vertex_colours:
         t = time.perf_counter()
-        # a fused RGB-D mesh's colour per vertex, made a texture that both modes treat as a capture app's atlas:
-        # mesh-only mode keeps its texels (holes filled, seams blended; a field trained on its renders took
-        # 145 s on a 12,712-face scan and drew seams the colours do not have), photo mode takes it as the photos'
-        # colour reference, the fill where no photo reaches, and texture edges for the alignment check
-        from scantex.atlas.bake import texture_from_vertex_colours
-
-        with reporter.stage("texture from the vertex colours") as update:
-            scan = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS, texels_per_vertex=TEXELS_PER_VERTEX)
-            vertex_atlas = scan.materials[0].image.shape[0]
-            update(1, 1)
+        scan = vertex_colour_texture(scan, reporter)
+        vertex_atlas = scan.materials[0].image.shape[0]
         timings["vertex_colours"] = time.perf_counter() - t
     # such a texture has no exposure steps at its seams (the colours are continuous across them): what differs
     # there is detail a texel or two apart, which seam levelling would take for a step and blending would smear

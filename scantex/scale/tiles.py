@@ -279,13 +279,14 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
     from scipy import ndimage
 
     from scantex.photos.training import depth_factor, resize_depth, working_camera
+    from scantex.pipeline.enhance import photo_px_per_cm
     from scantex.views.raycast import cast_gbuffer
 
     holds = plan.holds()
     seen: list[list[int]] = [[] for _ in range(len(plan))]
     hidden: list[dict] = [{} for _ in range(len(plan))]
     factors: dict = {}
-    densities = []
+    densities = []  # each photo's pixels per centimetre on the surface
     for k, i in enumerate(indices):
         if update:
             update(k, len(indices))
@@ -293,7 +294,7 @@ def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, ma
         face_id = g.face_id
         hit = face_id >= 0
         if hit.any():
-            densities.append(float(np.median(photos.cameras[int(i)].K[0, 0] / g.depth[hit])) / 100.0)
+            densities.append(photo_px_per_cm(photos.cameras[int(i)], g.depth[hit]))
         measured = photos.load_depth(int(i))
         if measured is not None:  # judged where the whole scan's surface is smooth, as prepare_photo judges it
             clean = ndimage.binary_erosion(hit, iterations=2) & np.isfinite(g.depth)
@@ -564,13 +565,10 @@ def _textured_from_vertex_colours(scan: Scan, config: EnhanceConfig, with_photos
     """An untextured scan's vertex colours as a texture the tiles share, made and treated as ``enhance`` makes
     and treats it (not levelled; its seams not blended in mesh-only mode): the scan, the tiles' settings, and
     the metrics saying so."""
-    from scantex.atlas.bake import texture_from_vertex_colours
-    from scantex.pipeline.enhance import TEXELS_PER_VERTEX, VERTEX_COLOUR_ATLAS, vertex_texture_note
+    from scantex.pipeline.enhance import vertex_colour_texture, vertex_texture_note
 
     t = time.perf_counter()
-    with reporter.stage("texture from the vertex colours") as update:
-        textured = texture_from_vertex_colours(scan, VERTEX_COLOUR_ATLAS, texels_per_vertex=TEXELS_PER_VERTEX)
-        update(1, 1)
+    textured = vertex_colour_texture(scan, reporter)
     timings["vertex_colours"] = time.perf_counter() - t
     blends = config.uv.blend_seams and with_photos
     config = config.override(bake__levelling=False, uv__mode="keep", uv__blend_seams=blends)

@@ -110,13 +110,14 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
             progress(100, 100)
         return UVPlan(scan, report)
 
-    said = [-1]
+    said = -1
 
     def percent(done: float) -> None:
         """``progress`` in whole percent, each said once."""
+        nonlocal said
         value = min(99, int(100 * done))
-        if value > said[0]:
-            said[0] = value
+        if value > said:
+            said = value
             progress(value, 100)
 
     charting = span(percent if progress is not None else None, 0.0, 0.95)
