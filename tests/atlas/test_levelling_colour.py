@@ -301,6 +301,56 @@ def test_black_specks_inside_faces_that_are_not_holes_are_filled():
     np.testing.assert_allclose(got[lit], own[lit], atol=1e-5)
 
 
+def test_black_amid_dark_texture_is_no_hole_and_keeps_its_texels():
+    """A black tyre in shadow: its darkest texels are as dark as an app's untextured black, but the faces around
+    them are dark too, and its dark specks spread over the black levels where an app's black is pure. Filled,
+    they would turn into flat, lighter patches (a Polycam scan's tyres did). So: black amid dark texture is no
+    hole, noisy black specks in a lit face are no black specks, and both keep their texels; pure black in lit
+    surroundings, and a noisy black face all over in lit surroundings (an app whose black is not pure), are
+    holes still; black specks of pure black are filled (the specks test above)."""
+    from scantex.atlas.holes import partly_untextured_faces, untextured_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import shade_hits, to_uint8
+    from tests.conftest import grid_wall
+
+    rng = np.random.default_rng(0)
+    wall = grid_wall(n=21, size=2.0)  # 20 x 20 cells of 8 x 8 texels in a 160² atlas
+    u, v = np.meshgrid(np.linspace(0, 1, 160), np.linspace(0, 1, 160))
+    image = to_uint8(np.stack([0.45 + 0.3 * u, 0.5 + 0.2 * v, 0.6 - 0.2 * u], axis=2))
+
+    def cells(columns, rows):  # the atlas block of cells (column i, row j: image rows from the top)
+        return slice(8 * rows[0], 8 * rows[1]), slice(8 * columns[0], 8 * columns[1])
+
+    image[cells((2, 9), (2, 9))] = rng.integers(0, 25, (56, 56, 3))  # a dark object, 0-24 levels ...
+    image[cells((4, 7), (4, 7))] = rng.integers(0, 7, (24, 24, 3))  # ... black at its heart, 0-6
+    image[cells((12, 16), (12, 16))] = 0  # an app's hole: pure black, in the lit wall
+    image[cells((12, 16), (2, 6))] = rng.integers(0, 7, (32, 32, 3))  # a hole in noisy black, in the lit wall
+    for i, j in [(3, 15), (16, 9)]:  # noisy black specks in lit cells
+        image[8 * j + 2:8 * j + 6, 8 * i + 2:8 * i + 6] = rng.integers(0, 7, (4, 4, 3))
+    image[8 * 17 + 2:8 * 17 + 6, 8 * 8 + 2:8 * 8 + 6] = 0  # a pure black speck in a lit cell (column 8, row 17)
+    scan = wall.replace(materials=(Material("wall", image),))
+
+    centres = scan.triangle_uvs.mean(axis=1) * 20  # in cells
+    column, row = np.floor(centres[:, 0]), np.floor(20 - centres[:, 1])
+
+    def within(columns, rows):
+        return (column >= columns[0]) & (column < columns[1]) & (row >= rows[0]) & (row < rows[1])
+
+    holes, partly = untextured_faces(scan), partly_untextured_faces(scan)
+    np.testing.assert_array_equal(holes, within((12, 16), (12, 16)) | within((12, 16), (2, 6)))
+    dark_object = within((2, 9), (2, 9))
+    noisy_specks = within((3, 4), (15, 16)) | within((16, 17), (9, 10))
+    assert not (holes | partly)[dark_object | noisy_specks].any()
+    assert partly[within((8, 9), (17, 18))].all()
+
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), np.zeros(scan.n_faces, bool))
+    kept = np.flatnonzero(dark_object | noisy_specks)
+    f = np.repeat(kept, 40)
+    bary = rng.dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
+    got = colour(interpolate(f, bary, scan.triangles), scan.face_normals[f], f, bary)
+    np.testing.assert_allclose(got, shade_hits(scan, f, bary), atol=1e-5)  # the input's own texels, all of them
+
+
 def test_faces_touching_another_chart_are_no_photometric_reference_however_the_file_indexes_them():
     from scantex.photos.poses import reference_faces
 
