@@ -18,10 +18,9 @@ from scantex.views.render import sample_texture
 #: colours at or below this (0-255) in every channel count as "no colour" (JPEG leaves a little noise)
 BLACK_LEVEL = 6
 
-#: black faces are a hole only where the surface around them is brighter than this (0-255, the median of the
-#: neighbouring faces' brightest channel): black inside dark surroundings is dark content (a black tyre in
-#: shadow), which a fill would lighten into flat patches, and where an app did leave it black, black beside
-#: dark shows little
+#: black faces that are not pure black are a hole only where the surface around them is brighter than this
+#: (0-255, the median of the neighbouring faces' brightest channel): black inside dark surroundings is dark
+#: content (a black tyre in shadow), which a fill would lighten into flat patches (see :func:`dark_content`)
 DARK_SURROUND = 24
 
 #: colours at or below this (0-255) in every channel are pure black: an app's untextured texels, through JPEG
@@ -29,10 +28,9 @@ PURE_BLACK_LEVEL = 1
 
 
 def untextured_faces(scan: Scan) -> np.ndarray:
-    """``(F,) bool``: faces whose texture is black at their centre and near their corners, amid surroundings
-    that are not dark themselves (:data:`DARK_SURROUND`), whose UVs lie entirely outside the atlas, or whose UV
-    triangle has no area. All False for untextured scans. Computed once per scan (:meth:`Scan.texture_memo`);
-    read-only."""
+    """``(F,) bool``: faces whose texture is black at their centre and near their corners (an app's black, not
+    dark content: :func:`dark_content`), whose UVs lie entirely outside the atlas, or whose UV triangle has no
+    area. All False for untextured scans. Computed once per scan (:meth:`Scan.texture_memo`); read-only."""
     return _black_faces(scan)[0]
 
 
@@ -56,15 +54,15 @@ def dark_content(scan: Scan, holes: np.ndarray, partly: np.ndarray, black_probes
                  pure_probes: np.ndarray) -> np.ndarray:
     """``(F,) bool``: the faces of ``holes`` (black all over) and ``partly`` (black in part) that are dark
     content rather than texture an app left black. The black faces are grouped into regions (faces sharing a
-    position). A region is dark content where the faces around it are dark themselves: the median of their
-    brightest channel (at 7 points a face) under :data:`DARK_SURROUND`. An app's holes sit in lit surroundings
-    (a room's walls, a rug, a façade; the 3D Scanner App bathroom's median 150-210), a dark object's shadowed
-    texels among its own dark texels (a Polycam scan's black tyres: 10-19). A region of specks only (no face
-    black all over) is also dark content unless at least half its black probes (``black_probes``, ``(F,)``
+    position). A region is an app's black where at least half its black probes (``black_probes``, ``(F,)``
     counts) read pure black (``pure_probes``): where an app's photos did not reach, its atlas is pure black
-    even through JPEG (the 3D Scanner App bathroom's holes 99 %, an app-style bake's 100 %), while a dark
-    texture's darkest texels spread over the black levels (a black tyre's tread: 15 %, the bathroom's shadows
-    1 %). A region with no face around it (a black fragment on its own) stays black."""
+    even through JPEG (the 3D Scanner App bathroom's hole regions and an app-style bake's: all of their
+    probes), while a dark texture's darkest texels spread over the black levels (a Polycam scan's black tyres:
+    at most 17 % a region, the bathroom's shadows none). It is one too where it holds a face black all over
+    and the faces around it are lit: the median of their brightest channel (at 7 points a face) at least
+    :data:`DARK_SURROUND` (an app whose black is not pure: a Polycam scan's unseen rug border, amid 26-112
+    levels; the tyres' shadowed rubber lies amid 10-19). Every other region is dark content. A region with no
+    face around it (a black fragment on its own) counts as lit."""
     black = holes | partly
     dark = np.zeros(scan.n_faces, bool)
     if not black.any() or not scan.is_textured:
@@ -85,7 +83,7 @@ def dark_content(scan: Scan, holes: np.ndarray, partly: np.ndarray, black_probes
     around = np.flatnonzero(~black & touched[corners].any(axis=1))
     pairs = np.unique(np.stack([np.repeat(around, 3), region_of_position[corners[around]].ravel()], axis=1), axis=0)
     pairs = pairs[pairs[:, 1] >= 0]
-    surround = np.full(n, np.inf)  # no face around: not dark
+    surround = np.full(n, np.inf)  # no face around: lit
     if len(pairs):
         values = _face_levels(scan, np.unique(pairs[:, 0]))[pairs[:, 0]]
         order = np.lexsort((values, pairs[:, 1]))
@@ -97,7 +95,8 @@ def dark_content(scan: Scan, holes: np.ndarray, partly: np.ndarray, black_probes
     has_hole[region_of_face[holes[idx]]] = True
     pure_share = (np.bincount(region_of_face, pure_probes[idx], minlength=n)
                   / np.maximum(np.bincount(region_of_face, black_probes[idx], minlength=n), 1))
-    dark[idx] = ((surround < DARK_SURROUND) | (~has_hole & (pure_share < 0.5)))[region_of_face]
+    app_black = (pure_share >= 0.5) | (has_hole & (surround >= DARK_SURROUND))
+    dark[idx] = ~app_black[region_of_face]
     return dark
 
 
@@ -155,8 +154,8 @@ def _black_texels(image, level, pure_level, out):
 
 def partly_untextured_faces(scan: Scan, holes: np.ndarray | None = None) -> np.ndarray:
     """``(F,) bool``: faces that are not :func:`untextured_faces` (``holes``, when given) but whose texture is
-    black somewhere inside, amid surroundings that are not dark themselves
-    (:func:`dark_content`). Computed once per scan; read-only.
+    black somewhere inside (an app's black, not dark content: :func:`dark_content`). Computed once per scan;
+    read-only.
 
     A capture app leaves black where no photo reached: a face on the edge of that region is partly black,
     and its black part is kept as the input's colour where nothing else covers it (black specks on a
