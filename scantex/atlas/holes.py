@@ -1,7 +1,9 @@
 """Faces the input texture leaves without colour: black untextured faces and out-of-atlas UVs.
 
 Capture apps paint faces no photo saw pure black. Such faces must not teach the field "black"; they
-are masked out of the loss and the field fills them from their surroundings.
+are masked out of the loss and the field fills them from their surroundings. Black that is dark content
+(a black tyre in shadow: its darkest texels spread over the black levels, amid dark texture) is no hole:
+filled, it would turn into flat, lighter patches (:func:`dark_content`).
 """
 
 from __future__ import annotations
@@ -35,8 +37,8 @@ def untextured_faces(scan: Scan) -> np.ndarray:
 
 
 def _black_faces(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
-    """``(holes (F,), partly (F,))``: :func:`untextured_faces` and the faces black in part, neither within dark
-    surroundings (:func:`dark_content`). Computed once per scan; read-only."""
+    """``(holes (F,), partly (F,))``: :func:`untextured_faces` and :func:`partly_untextured_faces`, dark content
+    left out of both (:func:`dark_content`). Computed once per scan; read-only."""
     def find() -> tuple[np.ndarray, np.ndarray]:
         if not scan.is_textured:
             return read_only(np.zeros(scan.n_faces, bool)), read_only(np.zeros(scan.n_faces, bool))

@@ -353,6 +353,24 @@ def test_black_amid_dark_texture_is_no_hole_and_keeps_its_texels():
     np.testing.assert_allclose(got, shade_hits(scan, f, bary), atol=1e-5)  # the input's own texels, all of them
 
 
+def test_black_probes_are_the_same_compiled_and_in_numpy(monkeypatch):
+    """The black and pure-black masks the faces' probes read: the compiled pass and its numpy twin agree."""
+    from scantex import jit
+    from scantex.atlas.holes import _black_probes
+    from tests.conftest import grid_wall
+
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 9, (160, 160, 3)).astype(np.uint8)  # levels 0-8: black, pure black and neither
+    image[40:80, 40:80] = 0
+    scan = grid_wall(n=21).replace(materials=(Material("wall", image),))
+    compiled = _black_probes(scan)
+    monkeypatch.setattr(jit, "compiled", lambda function: None)
+    twin = _black_probes(scan.replace(materials=(Material("wall", image.copy()),)))
+    assert compiled[0].sum() > 0 and compiled[1].sum() > 0 and (compiled[1] < compiled[0]).any()
+    np.testing.assert_array_equal(compiled[0], twin[0])
+    np.testing.assert_array_equal(compiled[1], twin[1])
+
+
 def test_faces_touching_another_chart_are_no_photometric_reference_however_the_file_indexes_them():
     from scantex.photos.poses import reference_faces
 
