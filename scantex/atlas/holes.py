@@ -42,7 +42,7 @@ def _black_faces(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
     def find() -> tuple[np.ndarray, np.ndarray]:
         if not scan.is_textured:
             return read_only(np.zeros(scan.n_faces, bool)), read_only(np.zeros(scan.n_faces, bool))
-        unmapped = _unmapped_faces(scan)
+        unmapped = unmapped_faces(scan)
         black = _black_all_over(scan) & ~unmapped
         black_probes, pure_probes = _black_probes(scan)
         partly = (black_probes > 0) & ~black & ~unmapped
@@ -118,7 +118,7 @@ def _face_levels(scan: Scan, faces: np.ndarray) -> np.ndarray:
     return level
 
 
-def _unmapped_faces(scan: Scan) -> np.ndarray:
+def unmapped_faces(scan: Scan) -> np.ndarray:
     """``(F,) bool``: faces whose UVs lie entirely outside the atlas, or whose UV triangle has no area."""
     uv = scan.triangle_uvs  # [F, 3, 2]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]

@@ -106,6 +106,9 @@ class UVConfig:
     """after baking, give texels on both sides of every seam the same colour (no line when filtered)"""
     band_texels: float = 3.0
     """width of the seam-blending band, texels"""
+    chart_unmapped: bool = True
+    """keep: give faces the input layout leaves no texture space (every UV corner on one point, as OpenMVS
+    leaves unseen faces) a small chart each in free atlas space, so that the hole fill can colour them"""
 
 
 @dataclass(frozen=True)

@@ -766,7 +766,7 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         size = untextured_atlas_size(scan, photos_px_per_cm)
     with reporter.stage(f"UV layout ({mode})") as update:
         plan = plan_uvs(scan, mode, threshold=uc.threshold, texture_size=size, time_budget_s=uc.time_budget_s,
-                        progress=update)
+                        chart_unmapped=uc.chart_unmapped, progress=update)
     timings["uv"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -525,6 +525,8 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
     if scan.is_textured and config.uv.mode != "keep":
         raise ScanError(scan.source, f"tiled enhancement keeps the input's UV layout; uv.mode '{config.uv.mode}' "
                                      "is not supported with tiles")
+    # the tiles share the input's layout: none may chart its unmapped faces into free space of its own
+    config = config.override(uv__chart_unmapped=False)
     if not scan.is_textured and scan.vertex_colors is not None:
         scan, config, extra = _textured_from_vertex_colours(scan, config, photos is not None, reporter, timings)
     elif not scan.is_textured and photos is None:

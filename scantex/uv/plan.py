@@ -67,7 +67,7 @@ def _summary(scan: Scan, size: int) -> dict | None:
 def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_size: int = 0,
              time_budget_s: float = 60.0, equalise_density: bool = True, seed: int = 0,
              gutter_texels: int = 4, max_angle_deg: float = 50.0, use_xatlas: bool = True,
-             progress: Callable[[int, int], None] | None = None) -> UVPlan:
+             chart_unmapped: bool = True, progress: Callable[[int, int], None] | None = None) -> UVPlan:
     """Plan the texture layout of ``scan``.
 
     Args:
@@ -84,6 +84,9 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
         gutter_texels: empty texels kept around each chart in the atlas.
         max_angle_deg: widest normal cone of a planar chart.
         use_xatlas: hand the curved leftovers of an unwrap to xatlas (in a subprocess).
+        chart_unmapped: keep: give the faces the input layout leaves no texture space (every UV corner on one
+            point, or outside the atlas) a small chart each in free atlas space
+            (:func:`scantex.uv.unmapped.chart_unmapped_faces`), every other face's UVs kept.
         progress: hears ``(done, 100)``: the percentage of the planning done (optimize's merges and unwrap's
             xatlas charting are most of it; packing the last 5 %).
     """
@@ -105,10 +108,17 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
     report["mode_used"] = mode
     if mode == "keep":
         report["after"] = report["before"]
+        kept = scan
+        if chart_unmapped:
+            from scantex.uv.unmapped import chart_unmapped_faces
+
+            kept, unmapped = chart_unmapped_faces(scan, gutter_texels)
+            if unmapped is not None:
+                report["unmapped"] = unmapped
         report["time_s"] = time.perf_counter() - start
         if progress is not None:
             progress(100, 100)
-        return UVPlan(scan, report)
+        return UVPlan(kept, report)
 
     said = -1
 

@@ -1,0 +1,122 @@
+"""Atlas space for the faces an input layout leaves without any: the rest of the layout kept as it is.
+
+Some exporters give the faces no photo saw no texture space at all: OpenMVS's façade puts all three UV
+corners of 42 such faces on one point of the atlas, whose one texel every one of them shows. A hole fill
+cannot colour them (there is no texel of theirs to write), so they showed that texel's colour: flat grey
+triangles on the output where the input had black ones. :func:`chart_unmapped_faces` lays each such face
+flat as a triangle chart of its own, at the layout's median texel density, in a free cell of its
+material's atlas (away from every chart by the gutter), and leaves every other face's UVs untouched; the
+bake then fills the new charts as the holes they are.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from scantex.atlas.holes import unmapped_faces
+from scantex.atlas.texelmap import uv_to_pixel
+from scantex.scan import Scan
+
+log = logging.getLogger(__name__)
+
+#: a new chart's longest side, in texels, at most (a face larger than that at the layout's density is
+#: shrunk: it is a hole, filled smoothly, and needs few texels)
+MAX_CHART_TEXELS = 32
+
+
+def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict | None]:
+    """``scan`` with a triangle chart of its own for every face :func:`unmapped_faces` finds (and whose 3D
+    triangle has an area), in free space of its material's atlas, and a report (``None`` when no face is
+    unmapped). Faces that find no free cell keep their UVs (the report counts them). Positions, faces and
+    every other face's UVs are unchanged."""
+    if not scan.is_textured:
+        return scan, None
+    tri = scan.triangles  # [F, 3, 3]
+    lengths = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2)  # [F, 3]: |p1 - p0|, |p2 - p1|, |p0 - p2|
+    area_3d = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    unmapped = unmapped_faces(scan) & (area_3d > 0)
+    if not unmapped.any():
+        return scan, None
+    new_uvs, new_face_uvs = [scan.uvs], scan.face_uvs.copy()
+    charted, left = 0, 0
+    next_uv = len(scan.uvs)
+    for m, material in enumerate(scan.materials):
+        faces = np.flatnonzero(unmapped & (scan.face_materials == m))
+        if material.image is None or faces.size == 0:
+            left += faces.size
+            continue
+        H, W = material.image.shape[:2]
+        mapped = np.flatnonzero(~unmapped & (scan.face_materials == m))
+        density = _texels_per_metre(scan, mapped, W, H)
+        corners = _flat_triangles(lengths[faces]) * density  # [n, 3, 2] texels, from (0, 0)
+        side = corners.max(axis=(1, 2))
+        corners *= np.minimum(1.0, MAX_CHART_TEXELS / np.maximum(side, 1e-12))[:, None, None]
+        corners *= np.maximum(1.0, 2.0 / np.maximum(corners.max(axis=(1, 2)), 1e-12))[:, None, None]
+        cell = int(np.ceil(corners.max())) + 2 * gutter_texels + 1
+        free = _free_cells(scan, mapped, W, H, cell)
+        take = min(len(free), faces.size)
+        left += faces.size - take
+        for k in range(take):
+            y0, x0 = free[k]
+            pixel = corners[k] + [x0 * cell + gutter_texels + 0.5, y0 * cell + gutter_texels + 0.5]
+            uv = np.stack([pixel[:, 0] / W, 1.0 - pixel[:, 1] / H], axis=1)
+            new_uvs.append(uv)
+            new_face_uvs[faces[k]] = np.arange(next_uv, next_uv + 3)
+            next_uv += 3
+        charted += take
+    if charted == 0:
+        return scan, {"faces": int(unmapped.sum()), "charted": 0, "left": int(left)}
+    log.info("gave %d unmapped faces a chart of their own (%d left as they were)", charted, left)
+    out = scan.replace(uvs=np.concatenate(new_uvs).astype(scan.uvs.dtype), face_uvs=new_face_uvs)
+    return out, {"faces": int(unmapped.sum()), "charted": int(charted), "left": int(left)}
+
+
+def _texels_per_metre(scan: Scan, faces: np.ndarray, W: int, H: int) -> float:
+    """The layout's texel density over ``faces``: sqrt of their UV area in texels over their 3D area (1000 a
+    metre when they have none)."""
+    if faces.size == 0:
+        return 1000.0
+    uv = scan.triangle_uvs[faces] * [W, H]
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    tri = scan.triangles[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    return float(np.sqrt(uv_area / area)) if area > 0 and uv_area > 0 else 1000.0
+
+
+def _flat_triangles(lengths: np.ndarray) -> np.ndarray:
+    """``(n, 3, 2)``: triangles with side lengths ``lengths (n, 3)`` (|p1 - p0|, |p2 - p1|, |p0 - p2|) laid flat,
+    p0 at the origin, p1 along +x, p2 above; moved so that their corners' minimum is 0."""
+    a, b, c = lengths[:, 0], lengths[:, 1], lengths[:, 2]
+    x2 = np.divide(a * a + c * c - b * b, 2 * a, out=np.zeros_like(a), where=a > 0)
+    y2 = np.sqrt(np.maximum(c * c - x2 * x2, 0.0))
+    flat = np.zeros((len(lengths), 3, 2))
+    flat[:, 1, 0] = a
+    flat[:, 2, 0], flat[:, 2, 1] = x2, y2
+    return flat - flat.min(axis=1, keepdims=True)
+
+
+def _free_cells(scan: Scan, mapped: np.ndarray, W: int, H: int, cell: int) -> np.ndarray:
+    """``(k, 2)`` (row, column) of the ``cell``-texel cells of the atlas that no face of ``mapped`` reaches with
+    its UV bounding box, in reading order (a chart sits a gutter inside its cell: a cell no face's texels reach
+    keeps it that far from all)."""
+    rows, cols = H // cell, W // cell
+    if rows == 0 or cols == 0:
+        return np.zeros((0, 2), np.int64)
+    pixel = uv_to_pixel(scan.triangle_uvs[mapped], W, H)  # [n, 3, 2] x, y
+    low = np.floor((pixel.min(axis=1) - 1) / cell).astype(np.int64)  # a texel reaches half a texel past a corner
+    high = np.floor((pixel.max(axis=1) + 1) / cell).astype(np.int64)
+    c0, r0 = np.clip(low[:, 0], 0, cols), np.clip(low[:, 1], 0, rows)
+    c1, r1 = np.clip(high[:, 0], -1, cols - 1), np.clip(high[:, 1], -1, rows - 1)
+    keep = (c0 <= c1) & (r0 <= r1)
+    c0, r0, c1, r1 = c0[keep], r0[keep], c1[keep], r1[keep]
+    # every box's cells counted at once: its corners in a difference table, summed along both axes
+    table = np.zeros((rows + 1, cols + 1), np.int64)
+    np.add.at(table, (r0, c0), 1)
+    np.add.at(table, (r0, c1 + 1), -1)
+    np.add.at(table, (r1 + 1, c0), -1)
+    np.add.at(table, (r1 + 1, c1 + 1), 1)
+    used = table.cumsum(axis=0).cumsum(axis=1)[:rows, :cols] > 0
+    return np.argwhere(~used)
