@@ -588,11 +588,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--texture-size", type=whole(16, 16384),
                    help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
     p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
-                   help="texture layout: keep the input's (default), optimize it (flatten over-stretched "
-                        "charts again, split those that still stretch, merge neighbours while they stay under the "
-                        "stretch threshold; uniform texel density) or unwrap afresh; meshes without UVs are "
-                        "unwrapped. A new layout leaves the input's normal, occlusion and other maps out: they are "
-                        "drawn in its own")
+                   help="texture layout: keep the input's (default; faces it gives no texture space, every UV "
+                        "corner on one point, get a small chart each in free atlas space), optimize it (flatten "
+                        "over-stretched charts again, split those that still stretch, merge neighbours while they "
+                        "stay under the stretch threshold; uniform texel density) or unwrap afresh; meshes without "
+                        "UVs are unwrapped. A new layout leaves the input's normal, occlusion and other maps out: "
+                        "they are drawn in its own")
     p.add_argument("--views", type=whole(2, 10_000),
                    help="number of synthetic views, at least 2: one is held out (preset's by default)")
     p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")
