@@ -4,9 +4,9 @@ Some exporters give the faces no photo saw no texture space at all: OpenMVS's fa
 corners of 42 such faces on one point of the atlas, whose one texel every one of them shows. A hole fill
 cannot colour them (there is no texel of theirs to write), so they showed that texel's colour: flat grey
 triangles on the output where the input had black ones. :func:`chart_unmapped_faces` lays each such face
-flat as a triangle chart of its own, at the layout's median texel density, in a free cell of its
-material's atlas (away from every chart by the gutter), and leaves every other face's UVs untouched; the
-bake then fills the new charts as the holes they are.
+flat as a triangle chart of its own, at the layout's texel density (its UV area over its 3D area), in a
+free cell of its material's atlas (a gutter from every chart), and leaves every other face's UVs
+untouched; the bake then fills the new charts as the holes they are.
 """
 
 from __future__ import annotations
@@ -58,13 +58,11 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
         free = _free_cells(scan, mapped, W, H, cell)
         take = min(len(free), faces.size)
         left += faces.size - take
-        for k in range(take):
-            y0, x0 = free[k]
-            pixel = corners[k] + [x0 * cell + gutter_texels + 0.5, y0 * cell + gutter_texels + 0.5]
-            uv = np.stack([pixel[:, 0] / W, 1.0 - pixel[:, 1] / H], axis=1)
-            new_uvs.append(uv)
-            new_face_uvs[faces[k]] = np.arange(next_uv, next_uv + 3)
-            next_uv += 3
+        origin = free[:take, ::-1] * cell + gutter_texels + 0.5  # [take, 2] x, y: a gutter inside each cell
+        pixel = corners[:take] + origin[:, None, :]  # [take, 3, 2]
+        new_uvs.append(np.stack([pixel[..., 0] / W, 1.0 - pixel[..., 1] / H], axis=-1).reshape(-1, 2))
+        new_face_uvs[faces[:take]] = next_uv + np.arange(3 * take).reshape(take, 3)
+        next_uv += 3 * take
         charted += take
     if charted == 0:
         return scan, {"faces": int(unmapped.sum()), "charted": 0, "left": int(left)}
