@@ -525,7 +525,14 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
     if scan.is_textured and config.uv.mode != "keep":
         raise ScanError(scan.source, f"tiled enhancement keeps the input's UV layout; uv.mode '{config.uv.mode}' "
                                      "is not supported with tiles")
-    # the tiles share the input's layout: none may chart its unmapped faces into free space of its own
+    # the tiles share one layout: the faces the input's gives no texture space are charted once, for the whole
+    # scan, as enhance charts them; no tile may chart faces into free space of its own
+    if scan.is_textured and config.uv.chart_unmapped:
+        from scantex.uv.unmapped import chart_unmapped_faces
+
+        scan, unmapped = chart_unmapped_faces(scan)
+        if unmapped is not None:
+            extra["uv"] = {"unmapped": unmapped}
     config = config.override(uv__chart_unmapped=False)
     if not scan.is_textured and scan.vertex_colors is not None:
         scan, config, extra = _textured_from_vertex_colours(scan, config, photos is not None, reporter, timings)

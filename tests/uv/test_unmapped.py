@@ -73,3 +73,20 @@ def test_an_enhanced_scans_unmapped_faces_take_the_colour_around_them():
     # the wall around the block, read through the input at the same points' neighbours: green-blue, not black
     around = shade_hits(scan, np.flatnonzero(~block)[:200], np.full((200, 2), 1 / 3, np.float32))
     assert got.min() > 0.1 and np.abs(got.mean(axis=0) - around.mean(axis=0)).max() < 0.15
+
+
+def test_tiles_chart_the_unmapped_faces_once_for_the_whole_scan():
+    """The tiles share one layout: the faces it gives no texture space are charted before the scan is cut, and
+    the fused result colours them as an untiled run does."""
+    from scantex.scale.executors import LocalPool
+    from scantex.pipeline.config import TilingConfig
+    from scantex.scale.tiles import enhance_tiled
+
+    scan, block = collapsed_wall()
+    result = enhance_tiled(scan, preset("fast"), TilingConfig(tiles=2), runner=LocalPool(workers=1))
+    out = result.scan
+    np.testing.assert_array_equal(out.faces, scan.faces)
+    assert result.metrics["uv"]["unmapped"]["charted"] == 18 and not unmapped_faces(out).any()
+    f = np.repeat(np.flatnonzero(block), 20)
+    bary = np.random.default_rng(0).dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
+    assert shade_hits(out, f, bary).min() > 0.1
