@@ -367,6 +367,11 @@ def enhance_summary(m: dict) -> str:
     if "enhanced_at_input_seams" in m["seam_visibility"]:
         lines[-1] += (f" along each layout's own seams; at the input's seams {m['seam_visibility']['input']:.2f} -> "
                       f"{m['seam_visibility']['enhanced_at_input_seams']:.2f}")
+    unmapped = m.get("uv", {}).get("unmapped") or {}
+    if unmapped.get("charted"):
+        lines.append(f"UV layout: {unmapped['charted']} faces it gave no texture space (every UV corner on one point, "
+                     f"or outside the atlas) charted in free atlas space and filled"
+                     + (f"; {unmapped['left']} found no free space" if unmapped.get("left") else ""))
     if "held_out_vs_ground_truth" in m:
         s = m["held_out_vs_ground_truth"]
         lines.append(f"held-out views vs ground truth: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB, "

@@ -67,6 +67,9 @@ def test_an_enhanced_scans_unmapped_faces_take_the_colour_around_them():
     assert out.positions is scan.positions or np.array_equal(out.positions, scan.positions)
     np.testing.assert_array_equal(out.faces, scan.faces)
     assert result.metrics["uv"]["unmapped"]["charted"] == 18
+    from scantex.cli import enhance_summary
+
+    assert "UV layout: 18 faces it gave no texture space" in enhance_summary(result.metrics)
     f = np.repeat(np.flatnonzero(block), 20)
     bary = np.random.default_rng(0).dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
     got = shade_hits(out, f, bary)
