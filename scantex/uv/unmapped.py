@@ -35,8 +35,7 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
         return scan, None
     tri = scan.triangles  # [F, 3, 3]
     lengths = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2)  # [F, 3]: |p1 - p0|, |p2 - p1|, |p0 - p2|
-    area_3d = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    unmapped = unmapped_faces(scan) & (area_3d > 0)
+    unmapped = unmapped_faces(scan) & (scan.face_areas > 0)
     if not unmapped.any():
         return scan, None
     new_uvs, new_face_uvs = [scan.uvs], scan.face_uvs.copy()
@@ -79,8 +78,7 @@ def _texels_per_metre(scan: Scan, faces: np.ndarray, W: int, H: int) -> float:
     uv = scan.triangle_uvs[faces] * [W, H]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
-    tri = scan.triangles[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    area = scan.face_areas[faces].sum()
     return float(np.sqrt(uv_area / area)) if area > 0 and uv_area > 0 else 1000.0
 
 
