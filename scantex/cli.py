@@ -113,13 +113,14 @@ def cmd_demo_scan(args) -> int:
 def check_output_early(output: Path, overwrite: bool) -> None:
     """The checks on an output folder that need no input read: fail before minutes of work."""
     from scantex.errors import OutputExistsError
-    from scantex.io.atomic import check_output
+    from scantex.io.atomic import check_output, check_replaceable
 
     check_output(output)
     if output.exists() and not output.is_dir():
         raise OutputExistsError(output, "is a file, not a folder: choose another path")
     if output.exists() and not overwrite:
         raise OutputExistsError(output, "already exists (pass --overwrite to replace it)")
+    check_replaceable(output)
 
 
 def cmd_render(args) -> int:
@@ -546,7 +547,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--photos", type=whole(0, 10_000), default=0, metavar="N",
                    help="also take N synthetic posed photos of the true scene (own exposure, blur, noise, JPEG, "
                         "small pose errors) into DIR/photos, for enhance --photos (default: none)")
-    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it is an earlier output (scantex wrote it, or it is empty)")
     p.set_defaults(func=cmd_demo_scan)
 
     p = sub.add_parser("render", parents=[common], help="render views of a mesh (PNG + cameras.json)",
@@ -569,7 +571,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="plain texture colour instead of the lit preview (directional light + ambient)")
     p.add_argument("--supersample", type=whole(1, 8), default=2, help="rays per pixel per axis (default: 2)")
     p.add_argument("--seed", type=SEED, default=0, help="random seed for planning and the split")
-    p.add_argument("--overwrite", action="store_true", help="replace DIR if it exists")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR if it is an earlier output (scantex wrote it, or it is empty)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("enhance", parents=[common], help="enhance a scan's texture (the main job)",
@@ -653,8 +656,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
     add_executor_options(p, "tile")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace DIR if it exists (never an input: DIR may not be or hold the scan, its "
-                        "textures, the photos or the config)")
+                   help="replace DIR if it is an earlier output (scantex wrote it, or it is empty; never an "
+                        "input: DIR may not be or hold the scan, its textures, the photos or the config)")
     p.set_defaults(func=cmd_enhance)
 
     p = sub.add_parser("batch", parents=[common], help="enhance many scans: a local process pool or a Ray cluster",

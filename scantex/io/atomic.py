@@ -102,6 +102,36 @@ def check_output(output: str | Path, inputs: Iterable[str | Path] = (), folders:
         raise ScanError(output, f"{role} is the current folder or holds it: choose a new folder")
 
 
+#: the file every output folder holds: ``--overwrite`` replaces only a folder that has it (or is empty)
+MARKER = ".scantex"
+
+#: files that outputs written before the marker existed hold, by command: such a folder is an earlier output
+_EARLIER_OUTPUTS = (("metrics.json", "config.json"), ("cameras.json", "view_000.png"),
+                    ("scan.obj", "ground_truth.obj"))
+
+
+def check_replaceable(final: str | Path) -> None:
+    """Refuse to replace an existing folder that scantex did not write: ``--overwrite`` replaces an earlier
+    output, never a folder of the user's own (``-o ~/Documents --overwrite`` by mistake).
+
+    A folder is replaceable when it is empty, holds :data:`MARKER`, or holds the files an output of an
+    earlier scantex (before the marker) always has.
+
+    Raises:
+        OutputExistsError: one line naming the folder and what to do.
+    """
+    final = Path(final)
+    if not final.is_dir() or (final / MARKER).is_file():
+        return
+    with os.scandir(final) as entries:
+        if next(entries, None) is None:
+            return
+    if any(all((final / name).is_file() for name in names) for names in _EARLIER_OUTPUTS):
+        return
+    raise OutputExistsError(final, f"is not an output of scantex (no {MARKER} file in it), so --overwrite "
+                                   "will not replace it: choose a new folder, or empty this one yourself")
+
+
 def remove_stale_temporaries(final: Path) -> None:
     """Remove ``.NAME.XXXXXXXX.tmp`` folders that :func:`atomic_dir` left beside ``final`` when a run
     writing it was killed (kill -9 leaves no chance to clean up)."""
@@ -117,7 +147,8 @@ def atomic_dir(final: str | Path, overwrite: bool = False, inputs: Iterable[str 
                folders: Iterable[str | Path] = ()) -> Iterator[Path]:
     """Build a whole output folder under a temporary name; rename it to ``final`` on success.
 
-    An existing ``final`` folder is replaced only with ``overwrite``; otherwise :class:`OutputExistsError`.
+    An existing ``final`` folder is replaced only with ``overwrite``, and only when scantex wrote it
+    (:func:`check_replaceable`); otherwise :class:`OutputExistsError`. The folder written holds :data:`MARKER`.
     ``final`` is checked with :func:`check_output` against ``inputs`` and ``folders`` first: whatever
     ``overwrite`` says, no input is ever replaced or deleted. A successful run also removes temporaries
     that killed runs left beside ``final``.
@@ -129,6 +160,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False, inputs: Iterable[str 
         raise OutputExistsError(final, "is a file, not a folder: choose another path")
     if final.exists() and not overwrite:
         raise OutputExistsError(final, "already exists (pass --overwrite to replace it)")
+    check_replaceable(final)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
     umask = os.umask(0)
@@ -137,6 +169,8 @@ def atomic_dir(final: str | Path, overwrite: bool = False, inputs: Iterable[str 
     try:
         yield tmp
         check_output(final, inputs, folders)  # again: the inputs may have moved while the run worked
+        check_replaceable(final)  # and a folder may have appeared there
+        (tmp / MARKER).write_text("This folder was written by scantex: `--overwrite` may replace it whole.\n")
         if final.exists():
             old = final.with_name(f".{final.name}.{uuid.uuid4().hex[:8]}.old")
             os.replace(final, old)

@@ -56,6 +56,36 @@ def test_demo_scan_never_replaces_the_current_folder(tmp_path, capsys, monkeypat
     assert (tmp_path / "keep.txt").read_text() == "mine"
 
 
+def test_overwrite_replaces_only_an_earlier_output(tmp_path, capsys, monkeypatch):
+    """``-o ~/Documents --overwrite`` by mistake: a folder scantex did not write is refused and kept whole; an
+    earlier output (its marker, or an older version's files) and an empty folder are replaced."""
+    monkeypatch.chdir(tmp_path)
+    mesh = write_cube(tmp_path / "scan")
+    mine = tmp_path / "documents"
+    (mine / "letters").mkdir(parents=True)
+    (mine / "letters" / "keep.txt").write_text("mine")
+    (mine / "notes.txt").write_text("mine too")
+    before = fingerprint(mine)
+    assert_clean_error(*run_cli(capsys, "render", mesh, "-o", mine, "--overwrite", *RENDER), "documents",
+                       "not an output of scantex")
+    assert fingerprint(mine) == before
+
+    out = tmp_path / "renders"
+    assert run_cli(capsys, "render", mesh, "-o", out, *RENDER)[0] == 0
+    assert (out / ".scantex").is_file()
+    (out / "view_000.png").unlink()  # the marker alone makes it an output
+    assert run_cli(capsys, "render", mesh, "-o", out, "--overwrite", *RENDER)[0] == 0
+    assert (out / "view_000.png").is_file()
+
+    (tmp_path / "empty").mkdir()
+    assert run_cli(capsys, "render", mesh, "-o", tmp_path / "empty", "--overwrite", *RENDER)[0] == 0
+    # an output written before the marker existed: known by the files its command always writes
+    (out / ".scantex").unlink()
+    (out / "extra.txt").write_text("an earlier output's neighbour file")
+    assert run_cli(capsys, "render", mesh, "-o", out, "--overwrite", *RENDER)[0] == 0
+    assert not (out / "extra.txt").exists()
+
+
 def test_enhance_work_folder_is_never_the_input_folder(tmp_path, capsys, monkeypatch):
     """``enhance cap.partial/m.obj -o cap`` used to delete cap.partial (the input folder) at the end."""
     monkeypatch.chdir(tmp_path)
