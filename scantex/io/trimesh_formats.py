@@ -41,10 +41,12 @@ _MAP_ATTRIBUTES = {"normal": "normalTexture", "occlusion": "occlusionTexture",
 
 
 def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_maps: frozenset = frozenset(),
-                 extensions: dict | None = None) -> tuple[Material, np.ndarray | None]:
+                 extensions: dict | None = None, colourless: bool = False) -> tuple[Material, np.ndarray | None]:
     """Material and per-vertex UVs of one trimesh geometry. ``encoded``: the file's images' own bytes by
     :func:`_image_key` (a map found there is written back as those bytes); ``skip_maps``: map kinds left out;
-    ``extensions``: the glTF material extensions to keep (:func:`_material_extensions`)."""
+    ``extensions``: the glTF material extensions to keep (:func:`_material_extensions`); ``colourless``: the
+    format has no material colour (PLY), so the texture is shown as it is, not times the grey (0.4) trimesh
+    gives a material without one."""
     from trimesh.visual.material import PBRMaterial
 
     visual = geometry.visual
@@ -55,7 +57,7 @@ def _material_of(geometry, index: int, where, encoded: dict | None = None, skip_
         if factor is None:
             factor = getattr(mat, "diffuse", None)
         diffuse = (1.0, 1.0, 1.0, 1.0)
-        if factor is not None:
+        if factor is not None and not colourless:
             f = np.asarray(factor, dtype=np.float64).ravel()
             diffuse = tuple((f / 255.0 if f.max() > 1 else f).tolist() + [1.0] * (4 - len(f)))[:4]
         name = getattr(mat, "name", None) or f"material_{index}"
@@ -293,7 +295,7 @@ def read_with_trimesh(path: str | Path) -> Scan:
     offset = 0
     any_uv = False
     for i, (g, pos, vn) in enumerate(pieces):
-        mat, uv = _material_of(g, i, path, encoded, skip_maps, extensions)
+        mat, uv = _material_of(g, i, path, encoded, skip_maps, extensions, colourless=suffix == ".ply")
         materials.append(mat)
         normals.append(vn)
         positions.append(pos)

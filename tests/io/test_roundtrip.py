@@ -126,6 +126,27 @@ def test_ply_face_colours_are_read(tmp_path):
     assert scan.face_colors is not None and (scan.face_colors[:, 0] == 200).all()
 
 
+def test_ply_texture_file_is_shown_as_it_is(tmp_path):
+    """A PLY with texture coordinates and ``comment TextureFile`` (MeshLab's, many scanners'): the format has no
+    material colour, so its texture is not darkened by the grey (0.4) trimesh gives such a material."""
+    from PIL import Image
+
+    from scantex.views.render import shade_hits
+
+    rgb = np.random.default_rng(1).integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    Image.fromarray(rgb).save(tmp_path / "tex.png")
+    rows = ["0 0 0 0.09375 0.09375", "1 0 0 0.9 0.1", "0 1 0 0.1 0.9"]  # corner 0 on texel (1, 14)
+    (tmp_path / "t.ply").write_text("ply\nformat ascii 1.0\ncomment TextureFile tex.png\nelement vertex 3\n"
+                                    "property float x\nproperty float y\nproperty float z\nproperty float s\n"
+                                    "property float t\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n" + "\n".join(rows) + "\n3 0 1 2\n")
+    scan = load_scan(tmp_path / "t.ply")
+    assert scan.materials[0].diffuse == (1.0, 1.0, 1.0, 1.0)
+    assert np.array_equal(scan.materials[0].image[..., :3], rgb)
+    seen = shade_hits(scan, np.zeros(1, np.int64), np.zeros((1, 2), np.float32))
+    assert np.allclose(seen[0], rgb[14, 1] / 255.0, atol=1e-6)
+
+
 def test_stl_through_trimesh_keeps_triangles(tmp_path):
     mesh = trimesh.creation.cylinder(radius=0.5, height=1.0, sections=16)
     mesh.export(tmp_path / "c.stl")
