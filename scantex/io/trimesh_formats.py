@@ -398,6 +398,27 @@ def _embedded_map(texture_map, png_cache: dict | None):
     return _embedded(texture_map.image, texture_map.file_bytes(png_cache))
 
 
+#: float32 rounds a scan's coordinates by at most this share of its size before a GLB or USDZ holds them about a point
+_ROUNDING = 1e-6
+
+
+def float32_origin(positions: np.ndarray) -> np.ndarray:
+    """``(3,)``: the point a GLB or USDZ holds ``positions`` about (as float32, its node or prim translated
+    there), zero for a scan near the origin. float32 rounds a
+    coordinate by a share (6e-8) of its magnitude: a georeferenced scan (UTM, some 500 km from the origin)
+    by up to 0.125 m, where its size is metres. Where that rounding exceeds :data:`_ROUNDING` of the scan's
+    size, the positions are held about the centre of their bounds (rounded to whole units, so that the node's
+    translation is exact), and float32 holds them to a share of the scan's size."""
+    if len(positions) == 0:
+        return np.zeros(3)
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    size = float((hi - lo).max())
+    error = float(np.abs(positions.astype(np.float32).astype(np.float64) - positions).max())
+    if error <= _ROUNDING * max(size, 1e-300):
+        return np.zeros(3)
+    return np.round(0.5 * (lo + hi))
+
+
 def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:
     """Write ``scan`` as a binary glTF, one mesh per material, with the scan's shading normals; colour textures
     embedded as PNG, a material's other maps as their file's own bytes (:class:`scantex.scan.TextureMap`).
@@ -409,16 +430,24 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
 
     from scantex.io.images import png_bytes
 
-    f32 = scan.positions.astype(np.float32)
-    if not np.array_equal(f32.astype(np.float64), scan.positions):
+    shift = float32_origin(scan.positions)
+    f32 = (scan.positions - shift).astype(np.float32)
+    if not np.array_equal(f32.astype(np.float64) + shift, scan.positions):
         log.info("%s: glTF stores float32 positions; this scan's float64 coordinates are rounded "
                     "in the GLB (the OBJ output keeps them exactly)", path)
+    if shift.any():
+        log.info("%s: the scan lies far from the origin (%s): the GLB holds its positions about that point, "
+                 "which its node's translation adds back, as float32 holds them to %.2g of the scan's size",
+                 path, ", ".join(f"{c:.0f}" for c in shift), _ROUNDING)
+    transform = np.eye(4)
+    transform[:3, 3] = shift
     scene = trimesh.Scene()
     for m, material in enumerate(scan.materials):
         sel = np.flatnonzero(scan.face_materials == m)
         if sel.size == 0:
             continue
         pos, faces, uv, colors, normals = _split_for_gltf(scan, sel)
+        pos = pos - shift
         if uv is not None and material.image is not None:
             # a glTF material's own parameters and maps come back as they were; other materials are matte,
             # not metallic, and seen from both sides (a scan's open surfaces)
@@ -438,7 +467,8 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
         if scan.face_colors is not None and visual is None:
             mesh.visual.face_colors = scan.face_colors[sel]
         # the index prefix keeps the materials' order through trimesh's name-sorted export
-        scene.add_geometry(mesh, geom_name=f"{m:04d}_{material.name}", node_name=f"{m:04d}_{material.name}")
+        scene.add_geometry(mesh, geom_name=f"{m:04d}_{material.name}", node_name=f"{m:04d}_{material.name}",
+                           transform=transform)
     data = scene.export(file_type="glb")
     extensions = {m.name: m.gltf["extensions"] for m in scan.materials if m.gltf.get("extensions")}
     files.path(path).write_bytes(_with_material_extensions(data, extensions) if extensions else data)

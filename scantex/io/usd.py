@@ -339,9 +339,13 @@ def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> 
     from scantex.deps import require
 
     require("pxr", "writing USD files")
-    from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-    if not np.array_equal(scan.positions.astype(np.float32).astype(np.float64), scan.positions):
+    from scantex.io.trimesh_formats import float32_origin
+
+    shift = float32_origin(scan.positions)  # a georeferenced scan's points about its centre: see there
+    points = (scan.positions - shift).astype(np.float32)
+    if not np.array_equal(points.astype(np.float64) + shift, scan.positions):
         log.info("%s: USD stores float32 points; this scan's float64 coordinates are rounded in the USDZ "
                  "(the OBJ output keeps them exactly)", path)
     with tempfile.TemporaryDirectory(prefix="scantex-usdz-") as work:
@@ -351,8 +355,10 @@ def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> 
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
         root = UsdGeom.Xform.Define(stage, "/Scan")
         stage.SetDefaultPrim(root.GetPrim())
+        if shift.any():  # the points' centre, exact in double precision
+            root.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*(float(c) for c in shift)))
         mesh = UsdGeom.Mesh.Define(stage, "/Scan/mesh")
-        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(scan.positions.astype(np.float32)))
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points))
         mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(scan.n_faces, 3, np.int32)))
         mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(scan.faces.astype(np.int32).ravel()))
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)  # a scan's triangles as they are, not a limit surface

@@ -15,7 +15,6 @@ import shutil
 import signal
 import struct
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -69,6 +69,27 @@ def test_glb_roundtrip_keeps_float32_geometry_exactly(tmp_path, make):
     assert same_triangles(scan, load_scan(tmp_path / "m2.glb"))
 
 
+@pytest.mark.parametrize("ext", [".glb", ".usdz"])
+def test_georeferenced_coordinates_keep_their_precision(tmp_path, ext):
+    """float32 rounds UTM-sized coordinates (some 500 km) by up to 6 cm; a GLB or USDZ holds such a scan about
+    its centre, which its node's or prim's translation adds back: millimetres stay millimetres."""
+    if ext == ".usdz":
+        pytest.importorskip("pxr")
+    scan = grid_wall(8, 6)
+    far = Scan(scan.positions + np.array([512345.678, 4123456.789, 123.456]), scan.faces, scan.uvs,
+               scan.face_uvs, scan.face_materials, scan.materials)
+    assert np.abs(far.positions.astype(np.float32) - far.positions).max() > 0.01  # what float32 alone gives
+    save_scan(far, tmp_path / f"far{ext}")
+    back = load_scan(tmp_path / f"far{ext}")
+    assert np.array_equal(back.faces, far.faces) or same_triangles(far, back)
+    size = np.ptp(far.positions, axis=0).max()
+    assert np.abs(distinct_positions(back) - distinct_positions(far)).max() < 1e-6 * size
+    # a scan near the origin is written as before: no translation, its float32 positions bit for bit
+    near = float32_scan(scan)
+    save_scan(near, tmp_path / f"near{ext}")
+    assert np.array_equal(distinct_positions(load_scan(tmp_path / f"near{ext}")), distinct_positions(near))
+
+
 def test_glb_texture_survives(tmp_path, cube):
     save_scan(cube, tmp_path / "c.glb")
     back = load_scan(tmp_path / "c.glb")
