@@ -11,8 +11,9 @@ shortest round-trip form (``repr``), so every coordinate survives bit for bit.
 from __future__ import annotations
 
 import logging
+import os
 import re
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
@@ -104,7 +105,7 @@ def parse_mtl(path: Path) -> dict[str, dict]:
     """Materials of an MTL file: ``{name: {"diffuse": (r, g, b, a), "map_Kd": Path | None, "maps": {kind:
     Path}}}`` (``maps``: :data:`MTL_MAPS`)."""
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
     except OSError as e:
         raise ScanError(path, f"cannot read material library ({e.strerror})") from None
     materials: dict[str, dict] = {}
@@ -126,12 +127,44 @@ def parse_mtl(path: Path) -> dict[str, dict]:
             current["diffuse"][3] = _mtl_numbers(path, line, rest, 1, 1)[0]
         elif key.lower() == "map_kd":
             name = map_file_name(rest)
-            current["map_Kd"] = (path.parent / name.replace("\\", "/")) if name else None
+            current["map_Kd"] = find_texture(path.parent, name) if name else None
         elif key.lower() in MTL_MAPS:
             name = map_file_name(rest)
             if name:
-                current["maps"][MTL_MAPS[key.lower()]] = path.parent / name.replace("\\", "/")
+                current["maps"][MTL_MAPS[key.lower()]] = find_texture(path.parent, name)
     return materials
+
+
+def find_texture(folder: Path, name: str) -> Path:
+    """The file an MTL's texture ``name`` means, relative to the MTL's ``folder``: as written (backslashes as
+    separators, quotes around it dropped), else, where that file is not there, the same name in another
+    case (an export made on a case-blind iOS, macOS or Windows disk: ``Tex.JPG`` for ``tex.jpg``), else its
+    bare file name beside the MTL (an absolute path of the machine that wrote it, ``C:\\Users\\...\\tex.jpg``,
+    copied along with the scan). The name as written where none of them is a file (its warning names it)."""
+    name = name.strip()
+    if len(name) > 1 and name[0] == name[-1] and name[0] in "\"'":
+        name = name[1:-1]
+    name = name.replace("\\", "/")
+    written = folder / name
+    if written.is_file():
+        return written
+    for candidate in (written, folder / PurePosixPath(name).name):
+        found = _in_any_case(candidate)
+        if found is not None:
+            log.info("%s: texture '%s' read from %s", folder, name, found)
+            return found
+    return written
+
+
+def _in_any_case(path: Path) -> Path | None:
+    """``path`` itself, or the one file of its folder whose name differs from it only in case."""
+    if path.is_file():
+        return path
+    try:
+        matches = [e.path for e in os.scandir(path.parent) if e.name.lower() == path.name.lower() and e.is_file()]
+    except OSError:
+        return None
+    return Path(matches[0]) if len(matches) == 1 else None
 
 
 def mtllib_paths(obj_path: Path, rest: str) -> list[Path]:
@@ -151,7 +184,7 @@ def read_obj(path: str | Path) -> Scan:
         raise ScanError(path, f"cannot read file ({e.strerror})") from None
     if b"\x00" in data[:4096]:
         raise ScanError(path, "not a text OBJ file (binary data)")
-    text = data.decode("utf-8", errors="replace")
+    text = data.decode("utf-8-sig", errors="replace")  # a byte-order mark (Windows editors') is no text
 
     v_rows, vt_rows, vn_rows = [], [], []
     v_lines, vt_lines, vn_lines = [], [], []

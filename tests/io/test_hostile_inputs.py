@@ -459,6 +459,31 @@ def test_map_kd_options_before_the_file_name(tmp_path, line):
     assert load_scan(mesh).materials[0].image is not None
 
 
+@pytest.mark.parametrize("line", ["map_Kd TEX0.png", "map_Kd C:\\Users\\me\\scans\\tex0.png",
+                                  "map_Kd /home/someone/else/tex0.png", 'map_Kd "tex0.png"'])
+def test_map_kd_as_other_machines_write_it(tmp_path, line):
+    """A texture named in another case (made on a case-blind disk), by the absolute path of the machine that
+    wrote it, or in quotes: the file beside the MTL, as viewers find it."""
+    mesh = write_cube(tmp_path)
+    mtl = tmp_path / "m.mtl"
+    mtl.write_text(mtl.read_text().replace("map_Kd tex0.png", line))
+    assert load_scan(mesh).materials[0].image is not None
+
+
+@pytest.mark.parametrize("which", ["obj", "mtl"])
+def test_a_byte_order_mark_is_no_text(tmp_path, which):
+    """Windows editors start a UTF-8 file with a byte-order mark: the OBJ's first line (``mtllib``) or the
+    MTL's (``newmtl``) were read as another word, and the scan lost its texture."""
+    mesh = write_cube(tmp_path)
+    f = mesh if which == "obj" else tmp_path / "m.mtl"
+    # the first line is the one at stake: scantex's own files start with a comment
+    f.write_text("".join(ln for ln in f.read_text().splitlines(keepends=True) if not ln.startswith("#")))
+    assert f.read_text().split(None, 1)[0] in ("mtllib", "newmtl")
+    f.write_bytes(b"\xef\xbb\xbf" + f.read_bytes())
+    a = load_scan(mesh)
+    assert a.materials[0].image is not None and np.array_equal(a.faces, load_scan(write_cube(tmp_path / "b")).faces)
+
+
 def test_mtllib_with_several_files(tmp_path):
     mesh = write_cube(tmp_path)
     mtl = (tmp_path / "m.mtl").read_text()
