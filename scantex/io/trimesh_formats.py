@@ -22,11 +22,30 @@ from scantex.scan import GLTF_PARAMETERS, Material, Scan, TextureMap
 log = logging.getLogger(__name__)
 
 
+def _gltf_resolver(folder: Path):
+    """trimesh's resolver of a glTF's files, by their URIs: ``texture%200.png`` is the file ``texture 0.png``
+    (Blender writes it so); trimesh looks for the URI as a file name and drops a texture it cannot find
+    without a word."""
+    from urllib.parse import unquote
+
+    from trimesh.resolvers import FilePathResolver
+
+    class UriResolver(FilePathResolver):
+        def get(self, name: str):
+            try:
+                return super().get(unquote(name))
+            except (FileNotFoundError, ValueError):
+                return super().get(name)
+
+    return UriResolver(str(folder))
+
+
 def _load_scene(path: Path):
     import trimesh
 
     try:
-        loaded = trimesh.load(path, process=False, force="scene")
+        resolver = _gltf_resolver(path.parent) if path.suffix.lower() == ".gltf" else None
+        loaded = trimesh.load(path, process=False, force="scene", resolver=resolver)
     except ScanError:
         raise
     except Exception as e:  # trimesh raises anything from KeyError to struct.error on broken files
@@ -145,6 +164,7 @@ def _gltf_document(path: Path) -> tuple[dict | None, bytes]:
 def _gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[list[tuple[str, bytes | Path]], list[Path]]:
     """The images a GLB/glTF holds, as ``(label, bytes or file)``, and the external files it names."""
     import base64
+    from urllib.parse import unquote
 
     if doc is None:
         return [], []
@@ -153,7 +173,7 @@ def _gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[list[tupl
         for item in doc.get(key) or []:
             uri = item.get("uri") if isinstance(item, dict) else None
             if isinstance(uri, str) and not uri.startswith("data:"):
-                files.append(path.parent / uri)
+                files.append(path.parent / unquote(uri))
     views = doc.get("bufferViews") or []
     for i, image in enumerate(doc.get("images") or []):
         if not isinstance(image, dict):
@@ -163,8 +183,8 @@ def _gltf_images(path: Path, doc: dict | None, binary: bytes) -> tuple[list[tupl
         try:
             if isinstance(uri, str) and uri.startswith("data:"):
                 images.append((label, base64.b64decode(uri.split(",", 1)[1])))
-            elif isinstance(uri, str):
-                images.append((f"texture image {uri}", path.parent / uri))
+            elif isinstance(uri, str):  # a relative URI: "texture%200.png" is the file "texture 0.png"
+                images.append((f"texture image {unquote(uri)}", path.parent / unquote(uri)))
             elif isinstance(view, int) and 0 <= view < len(views) and binary:
                 v = views[view]
                 start = int(v.get("byteOffset", 0))

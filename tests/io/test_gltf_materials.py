@@ -17,7 +17,7 @@ from scantex.io import load_scan, save_scan
 from scantex.pipeline.enhance import enhance
 from scantex.scan import Material, Scan, TextureMap
 from scantex.uv import plan_uvs
-from tests.conftest import checker, grid_wall, shared_scan
+from tests.conftest import checker, grid_wall, shared_scan, textured_cube
 from tests.pipeline.test_enhance import TOY
 
 
@@ -314,3 +314,21 @@ def test_an_unlit_scan_stays_unlit(tmp_path):
 
     rewritten_glb(tmp_path / "unlit.glb", tmp_path / "mixed.glb", two_materials_differ)
     assert "extensions" not in load_scan(tmp_path / "mixed.glb").materials[0].gltf
+
+
+def test_gltf_file_uris_are_percent_decoded(tmp_path):
+    """A glTF names its files by URI: ``texture%200.png`` is the file ``texture 0.png`` (Blender writes a space
+    so). The texture had been refused as missing, and trimesh alone drops it without a word."""
+    scan = textured_cube(materials=1)
+    save_scan(scan, tmp_path / "c.glb")
+    files = trimesh.load(tmp_path / "c.glb", process=False).export(file_type="gltf")
+    doc = json.loads(files.pop("model.gltf"))
+    assert len(doc["images"]) == 1
+    Image.fromarray(scan.materials[0].image[..., :3]).save(tmp_path / "texture 0.png")
+    doc["images"][0] = {"uri": "texture%200.png", "mimeType": "image/png"}  # a file, not the buffer's copy
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    (tmp_path / "m.gltf").write_text(json.dumps(doc))
+    back = load_scan(tmp_path / "m.gltf")
+    assert back.materials[0].image is not None
+    assert np.array_equal(back.materials[0].image[..., :3], scan.materials[0].image[..., :3])
