@@ -56,7 +56,9 @@ class TextureMap:
     def of(cls, image, data: bytes | None = None) -> TextureMap:
         """The map of a decoded Pillow ``image`` (its channels as stored; a palette or other mode as RGB),
         keeping ``data``, its file's bytes, when they are a JPEG or a PNG (what glTF, USD and MTL all read)."""
-        pixels = np.asarray(image if image.mode in ("L", "LA", "RGB", "RGBA") else image.convert("RGB"))
+        from scantex.io.images import rgb8
+
+        pixels = np.asarray(image) if image.mode in ("L", "LA", "RGB", "RGBA") else rgb8(image)
         return cls(pixels, data if data is not None and image.format in ("JPEG", "PNG") else None)
 
     def file_bytes(self, png_cache: dict | None = None) -> bytes:

@@ -99,10 +99,25 @@ def _first_line(e: BaseException) -> str:
     return text.splitlines()[0][:120] if text else type(e).__name__
 
 
+def rgb8(im) -> np.ndarray:
+    """``(H, W, 3) uint8`` RGB of a Pillow image of any mode. Pillow's own conversion clips a 16-bit greyscale
+    image (modes ``I;16``, ``I``) at 255, all but its darkest levels white; it is scaled down to 8 bits here,
+    and a float image (``F``) read as [0, 1] where it lies there, else as 8-bit levels."""
+    if im.mode.startswith("I") or im.mode == "F":
+        levels = np.asarray(im, dtype=np.float64)
+        if im.mode.startswith("I"):
+            levels = levels / 257.0  # 65535 -> 255
+        elif levels.size and np.nanmax(levels) <= 1.0:
+            levels = levels * 255.0
+        grey = np.rint(np.clip(np.nan_to_num(levels), 0, 255)).astype(np.uint8)
+        return np.repeat(grey[..., None], 3, axis=2)
+    return np.asarray(im.convert("RGB"))
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """``(H, W, 3) uint8`` RGB of an image file (alpha dropped: scan textures are opaque)."""
     with open_image(path, "texture") as im:
-        return np.asarray(im.convert("RGB"))
+        return rgb8(im)
 
 
 def image_from_pil(image, where) -> np.ndarray:
@@ -110,7 +125,7 @@ def image_from_pil(image, where) -> np.ndarray:
 
     check_image_size(image, where, "embedded texture image")
     try:
-        return np.asarray(image.convert("RGB"))
+        return rgb8(image)
     except Image.DecompressionBombError:
         raise ScanError(where, "embedded texture image claims more pixels than scantex reads") from None
     except (OSError, SyntaxError, ValueError, EOFError) as e:

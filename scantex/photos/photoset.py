@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.io.images import open_image
+from scantex.io.images import open_image, rgb8
 from scantex.views.camera import Camera
 
 #: metres per unit of an integer depth map in every format scantex reads: uint16 PNG in millimetres (a float map,
@@ -253,7 +253,7 @@ class PhotoSet:
                 if size != (cam.width, cam.height):
                     raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
                                           f"{cam.width}x{cam.height}")
-                return np.asarray(im.convert("RGB"))
+                return rgb8(im)
 
         image = self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
         if image.shape[:2] != (cam.height, cam.width):  # decoded for a set whose camera says another size
