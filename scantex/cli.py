@@ -373,6 +373,9 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"UV layout: {unmapped['charted']} faces it gave no texture space (every UV corner on one point, "
                      f"or outside the atlas) charted in free atlas space and filled"
                      + (f"; {unmapped['left']} found no free space" if unmapped.get("left") else ""))
+    if unmapped.get("wrapped"):
+        lines.append(f"UV layout: {unmapped['wrapped']} faces whose UVs lie in one whole tile outside [0, 1] moved "
+                     "into the atlas (the texture repeats there: the same texels)")
     if "held_out_vs_ground_truth" in m:
         s = m["held_out_vs_ground_truth"]
         lines.append(f"held-out views vs ground truth: PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB, "

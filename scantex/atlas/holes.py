@@ -119,10 +119,23 @@ def _face_levels(scan: Scan, faces: np.ndarray) -> np.ndarray:
 
 
 def unmapped_faces(scan: Scan) -> np.ndarray:
-    """``(F,) bool``: faces whose UVs lie entirely outside the atlas, or whose UV triangle has no area."""
+    """``(F,) bool``: faces whose UVs lie entirely outside the atlas (but inside no one whole tile of the plane:
+    :func:`whole_tiles`), or whose UV triangle has no area."""
     uv = scan.triangle_uvs  # [F, 3, 2]
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    return (np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 1e-14) | ((uv < 0) | (uv > 1)).any(axis=2).all(axis=1)
+    outside = ((uv < 0) | (uv > 1)).any(axis=2).all(axis=1) & ~whole_tiles(uv)[1]
+    return (np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 1e-14) | outside
+
+
+def whole_tiles(uv: np.ndarray, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """``(tile (F, 2), off (F,) bool)`` of UV triangles ``uv (F, 3, 2)``: the whole tile ``[k, k + 1] x [l, l + 1]``
+    of the plane each one's centre lies in, and whether the triangle lies inside it and it is not the atlas's
+    own. A texture repeats outside ``[0, 1]`` (glTF's default and every OBJ viewer's): such a face shows the
+    texels of its triangle moved by ``(-k, -l)`` (:func:`scantex.uv.unmapped.wrap_whole_tiles`)."""
+    tile = np.floor(uv.mean(axis=1))
+    local = uv - tile[:, None, :]
+    off = (tile != 0).any(axis=1) & ((local >= -eps) & (local <= 1 + eps)).all(axis=(1, 2))
+    return tile, off
 
 
 def _black_all_over(scan: Scan) -> np.ndarray:

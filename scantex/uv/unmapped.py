@@ -15,7 +15,7 @@ import logging
 
 import numpy as np
 
-from scantex.atlas.holes import unmapped_faces
+from scantex.atlas.holes import unmapped_faces, whole_tiles
 from scantex.atlas.texelmap import uv_to_pixel
 from scantex.scan import Scan
 
@@ -33,11 +33,12 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
     every other face's UVs are unchanged."""
     if not scan.is_textured:
         return scan, None
+    scan, wrapped = wrap_whole_tiles(scan)
     tri = scan.triangles  # [F, 3, 3]
     lengths = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2)  # [F, 3]: |p1 - p0|, |p2 - p1|, |p0 - p2|
     unmapped = unmapped_faces(scan) & (scan.face_areas > 0)
     if not unmapped.any():
-        return scan, None
+        return scan, ({"faces": 0, "charted": 0, "left": 0, "wrapped": wrapped} if wrapped else None)
     new_uvs, new_face_uvs = [scan.uvs], scan.face_uvs.copy()
     charted, left = 0, 0
     next_uv = len(scan.uvs)
@@ -64,10 +65,36 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
         next_uv += 3 * take
         charted += take
     if charted == 0:
-        return scan, {"faces": int(unmapped.sum()), "charted": 0, "left": int(left)}
+        return scan, {"faces": int(unmapped.sum()), "charted": 0, "left": int(left), "wrapped": wrapped}
     log.info("gave %d unmapped faces a chart of their own (%d left as they were)", charted, left)
     out = scan.replace(uvs=np.concatenate(new_uvs).astype(scan.uvs.dtype), face_uvs=new_face_uvs)
-    return out, {"faces": int(unmapped.sum()), "charted": int(charted), "left": int(left)}
+    return out, {"faces": int(unmapped.sum()), "charted": int(charted), "left": int(left), "wrapped": wrapped}
+
+
+def wrap_whole_tiles(scan: Scan) -> tuple[Scan, int]:
+    """``scan`` with every face whose UV triangle lies inside one whole tile of the plane other than the atlas's
+    own, ``[k, k + 1] x [l, l + 1]``, moved into ``[0, 1]^2`` by ``(-k, -l)``, and how many faces moved. A
+    texture repeats outside ``[0, 1]`` (glTF's default, and every OBJ viewer's), so such a face shows the
+    same texels there; read as lying outside the atlas, it would be taken for a face without texture space,
+    and a layout shifted whole by one tile lost its whole texture. Faces across a tile's border (a texture
+    repeated over them) keep their UVs."""
+    tile, move = whole_tiles(scan.triangle_uvs)
+    if not move.any():
+        return scan, 0
+    faces = np.flatnonzero(move)
+    # a UV vertex that faces in several tiles share becomes one per tile: new vertices for the moved corners
+    corners = scan.face_uvs[faces].ravel()
+    shifted = scan.uvs[corners] - np.repeat(tile[faces], 3, axis=0)
+    keys, inverse = np.unique(np.column_stack([corners, np.repeat(tile[faces], 3, axis=0)]), axis=0,
+                              return_inverse=True)
+    first = np.zeros(len(keys), np.int64)
+    first[inverse.ravel()] = np.arange(len(corners))
+    face_uvs = scan.face_uvs.copy()
+    face_uvs[faces] = len(scan.uvs) + inverse.reshape(-1, 3)
+    uvs = np.concatenate([scan.uvs, shifted[first]]).astype(scan.uvs.dtype)
+    log.info("moved %d faces whose UVs lie in one whole tile outside [0, 1] into the atlas (the texture "
+             "repeats there)", faces.size)
+    return scan.replace(uvs=uvs, face_uvs=face_uvs), int(faces.size)
 
 
 def _texels_per_metre(scan: Scan, faces: np.ndarray, W: int, H: int) -> float:

@@ -37,7 +37,7 @@ def test_unmapped_faces_get_charts_of_their_own_in_free_space_and_every_other_uv
     assert np.array_equal(unmapped_faces(scan), block) and block.sum() == 18
     plan = plan_uvs(scan, "keep")
     out = plan.scan
-    assert plan.report["unmapped"] == {"faces": 18, "charted": 18, "left": 0}
+    assert plan.report["unmapped"] == {"faces": 18, "charted": 18, "left": 0, "wrapped": 0}
     assert out.positions is scan.positions and out.faces is scan.faces
     np.testing.assert_array_equal(out.triangle_uvs[~block], scan.triangle_uvs[~block])  # the rest kept
     assert not unmapped_faces(out).any()
@@ -93,3 +93,27 @@ def test_tiles_chart_the_unmapped_faces_once_for_the_whole_scan():
     f = np.repeat(np.flatnonzero(block), 20)
     bary = np.random.default_rng(0).dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
     assert shade_hits(out, f, bary).min() > 0.1
+
+
+def test_faces_in_a_whole_tile_outside_the_atlas_show_the_texels_the_texture_repeats_there():
+    """UVs moved by whole tiles ([1, 2], [-1, 0]: the texture repeats there, in glTF and every OBJ viewer) are the
+    same texels. Read as outside the atlas, the faces had been taken for holes: a layout moved whole by one
+    tile was refused ("no view sees any of the surface"), and one moved in part was filled flat there."""
+    wall = grid_wall(n=13, size=1.0)
+    image = to_uint8(np.random.default_rng(0).uniform(0.1, 0.9, (64, 64, 3)))
+    scan = wall.replace(materials=(Material("wall", image),))
+    left = wall.triangles.mean(axis=1)[:, 0] < 0.5
+    face_uvs = scan.face_uvs.copy()
+    face_uvs[left] += len(scan.uvs)  # the left half's faces on UVs of their own, moved by (+1, -1)
+    moved = scan.replace(uvs=np.concatenate([scan.uvs, scan.uvs + [1.0, -1.0]]), face_uvs=face_uvs)
+    f = np.repeat(np.arange(scan.n_faces), 4)
+    bary = np.random.default_rng(1).dirichlet([2, 2, 2], len(f))[:, 1:].astype(np.float32)
+    np.testing.assert_allclose(shade_hits(moved, f, bary), shade_hits(scan, f, bary), atol=1e-6)  # as viewers show it
+    assert not unmapped_faces(moved).any() and not untextured_faces(moved).any()
+    plan = plan_uvs(moved, "keep")
+    assert plan.report["unmapped"]["wrapped"] == left.sum() and plan.report["unmapped"]["charted"] == 0
+    np.testing.assert_allclose(plan.scan.triangle_uvs, scan.triangle_uvs, atol=1e-12)
+    result = enhance(moved, preset("fast"))
+    np.testing.assert_array_equal(result.scan.faces, scan.faces)
+    # the written texture shows each face what the input showed it (its texels kept: no hole, no fill)
+    np.testing.assert_allclose(shade_hits(result.scan, f, bary), shade_hits(moved, f, bary), atol=0.02)
