@@ -426,8 +426,6 @@ def enhance_summary(m: dict) -> str:
 
 
 def cmd_compare(args) -> int:
-    import json
-
     from scantex.io import load_scan
     from scantex.metrics.compare import compare, read_photos, summary_lines
 
@@ -440,10 +438,11 @@ def cmd_compare(args) -> int:
     result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
     if args.json:
         from scantex.io.atomic import atomic_files
+        from scantex.report.html import strict_json
 
         args.json.parent.mkdir(parents=True, exist_ok=True)
         with atomic_files() as files:
-            files.path(args.json).write_text(json.dumps(result, indent=2))
+            files.path(args.json).write_text(strict_json(result, indent=2))
     _echo(args, summary_lines(result))
     if args.json:
         _echo(args, f"metrics written to {args.json}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 
@@ -80,10 +79,10 @@ def usd_input(result) -> bool:
 def _write_the_rest(result, out_dir: Path) -> None:
     """What :func:`write_outputs` writes besides the scan: metrics, config, renders, comparisons, report."""
     from scantex.report import write_report
-    from scantex.report.html import json_default
+    from scantex.report.html import strict_json
 
     metrics = completed_metrics(result)
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
+    (out_dir / "metrics.json").write_text(strict_json(metrics, indent=2))
     save_config(result.config, out_dir / "config.json")
     write_views(result.views.views, out_dir / "renders")
     if result.comparisons:

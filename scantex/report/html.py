@@ -130,7 +130,7 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
         _section("Timings", _timings(metrics.get("timings_s", {}))),
         _section("Config", f"<pre>{html.escape(json.dumps(result.config.to_dict(), indent=2))}</pre>"),
         _section("All metrics (metrics.json)", f"<details><summary>show</summary><pre>"
-                 f"{html.escape(json.dumps(metrics, indent=2, default=json_default))}</pre></details>"),
+                 f"{html.escape(strict_json(metrics, indent=2))}</pre></details>"),
     ]
     return PAGE.format(title=html.escape(f"scantex report: {name}"), plotlyjs=plotlyjs,
                        style=STYLE + COMPARE_STYLE, script=SYNC_SCRIPT + COMPARE_SCRIPT, date=time.strftime("%Y-%m-%d %H:%M"),
@@ -517,7 +517,7 @@ def _fmt(v) -> str:
         return f"{int(v):,}"
     if isinstance(v, (float, np.floating)):
         return _num(v)
-    return html.escape(json.dumps(v, default=json_default))
+    return html.escape(strict_json(v))
 
 
 def _img(image: np.ndarray, alt: str, kind: str = "", data_name: str | None = None) -> str:
@@ -532,13 +532,27 @@ def _img(image: np.ndarray, alt: str, kind: str = "", data_name: str | None = No
     return f'<img class="{kind}"{name} alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def json_default(value):
-    """``json.dumps(default=...)`` for numpy scalars and arrays."""
+def json_safe(value):
+    """``value`` as strict JSON holds it: numpy scalars and arrays as Python's, and a float that is not finite
+    (NaN, infinity) as ``null``. ``json.dumps`` writes those as ``NaN`` and ``Infinity``, which no JSON parser
+    but Python's reads (a photo that sees nothing has no pose error: ``NaN`` made ``metrics.json`` unreadable
+    to a browser's ``JSON.parse``)."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
     if isinstance(value, np.generic):
         return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(type(value))
+    return value
+
+
+def strict_json(value, **kwargs) -> str:
+    """``json.dumps`` of :func:`json_safe` ``(value)``: JSON every parser reads."""
+    return json.dumps(json_safe(value), allow_nan=False, **kwargs)
 
 
 STYLE = """

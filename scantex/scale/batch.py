@@ -192,6 +192,7 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
         from scantex.io.atomic import atomic_dir
         from scantex.pipeline.enhance import enhance
         from scantex.pipeline.outputs import work_dir_for, write_outputs
+        from scantex.report.html import strict_json
 
         torch.set_num_threads(threads)
         cfg = EnhanceConfig.from_dict(config).override(threads=threads)
@@ -212,7 +213,7 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
                           geometry_identical=bool(metrics["geometry"]["arrays_identical"]),
                           report=f"{scan.name}/report.html", seconds=round(time.perf_counter() - t0, 2),
                           peak_memory_gib=round(peak_memory() / GiB, 3))
-            (tmp / RECORD).write_text(json.dumps(record, indent=2))
+            (tmp / RECORD).write_text(strict_json(record, indent=2))
         shutil.rmtree(work, ignore_errors=True)
     except ScanError as e:
         record.update(status="failed", error=str(e))

@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import html
 import io
-import json
 import time
 from pathlib import Path
 
@@ -45,8 +44,10 @@ def write_summary(out_dir: Path, records: list[dict], *, executor: str, seconds:
     writer.writeheader()
     writer.writerows(table)
     out_dir.mkdir(parents=True, exist_ok=True)
+    from scantex.report.html import strict_json
+
     with atomic_files() as files:
-        files.path(out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        files.path(out_dir / "summary.json").write_text(strict_json(summary, indent=2))
         files.path(out_dir / "summary.csv").write_text(text.getvalue())
         files.path(out_dir / "index.html").write_text(index_html(summary, table), encoding="utf-8")
 

@@ -174,3 +174,22 @@ def test_held_out_views_show_the_renders_the_metrics_scored(page, result, monkey
     given = build_report(dataclasses.replace(result, renders=shown))
     views = lambda p: re.findall(r'<div class="compare" id="compare-view-.*?</table>', p, re.S)  # noqa: E731
     assert views(given) and views(given) == views(page)
+
+
+def test_metrics_are_json_every_parser_reads():
+    """A photo that sees nothing has no pose error (NaN): ``json.dumps`` wrote ``NaN``, which a browser's
+    ``JSON.parse`` refuses. Non-finite floats are ``null``; numpy values are Python's."""
+    import json
+
+    import numpy as np
+
+    from scantex.report.html import strict_json
+
+    metrics = {"poses": [{"error_before": float("nan"), "error_after": np.float32("inf")}],
+               "psnr": np.float64(21.5), "counts": np.arange(3), "ok": np.bool_(True)}
+    text = strict_json(metrics, indent=2)
+    assert "NaN" not in text and "Infinity" not in text
+    # Python's parser made strict: it refuses the constants a browser's refuses
+    back = json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+    assert back == {"poses": [{"error_before": None, "error_after": None}], "psnr": 21.5, "counts": [0, 1, 2],
+                    "ok": True}
