@@ -225,7 +225,8 @@ def _enhance_capture(args, config, capture) -> int:
     if photos_path:
         from scantex.photos import load_photos
 
-        photos = load_photos(photos_path)
+        photos = load_photos(photos_path, **({} if args.max_distortion is None
+                                             else {"max_distortion_px": args.max_distortion}))
         _echo(args, f"{photos_path}: {len(photos)} photos ({photos.format})")
     tiles = tile_count(args, scan, photos)
     work = work_dir_for(args.output)
@@ -617,6 +618,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     p.add_argument("--no-photos", action="store_true",
                    help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
+    p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
+                   help="with --photos: the largest lens distortion of the photos' camera model scantex ignores, in "
+                        "pixels it moves a pixel by (with a warning: it treats the photos as pinhole images); "
+                        "stronger distortion is refused: undistort the photos first (default: 1)")
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--final-texture", choices=("auto", "training", "all"), default=None,

@@ -137,8 +137,8 @@ def accept_distortion(distortion: Distortion | None, camera: Camera, max_px: flo
     if shift > max_px:
         raise ScanError(where, f"{what}: lens distortion ({distortion.model}) moves pixels by up to "
                                f"{shift:.1f} px; scantex needs undistorted photos (e.g. `colmap "
-                               f"image_undistorter`), or pass max_distortion_px={np.ceil(shift):.0f} "
-                               "to ignore it")
+                               f"image_undistorter`), or allow it with --max-distortion {np.ceil(shift):.0f} "
+                               f"(max_distortion_px={np.ceil(shift):.0f} in Python) to ignore it")
     log.warning("%s: %s: ignoring a small lens distortion (%s, at most %.2f px)", where, what,
                 distortion.model, shift)
     return distortion

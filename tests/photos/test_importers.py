@@ -259,6 +259,20 @@ def test_strong_distortion_is_refused(tmp_path):
     assert len(load_photos(tmp_path, max_distortion_px=10)) == 1
 
 
+def test_the_cli_says_how_to_allow_a_distortion_and_takes_it(tmp_path, capsys):
+    """The refusal named a Python argument the command line does not have; ``--max-distortion`` is its
+    option."""
+    from tests.io.hostile import assert_clean_error, run_cli, write_cube
+
+    write_opencv_colmap(tmp_path, k1=0.2)
+    mesh = write_cube(tmp_path / "scan")
+    rc, err = run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q")
+    assert_clean_error(rc, err, "undistorted photos", "--max-distortion 3")
+    rc, err = run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q",
+                      "--max-distortion", "3")
+    assert "distortion" not in err  # the photos are read; what stops this toy capture comes later
+
+
 def test_small_distortion_is_ignored_with_a_warning(tmp_path, caplog):
     write_opencv_colmap(tmp_path, k1=0.001)
     with caplog.at_level(logging.WARNING):
