@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from scantex.errors import ScanError
@@ -9,6 +10,8 @@ from scantex.photos import cameras_json, colmap, nerfstudio, polycam, scannerapp
 from scantex.photos.conventions import MAX_DISTORTION_PX
 from scantex.photos.files import load_json
 from scantex.photos.photoset import PhotoSet
+
+log = logging.getLogger(__name__)
 
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
            "also under sparse/0), keyframes/ (Polycam raw data) or frame_*.json (3D Scanner App)")
@@ -76,4 +79,23 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
     loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
                scannerapp.FORMAT: scannerapp.load_3dscannerapp}
-    return loaders[fmt](target, max_distortion_px=max_distortion_px)
+    return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
+
+
+def without_repeats(photos: PhotoSet) -> PhotoSet:
+    """``photos`` less the frames that name a photo file an earlier frame names (a camera file listing a frame
+    twice), with a warning. A repeated photo adds nothing to the texture, and one of its copies held out for
+    the score would be scored on a photo the texture was made from."""
+    first: dict[Path, int] = {}
+    keep: list[int] = []
+    for i, image in enumerate(photos.images):
+        key = image.resolve()
+        if key not in first:
+            first[key] = i
+            keep.append(i)
+    if len(keep) == len(photos):
+        return photos
+    repeated = sorted(set(range(len(photos))) - set(keep))
+    log.warning("%s: %d frames name a photo an earlier frame names (e.g. %s): each photo is used once",
+                photos.source, len(repeated), photos.images[repeated[0]].name)
+    return photos.subset(keep)

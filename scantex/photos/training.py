@@ -327,6 +327,9 @@ def split_photos(n: int, holdout: float, seed: int = 0) -> tuple[np.ndarray, np.
     if n < 2 or holdout <= 0:
         return np.arange(n), np.arange(0)
     k = int(holdout) if holdout >= 1 else int(np.ceil(holdout * n))
+    if k > n - 1:
+        log.warning("holding out %d of the %d photos for the score, not %d: one at least makes the texture",
+                    n - 1, n, k)
     k = min(max(k, 1), n - 1)
     offset = np.random.default_rng(seed).uniform(0, n / k)
     held = np.unique(np.floor(offset + np.arange(k) * n / k).astype(int) % n)

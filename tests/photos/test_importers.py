@@ -252,6 +252,23 @@ def write_opencv_colmap(tmp_path, k1):
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 4 1 a.png\n\n")
 
 
+def test_a_frame_listed_twice_is_used_once(tmp_path, caplog):
+    """A camera file that lists a photo twice: a held-out copy would be scored on a photo the texture was made
+    from (a helper's run scored 26.83 dB against 23.22 for the same capture listed once)."""
+    import json
+
+    from tests.io.hostile import write_photos
+
+    cams = write_photos(tmp_path, n=3)
+    doc = json.loads(cams.read_text())
+    doc["frames"] = doc["frames"] + [dict(doc["frames"][1]), dict(doc["frames"][0])]
+    cams.write_text(json.dumps(doc))
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(cams)
+    assert [p.name for p in photos.images] == ["p0.png", "p1.png", "p2.png"]
+    assert "2 frames name a photo an earlier frame names" in caplog.text
+
+
 def test_strong_distortion_is_refused(tmp_path):
     write_opencv_colmap(tmp_path, k1=0.2)
     with pytest.raises(ScanError, match="undistorted photos"):

@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scantex.photos import PhotoSet
 from scantex.photos.training import (VisibilitySettings, _footprints, colour_match, halved, photo_rays,
                                      prepare_photo, resize_depth, score_photos, split_photos, taught_by_photos,
                                      texture_seen, working_camera)
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster, cast_gbuffer, pixel_footprints
-from scantex.views.render import render, to_uint8
+from scantex.views.render import render
 from tests.conftest import grid_wall, textured_cube
 from tests.photos.test_alignment import photograph
 
@@ -38,7 +37,7 @@ def cube_set(tmp_path, width=96, height=72, depth_error: float | None = None):
     return scan, photos
 
 
-def test_split_spreads_and_never_takes_all():
+def test_split_spreads_and_never_takes_all(caplog):
     train, held = split_photos(14, 0.1)
     assert len(held) == 2 and len(train) == 12 and not set(train) & set(held)
     assert abs(int(held[1]) - int(held[0])) >= 5  # spread, not neighbours
@@ -46,6 +45,9 @@ def test_split_spreads_and_never_takes_all():
     assert len(split_photos(2, 0.9)[1]) == 1  # never all
     assert len(split_photos(1, 0.5)[1]) == 0 and len(split_photos(8, 0)[1]) == 0
     assert np.array_equal(split_photos(20, 0.2, seed=4)[1], split_photos(20, 0.2, seed=4)[1])
+    with caplog.at_level("WARNING"):
+        assert len(split_photos(12, 100)[1]) == 11  # more than there are: said, not only done
+    assert "holding out 11 of the 12 photos for the score, not 100" in caplog.text
 
 
 def test_valid_pixels_see_what_the_photo_shows(tmp_path):
