@@ -19,7 +19,8 @@ Two sources, chosen by ``bake.source``:
 
   Holes (untextured faces) get a harmonic interpolation over the mesh of the colours around them; the
   ring of faces around a hole (whose lookups bleed into it), and every face black in part, keeps its own
-  texels but where they are black.
+  texels but where they are black, or darker than ``FADE_SHARE`` of the fill near black texels (an app's
+  fade into its black).
 
 - ``"field"``: the paper's bake: the field's canonical colour on every taught face (optionally mixed
   with ``detail`` of the input), the canonical input where no training ray reached, hole fill as above.
@@ -159,6 +160,7 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
     corner_bary = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], np.float32)
     normals = scan.face_normals
     darkness = _dark_texels(scan)
+    near_black = _near_black(scan)
     filling = bool(fill.any())
     renormalise = filling and reads_texels
     for s in range(0, idx.size, CHUNK):
@@ -193,10 +195,73 @@ def _with_hole_fill(scan: Scan, base: SurfaceColour, fill: np.ndarray, ring: np.
             if own.size:
                 f, b = face_ids[own], bary[own]
                 share, dark = darkness(f, b, offset)
-                rgb[own] = np.clip(base(points[own], normals[own], f, b) - dark + share * rgb[own], 0, 1)
+                filled = rgb[own]
+                kept = np.clip(base(points[own], normals[own], f, b) - dark + share * filled, 0, 1)
+                rgb[own] = _faded_into(kept, filled, near_black(f, b))
         return rgb
 
     return colour
+
+
+#: a texel of a hole's ring darker than this share of the hole fill's brightness at its point, near the
+#: black, is taken for the app's fade into its black (see :func:`_faded_into`)
+FADE_SHARE = 0.7
+#: how far an app's fade reaches from its black, in texels (Polycam's 2048² atlases: some 20)
+FADE_TEXELS = 24
+
+
+def _faded_into(kept: np.ndarray, filled: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """Ring texels ``kept (n, 3)`` blended towards the hole fill ``filled (n, 3)`` at the same points where they
+    are darker than ``FADE_SHARE`` of it (brightest channel) and near the black (``near (n,)``: 1 beside black
+    texels, 0 from ``FADE_TEXELS`` away): fully where they are black, not at all from that share up or that
+    far. An app fades its atlas into its black over the texels around what it did not see (Polycam: levels
+    falling from the surface's own to 0 over some 20 texels); kept as they were, those texels drew a dark,
+    jagged rim along the hole's faces where the fill begins. A ring texel as bright as the fill, a dark
+    surface whose fill is as dark (the fill's seeds are its own colours), and the dark detail of a large ring
+    face away from its hole are kept."""
+    level = FADE_SHARE * np.maximum(filled.max(axis=1), 1e-6)
+    w = (np.clip(1.0 - kept.max(axis=1) / level, 0.0, 1.0) * near)[:, None]
+    return (kept + w * (filled - kept)).astype(kept.dtype)
+
+
+def _near_black(scan: Scan):
+    """A lookup ``(face_ids, bary) -> (N,)`` in [0, 1]: how near the input's black texels (``BLACK_LEVEL``) a
+    surface point lies, falling from 1 beside them to 0 at ``FADE_TEXELS``: twice
+    the black share of the square that far around it, read from a quarter-resolution table made at the first
+    call (an 8192² atlas: 2048², a box filter)."""
+    from scipy.ndimage import uniform_filter
+
+    from scantex.atlas.holes import BLACK_LEVEL
+    from scantex.views.render import hit_uvs, sample_texture
+
+    tables: dict[int, np.ndarray] = {}
+    making = threading.Lock()
+
+    def table(m: int) -> np.ndarray:
+        with making:
+            if m not in tables:
+                image = scan.materials[m].image
+                levels = image[..., :3] if image.dtype == np.uint8 else image[..., :3] * 255.0
+                black = (levels.max(axis=2) <= BLACK_LEVEL).astype(np.float32)
+                H, W = black.shape
+                h, w = max(1, H // 4), max(1, W // 4)
+                quarter = black[:4 * h, :4 * w].reshape(h, 4, w, 4).mean(axis=(1, 3)) if H >= 4 and W >= 4 else black
+                reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
+                size = 2 * max(1, int(round(reach))) + 1
+                tables[m] = np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]
+        return tables[m]
+
+    def near(face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(face_ids), np.float32)
+        uv = hit_uvs(scan, face_ids, bary)
+        materials = scan.face_materials[face_ids]
+        for m, material in enumerate(scan.materials):
+            sel = np.flatnonzero(materials == m)
+            if material.image is not None and sel.size:
+                out[sel] = sample_texture(table(m), uv[sel])[:, 0]
+        return out
+
+    return near
 
 
 def _dark_texels(scan: Scan):

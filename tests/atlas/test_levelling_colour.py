@@ -258,6 +258,52 @@ def test_the_ring_around_a_hole_keeps_its_own_texels():
     assert filled.max() > 0.2  # the hole itself is filled from around it, not black
 
 
+def test_an_apps_fade_into_its_black_around_a_hole_blends_into_the_fill():
+    """Polycam fades its atlas into black over the texels around what it did not see. Kept as they were, those
+    texels drew a dark, jagged rim along the hole's faces where the fill begins; now the ring's texels darker
+    than ``FADE_SHARE`` of the fill, near the black, blend into it, and the ring's other texels are kept."""
+    from scantex.atlas.colour import FADE_SHARE
+    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.inpaint import grow_faces
+    from scantex.views.raycast import interpolate
+    from scantex.views.render import shade_hits
+
+    scan = two_chart_wall(n=4)
+    image = scan.materials[0].image.astype(np.float64)
+    hole = 10
+    a, b, c = scan.triangle_uvs[hole]
+    H, W = image.shape[:2]
+    ys, xs = np.mgrid[0:H, 0:W]
+    u, v = (xs + 0.5) / W, 1 - (ys + 0.5) / H
+    d = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1])
+    l1 = ((b[1] - c[1]) * (u - c[0]) + (c[0] - b[0]) * (v - c[1])) / d
+    l2 = ((c[1] - a[1]) * (u - c[0]) + (a[0] - c[0]) * (v - c[1])) / d
+    inside = np.minimum(np.minimum(l1, l2), 1 - l1 - l2)  # > 0 inside the hole's UV triangle
+    fade = np.clip(-inside / 0.4, 0, 1)  # black inside, the texture's own level 0.4 (barycentric) out
+    scan = scan.replace(materials=(Material("wall", np.rint(image * fade[..., None]).astype(np.uint8)),))
+    holes = untextured_faces(scan)
+    assert holes[hole] and holes.sum() == 1
+    fill = grow_faces(scan, holes)
+    ring = np.flatnonzero(fill & ~holes)
+    colour = levelled_input_colour(scan, np.zeros((len(scan.uvs), 3)), fill)
+    f = np.repeat(ring, 200)
+    bary = np.random.default_rng(0).dirichlet([1, 1, 1], len(f))[:, 1:].astype(np.float32)
+    got = colour(interpolate(f, bary, scan.triangles), scan.face_normals[f], f, bary)
+    own = shade_hits(scan, f, bary)
+    wall = np.median(shade_hits(two_chart_wall(n=4), f, bary).max(axis=1))  # the texture's level, unfaded
+    faded = own.max(axis=1) < 0.5 * wall
+    assert faded.mean() > 0.05  # the fade reaches into the ring: its texels there were kept, dark, before
+    # (without the rule 43 % of them come out above half the wall's level; the far end of the fade, lifted in
+    # part, keeps the rest below)
+    assert (got.max(axis=1)[faded] > 0.5 * wall).mean() > 0.7
+    # the texels the fade leaves alone are kept (but a few of those below FADE_SHARE of a brighter fill there)
+    bright = reads_no_dark_texel(scan, f, bary) & (own.max(axis=1) > 0.8 * wall)
+    assert bright.mean() > 0.3
+    moved = np.abs(got[bright] - own[bright]).max(axis=1)
+    assert (moved < 1e-5).mean() > 0.97 and moved.max() < 0.01
+    assert 0 < FADE_SHARE < 1
+
+
 def test_black_specks_inside_faces_that_are_not_holes_are_filled():
     """An app's atlas is black where its photos did not reach; that border cuts faces in part. A face black
     only around its middle is no hole (its corners are coloured), yet its black texels must not reach the
