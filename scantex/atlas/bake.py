@@ -6,6 +6,7 @@ The geometry and the UV layout are the scan's own; only the texture images are n
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -225,6 +226,33 @@ def _estimated_texels(tri_uv: np.ndarray, H: int, W: int) -> int:
 LAYOUT_SHARE = 0.25
 
 
+#: a base colour channel below this is kept out of the texture (white as before): dividing by it would blow up
+MIN_BASE_COLOUR = 0.05
+
+
+def with_base_colours_of(result: Scan, source: Scan) -> Scan:
+    """``result`` (the input's texels baked: each texel the input's times its material's base colour, ``Kd`` /
+    ``baseColorFactor``) with each textured material's base colour ``source``'s again and its texture divided by
+    it, so that every viewer shows the result as it showed the input. The formats multiply the texture by the
+    base colour, and some viewers do, while others (Blender's OBJ import) show the texture alone: a scan
+    exported from Blender (``Kd 0.8``) had come out 20 % darker there, its texture times 0.8 under ``Kd 1``.
+    Unchanged where the materials do not correspond one to one, or where a base colour is white or nearly
+    black."""
+    if len(result.materials) != len(source.materials):
+        return result
+    materials = []
+    for mine, theirs in zip(result.materials, source.materials):
+        kd = np.asarray(theirs.diffuse[:3], np.float64)
+        if mine.image is None or theirs.image is None or (kd == 1).all() or (kd < MIN_BASE_COLOUR).any() \
+                or mine.image.dtype != np.uint8 or mine.image.ndim != 3:
+            materials.append(mine)
+            continue
+        image = mine.image.copy()
+        image[..., :3] = np.clip(np.rint(image[..., :3] / kd), 0, 255).astype(np.uint8)
+        materials.append(dataclasses.replace(mine, image=image, diffuse=(*theirs.diffuse[:3], mine.diffuse[3])))
+    return result.replace(materials=tuple(materials))
+
+
 def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, texels_per_vertex: float = 0.0,
                                 time_budget_s: float = 60.0) -> Scan:
     """``scan``'s vertex colours as a texture: UVs unwrapped afresh and a square atlas baked from the colours
@@ -243,8 +271,6 @@ def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, texels_per_vert
     check. Vertices black in all three channels are taken as uncoloured (what a fusion leaves where no frame
     saw the surface) and get the harmonic fill of the colours around them first: interpolated over a face
     towards a black corner, they would draw dark rims that the texture's hole fill (black faces) misses."""
-    import dataclasses
-
     from scantex.atlas.inpaint import harmonic_vertex_colours
     from scantex.uv.plan import plan_uvs
     from scantex.views.render import shade_hits

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scantex.atlas.bake import SurfaceColour, bake, output_size
+from scantex.atlas.bake import SurfaceColour, bake, output_size, with_base_colours_of
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.inpaint import grow_faces
 from scantex.atlas.levelling import chart_gains
@@ -898,6 +898,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)", workers)
             bake_report["safety"] = safety
+    if photo is None:  # the input's texels, times their base colour: that colour again, outside the texture
+        enhanced = with_base_colours_of(enhanced, scan)
     timings["bake"] = time.perf_counter() - t
     scored = enhanced
     if remakes:

@@ -324,6 +324,7 @@ def enhance_tile(index: int, sub: Scan, config: dict, threads: int, photos: Phot
         result = enhance(sub, EnhanceConfig.from_dict(config).override(threads=threads), photos=photos)
         m = result.metrics
         return {"index": index, "images": tuple(mat.image for mat in result.scan.materials),
+                "base_colours": tuple(tuple(mat.diffuse[:3]) for mat in result.scan.materials),
                 "uv_identical": bool(np.array_equal(result.scan.uvs, sub.uvs)
                                      and np.array_equal(result.scan.face_uvs, sub.face_uvs)),
                 "faces": sub.n_faces, "seconds": round(time.perf_counter() - t0, 2), "host": socket.gethostname(),
@@ -653,9 +654,11 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
         images, fuse_report = fuse_tiles(scan, plan, [o["images"] for o in outputs], tiling.harmonize)
         for o in outputs:  # a full atlas each, fused: let go (the caller's list holds the same dicts)
             del o["images"]
+        # each texture under the base colour its tiles' textures were made for (see with_base_colours_of)
+        base = outputs[0].get("base_colours") or [(1.0, 1.0, 1.0)] * len(images)
         materials = tuple(m if img is None else dataclasses.replace(
-            m, image=img, image_name=f"enhanced_{m.name}.png", diffuse=(1.0, 1.0, 1.0, m.diffuse[3]))
-            for m, img in zip(scan.materials, images))
+            m, image=img, image_name=f"enhanced_{m.name}.png", diffuse=(*base[k], m.diffuse[3]))
+            for k, (m, img) in enumerate(zip(scan.materials, images)))
         fused = scan.replace(materials=materials, source=None)
         if config.uv.blend_seams:
             from scantex.uv import blend_seams

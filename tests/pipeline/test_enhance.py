@@ -198,6 +198,30 @@ def test_default_bake_keeps_the_input_texels_and_reports_patches(toy_demo, toy_r
     assert m["views"]["rendered"] == m["views"]["total"]  # mesh-only mode renders every view it plans
 
 
+def test_the_inputs_base_colour_stays_outside_the_texture(toy_demo, toy_result, tmp_path):
+    """A scan exported from Blender says ``Kd 0.8`` beside its texture. The formats multiply the texture by it
+    and some viewers do; Blender shows the texture alone. The texels baked are the input's times 0.8: written
+    under ``Kd 1`` they made the result 20 % darker than the input wherever the base colour is not applied.
+    The result keeps ``Kd 0.8`` over the texture the same scan gets under ``Kd 1``, so every viewer shows it as
+    it showed the input."""
+    m = toy_demo.scan.materials[0]
+    scan = toy_demo.scan.replace(materials=(dataclasses.replace(m, diffuse=(0.8, 0.8, 0.8, 1.0)),))
+    out = enhance(scan, TOY).scan.materials[0]
+    assert out.diffuse == (0.8, 0.8, 0.8, 1.0)
+    plain = toy_result.scan.materials[0]  # the same scan under Kd 1
+    assert plain.diffuse[:3] == (1.0, 1.0, 1.0)
+    step = np.abs(out.image.astype(int) - plain.image.astype(int))
+    # a few levels (the rounding of texel * 0.8 / 0.8, and where the fill and levelling round otherwise); the
+    # texture times 0.8 under Kd 1, as before, is tens of levels off
+    darker = np.abs(np.rint(plain.image * 0.8).astype(int) - plain.image.astype(int)).mean()
+    assert step.mean() < 2 and np.quantile(step, 0.99) <= 6 and darker > 10
+    from scantex.io.obj import parse_mtl
+
+    result = toy_result.scan.replace(materials=(out,))
+    save_scan(result, tmp_path / "out.obj")
+    assert parse_mtl(tmp_path / "out.mtl")[out.name]["diffuse"][:3] == [0.8, 0.8, 0.8]
+
+
 def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypatch):
     """The safety net of the default bake: when levelling and refining draw patches (share of held-out
     pixels above PATCH_LIMIT) without removing SEAM_GAIN of the seam visibility, the texels go back to

@@ -128,6 +128,19 @@ def test_tiled_enhance_end_to_end(tmp_path, wall):
     assert (tmp_path / "report.html").exists() and (tmp_path / "enhanced.obj").exists()
 
 
+def test_tiles_keep_the_inputs_base_colour_as_an_untiled_run_does(wall):
+    """Each tile's texture is made for the input's base colour (``Kd 0.8``, outside the texture): the fused
+    texture is written under that colour too, as :func:`enhance` writes its own."""
+    from scantex.pipeline.enhance import enhance
+
+    m = wall.scan.materials[0]
+    scan = wall.scan.replace(materials=(dataclasses.replace(m, diffuse=(0.8, 0.8, 0.8, 1.0)),))
+    tiled = enhance_tiled(scan, TINY, TilingConfig(tiles=2), runner=LocalPool(workers=1)).scan.materials[0]
+    whole = enhance(scan, TINY).scan.materials[0]
+    assert tiled.diffuse == whole.diffuse == (0.8, 0.8, 0.8, 1.0)
+    assert abs(tiled.image.astype(float).mean() - whole.image.astype(float).mean()) < 2
+
+
 def test_tiles_refuse_what_they_cannot_fuse(wall):
     with pytest.raises(ScanError, match="uv.mode 'unwrap'"):
         enhance_tiled(wall.scan, TINY.override(uv__mode="unwrap"), TilingConfig(tiles=2))
