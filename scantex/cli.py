@@ -388,10 +388,10 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"held-out views, enhanced vs input renders (fidelity, not quality): PSNR {s['psnr']:.2f} dB")
     if "held_out_photos" in m:
         s, n = m["held_out_photos"], m["held_out_photos"]["input"].get("photos", 0)
-        blind = len(m.get("photos", {}).get("held_out", [])) - n
-        lines.append(f"{n} held-out photo{'' if n == 1 else 's'}"
-                     + (f" ({blind} more held out see{'s' if blind == 1 else ''} none of the mesh)" if blind > 0 else "")
-                     + f": PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
+        blind = len(m.get("photos", {}).get("held_out", [])) - n  # held out, but they see none of the mesh
+        unseen = f" ({blind} more held out see{'s' if blind == 1 else ''} none of the mesh)" if blind > 0 else ""
+        lines.append(f"{n} held-out photo{'' if n == 1 else 's'}{unseen}"
+                     f": PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
         if "psnr_aligned" in s["input"] and "psnr_aligned" in s["enhanced"]:

@@ -226,9 +226,9 @@ def _faded_into(kept: np.ndarray, filled: np.ndarray, near: np.ndarray) -> np.nd
 
 def _near_black(scan: Scan):
     """A lookup ``(face_ids, bary) -> (N,)`` in [0, 1]: how near the input's black texels (``BLACK_LEVEL``) a
-    surface point lies, falling from 1 beside them to 0 at ``FADE_TEXELS``: twice
-    the black share of the square that far around it, read from a quarter-resolution table made at the first
-    call (an 8192² atlas: 2048², a box filter)."""
+    surface point lies, falling from 1 beside them to 0 at ``FADE_TEXELS``: twice the black share of the square
+    that far around it, read from a quarter-resolution table made at the first call (an 8192² atlas: 2048², a
+    box filter)."""
     from scipy.ndimage import uniform_filter
 
     from scantex.atlas.holes import BLACK_LEVEL
@@ -245,7 +245,7 @@ def _near_black(scan: Scan):
                 black = (levels.max(axis=2) <= BLACK_LEVEL).astype(np.float32)
                 H, W = black.shape
                 h, w = max(1, H // 4), max(1, W // 4)
-                quarter = black[:4 * h, :4 * w].reshape(h, 4, w, 4).mean(axis=(1, 3)) if H >= 4 and W >= 4 else black
+                quarter = black if H < 4 or W < 4 else black[:4 * h, :4 * w].reshape(h, 4, w, 4).mean(axis=(1, 3))
                 reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
                 size = 2 * max(1, int(round(reach))) + 1
                 tables[m] = np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]

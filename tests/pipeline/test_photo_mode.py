@@ -185,7 +185,8 @@ def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     # a held-out photo that sees none of the mesh is not scored: the summary says so, in good English
     n = s["input"]["photos"]
     blind = {**m, "photos": {**m["photos"], "held_out": list(range(n + 1))}}
-    assert f"{n} held-out photo{'' if n == 1 else 's'} (1 more held out sees none of the mesh):" in enhance_summary(blind)
+    said = f"{n} held-out photo{'' if n == 1 else 's'} (1 more held out sees none of the mesh):"
+    assert said in enhance_summary(blind)
 
 
 def test_vertex_coloured_mesh_takes_its_colours_as_the_input_texture(toy_demo, toy_photos):
