@@ -424,11 +424,11 @@ _ROUNDING = 1e-6
 
 def float32_origin(positions: np.ndarray) -> np.ndarray:
     """``(3,)``: the point a GLB or USDZ holds ``positions`` about (as float32, its node or prim translated
-    there), zero for a scan near the origin. float32 rounds a
-    coordinate by a share (6e-8) of its magnitude: a georeferenced scan (UTM, some 500 km from the origin)
-    by up to 0.125 m, where its size is metres. Where that rounding exceeds :data:`_ROUNDING` of the scan's
-    size, the positions are held about the centre of their bounds (rounded to whole units, so that the node's
-    translation is exact), and float32 holds them to a share of the scan's size."""
+    there), zero for a scan near the origin. float32 rounds a coordinate by a share (6e-8) of its magnitude: a
+    georeferenced scan (UTM, some 500 km from the origin) by up to 0.125 m, where its size is metres. Where
+    that rounding exceeds :data:`_ROUNDING` of the scan's size, the positions are held about the centre of
+    their bounds (rounded to whole units, so that the node's translation is exact), and float32 holds them to
+    a share of the scan's size."""
     if len(positions) == 0:
         return np.zeros(3)
     lo, hi = positions.min(axis=0), positions.max(axis=0)
