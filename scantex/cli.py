@@ -431,13 +431,14 @@ def enhance_summary(m: dict) -> str:
 
 def cmd_compare(args) -> int:
     from scantex.io import load_scan
-    from scantex.metrics.compare import compare, read_photos, summary_lines
+    from scantex.metrics.compare import compare, photo_files, read_photos, summary_lines
 
     a, b = load_scan(args.a), load_scan(args.b)
     if args.json:
         from scantex.io.atomic import check_output
 
-        check_output(args.json, [*a.inputs, *b.inputs, *([args.cameras] if args.cameras else [])])
+        cameras = [args.cameras, *photo_files(args.cameras)] if args.cameras else []
+        check_output(args.json, [*a.inputs, *b.inputs, *cameras])
     photos = read_photos(args.cameras) if args.cameras else None
     result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
     if args.json:

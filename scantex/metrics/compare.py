@@ -22,6 +22,18 @@ from scantex.views.raycast import RayCaster
 from scantex.views.render import render
 
 
+def photo_files(path: str | Path) -> list[Path]:
+    """The image files a ``cameras.json`` names (for the inputs an output may not replace); none where the file
+    cannot be read (:func:`read_photos` says why)."""
+    from scantex.photos.files import load_frames_file
+
+    try:
+        path, _, frames = load_frames_file(Path(path), "cameras.json")
+        return [path.parent / str(f["image"]) for f in frames]
+    except (ScanError, KeyError, TypeError):
+        return []
+
+
 def read_photos(path: str | Path) -> list[tuple[Camera, np.ndarray]]:
     """Cameras and their images from a ``cameras.json`` (``frames[i] = {image, width, height, K,
     world_to_camera}``, image paths relative to the file): ``[(camera, (H, W, 3) float32 in [0, 1])]``.

@@ -49,6 +49,18 @@ def test_view_and_compare_never_replace_an_input(tmp_path, capsys, monkeypatch):
     assert fingerprint(tmp_path) == before
 
 
+def test_compare_never_writes_its_json_over_a_photo(tmp_path, capsys, monkeypatch):
+    """``compare --cameras cameras.json --json photos/p0.png``: the photos the cameras file names are inputs too."""
+    monkeypatch.chdir(tmp_path)
+    mesh = write_cube(tmp_path / "scan")
+    cams = write_photos(tmp_path / "photos")
+    before = fingerprint(tmp_path)
+    rc, err = run_cli(capsys, "compare", mesh, mesh, "--cameras", cams, "--json", tmp_path / "photos" / "p0.png",
+                      "-q")
+    assert_clean_error(rc, err, "p0.png")
+    assert fingerprint(tmp_path) == before
+
+
 def test_demo_scan_never_replaces_the_current_folder(tmp_path, capsys, monkeypatch):
     (tmp_path / "keep.txt").write_text("mine")
     monkeypatch.chdir(tmp_path)
