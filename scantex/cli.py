@@ -678,12 +678,15 @@ def build_parser() -> argparse.ArgumentParser:
                                    "summary.json and summary.csv list every scan with its status, held-out scores, "
                                    "time, peak memory and a link to its report. Exit status 1 if a scan failed.",
                        epilog="Manifests: .json ([{\"mesh\": ..., \"photos\": ..., \"ground_truth\": ..., \"name\": ...}]), "
-                              ".csv (a header row with those columns) or .txt (one 'mesh [photos]' per line); paths "
-                              "relative to the manifest. In a folder, every mesh file below it is a scan, and one named "
-                              "ground_truth.* is the ground truth of the scans beside it. With --ray, every node must "
+                              ".csv (a header row with those columns) or .txt (one 'mesh [photos]' per line, quotes "
+                              "around a path with spaces); paths relative to the manifest. In a folder, every mesh file "
+                              "below it is a scan, and one named ground_truth.* is the ground truth of the scans beside "
+                              "it. A scan without photos named is read as 'scantex enhance' reads it: an app's zip, "
+                              "the posed photos an app wrote beside its mesh. With --ray, every node must "
                               "see INPUTS and OUTDIR at the same paths (a shared filesystem) and have scantex installed.")
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT",
-                   help="mesh files, folders of them, or manifests (.json, .csv, .txt) listing scans and their photos")
+                   help="mesh files, apps' zipped exports, folders of meshes, or manifests (.json, .csv, .txt) "
+                        "listing scans and their photos")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR", help="the batch's output folder")
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset for every scan (default: default)")

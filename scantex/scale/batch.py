@@ -98,7 +98,13 @@ def batch(inputs: Sequence[str | Path], out_dir: str | Path, config: EnhanceConf
     todo: list[ScanInput] = []
     for s in scans:
         previous = finished_record(out_dir / s.name)
-        if previous is not None and not overwrite:
+        if previous is not None and not overwrite and not _same_input(previous, s):
+            # another scan's output under this name: neither taken for this one's nor replaced by it
+            records[s.name] = {**pending_record(s), "status": "failed",
+                               "error": f"{out_dir / s.name} holds the output of another scan ({previous['mesh']}): "
+                                        "give this one another name (a manifest's name column) or another "
+                                        "batch folder, or pass --overwrite to replace it"}
+        elif previous is not None and not overwrite:
             records[s.name] = {**previous, "reused": True}
         else:
             records[s.name] = pending_record(s)
@@ -143,6 +149,14 @@ def batch(inputs: Sequence[str | Path], out_dir: str | Path, config: EnhanceConf
 def pending_record(s: ScanInput) -> dict:
     return {"name": s.name, **{k: v for k, v in s.to_dict().items() if k != "name"},
             "status": "pending", "error": None}
+
+
+def _same_input(record: dict, scan: ScanInput) -> bool:
+    """Whether a finished scan's ``record`` is ``scan``'s: the same mesh file."""
+    try:
+        return Path(record["mesh"]).resolve() == Path(scan.mesh).resolve()
+    except (KeyError, TypeError, OSError):
+        return False
 
 
 def finished_record(folder: Path) -> dict | None:
@@ -196,24 +210,29 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
 
         torch.set_num_threads(threads)
         cfg = EnhanceConfig.from_dict(config).override(threads=threads)
-        mesh = load_scan(scan.mesh)
-        truth = load_scan(scan.ground_truth) if scan.ground_truth else None
-        photos = None
-        if scan.photos:
-            from scantex.photos import load_photos
+        from scantex.io.discover import find_capture
+        from scantex.photos import load_photos
 
-            photos = load_photos(scan.photos)
-        work = work_dir_for(out)
-        work.mkdir(parents=True, exist_ok=True)
-        result = enhance(mesh, cfg, ground_truth=truth, photos=photos, work_dir=work, resume=True)
-        with atomic_dir(out, overwrite=overwrite) as tmp:
-            write_outputs(result, tmp)
-            metrics = json.loads((tmp / "metrics.json").read_text())
-            record.update(status="done", faces=mesh.n_faces, scores=scores(metrics),
-                          geometry_identical=bool(metrics["geometry"]["arrays_identical"]),
-                          report=f"{scan.name}/report.html", seconds=round(time.perf_counter() - t0, 2),
-                          peak_memory_gib=round(peak_memory() / GiB, 3))
-            (tmp / RECORD).write_text(strict_json(record, indent=2))
+        # an app's export as enhance takes it: a zip or folder's mesh, the posed photos beside a mesh
+        with find_capture(scan.mesh, photos=scan.photos is None) as capture:
+            mesh = load_scan(capture.mesh)
+            truth = load_scan(scan.ground_truth) if scan.ground_truth else None
+            photos_path = scan.photos or capture.photos
+            photos = load_photos(photos_path) if photos_path else None
+            if photos_path and not scan.photos:  # what was found, not the zip's temporary folder
+                record["photos"] = str(photos_path) if capture.extracted is None else \
+                    f"{photos_path.relative_to(capture.extracted)} in {scan.mesh}"
+            work = work_dir_for(out)
+            work.mkdir(parents=True, exist_ok=True)
+            result = enhance(mesh, cfg, ground_truth=truth, photos=photos, work_dir=work, resume=True)
+            with atomic_dir(out, overwrite=overwrite) as tmp:
+                write_outputs(result, tmp)
+                metrics = json.loads((tmp / "metrics.json").read_text())
+                record.update(status="done", faces=mesh.n_faces, scores=scores(metrics),
+                              geometry_identical=bool(metrics["geometry"]["arrays_identical"]),
+                              report=f"{scan.name}/report.html", seconds=round(time.perf_counter() - t0, 2),
+                              peak_memory_gib=round(peak_memory() / GiB, 3))
+                (tmp / RECORD).write_text(strict_json(record, indent=2))
         shutil.rmtree(work, ignore_errors=True)
     except ScanError as e:
         record.update(status="failed", error=str(e))

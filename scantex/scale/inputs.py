@@ -5,7 +5,8 @@ Manifests (paths relative to the manifest's folder):
 - ``.json``: ``[{"mesh": "a.obj", "photos": "a_capture/", "ground_truth": "a_truth.obj", "name": "room_a"}, ...]``
   (or ``{"scans": [...]}``; an entry may be a plain mesh path);
 - ``.csv``: a header row naming the same columns (``mesh`` required), one scan per row;
-- ``.txt``: one scan per line: the mesh path, optionally followed by its photos path; ``#`` starts a comment.
+- ``.txt``: one scan per line: the mesh path, optionally followed by its photos path (quotes around a path
+  with spaces); ``#`` starts a comment.
 
 In a folder, every mesh file below it is a scan, except one named ``ground_truth.*``, which is taken as the
 ground truth of the scans beside it (the layout ``scantex demo-scan`` writes).
@@ -73,7 +74,7 @@ def read_manifest(path: Path) -> list[ScanInput]:
     base = path.parent
     suffix = path.suffix.lower()
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a spreadsheet's CSV starts with a byte-order mark
     except (OSError, UnicodeDecodeError) as e:
         raise ScanError(path, f"cannot read the manifest ({e})") from None
     rows: list[dict] = []
@@ -96,7 +97,7 @@ def read_manifest(path: Path) -> list[ScanInput]:
         for line in text.splitlines():
             line = line.split("#", 1)[0].strip()
             if line:
-                parts = line.split()
+                parts = _txt_fields(line, base)
                 rows.append({"mesh": parts[0], "photos": parts[1] if len(parts) > 1 else None})
     scans = []
     for i, row in enumerate(rows, 1):
@@ -109,6 +110,21 @@ def read_manifest(path: Path) -> list[ScanInput]:
                                ground_truth=base / row["ground_truth"] if row.get("ground_truth") else None,
                                name=str(row.get("name") or "")))
     return scans
+
+
+def _txt_fields(line: str, base: Path) -> list[str]:
+    """A ``.txt`` manifest line's mesh path and photos path: the whole line where it names a file (a path with
+    spaces), else its fields as a shell splits them (quotes keep spaces: ``"My Scan/scan.obj" photos``)."""
+    import shlex
+
+    if (base / line).is_file():
+        return [line]
+    if '"' in line or "'" in line:
+        try:
+            return shlex.split(line)
+        except ValueError:  # an unbalanced quote: plain fields
+            pass
+    return line.split()
 
 
 def _scan_folder(folder: Path, exclude: Path | None) -> list[ScanInput]:

@@ -18,6 +18,7 @@ from scantex.scale.executors import GiB, Job, LocalPool, WorkerLost
 from scantex.scale.inputs import collect_inputs, read_manifest
 from scantex.scale.resources import footprint
 
+from tests.io.test_discover import exports  # noqa: F401  (a fixture)
 from tests.scale.conftest import TINY
 
 
@@ -150,3 +151,41 @@ def test_a_scan_refused_after_its_work_folder_was_made_leaves_none(tmp_path):
     record = enhance_one(ScanInput(tmp_path / "bare.obj", name="bare"), preset("fast").to_dict(), str(out), 1, False)
     assert record["status"] == "failed" and "has no colour to enhance" in record["error"]
     assert not (out / "bare.partial").exists() and not (out / "bare").exists()
+
+
+def test_manifests_as_spreadsheets_and_editors_write_them(tmp_path):
+    """A CSV saved by a spreadsheet starts with a byte-order mark and ends its lines in CRLF; a .txt line may
+    name a path with spaces, whole or in quotes."""
+    (tmp_path / "m.csv").write_bytes(b"\xef\xbb\xbfmesh,name\r\nx/scan.obj,first\r\n")
+    (row,) = read_manifest(tmp_path / "m.csv")
+    assert (row.mesh, row.name) == (tmp_path / "x" / "scan.obj", "first")
+    (tmp_path / "My Scan").mkdir()
+    (tmp_path / "My Scan" / "scan 2.obj").write_text("v 0 0 0\n")
+    (tmp_path / "m.txt").write_text('My Scan/scan 2.obj\n"My Scan/scan 2.obj" "caps/room 1"\n')
+    a, b = read_manifest(tmp_path / "m.txt")
+    assert a.mesh == b.mesh == tmp_path / "My Scan" / "scan 2.obj"
+    assert a.photos is None and b.photos == tmp_path / "caps" / "room 1"
+
+
+def test_a_rerun_never_takes_another_scans_output_for_its_own(tmp_path, three_scans):
+    """Two scans of one name in one batch folder, run one after the other: the second was reported done from
+    the first's output, and never enhanced. It is refused in its record; the first's output stays."""
+    out = tmp_path / "batch"
+    assert batch([three_scans / "wall0" / "scan.obj"], out, TINY, workers=1).records[0]["status"] == "done"
+    stamp = os.stat(out / "scan" / "batch.json").st_mtime_ns
+    (other,) = batch([three_scans / "wall1" / "scan.obj"], out, TINY, workers=1).records
+    assert other["status"] == "failed" and "holds the output of another scan" in other["error"]
+    assert os.stat(out / "scan" / "batch.json").st_mtime_ns == stamp
+    assert batch([three_scans / "wall0" / "scan.obj"], out, TINY, workers=1).records[0]["reused"]
+
+
+def test_an_apps_export_is_enhanced_with_its_photos_as_enhance_does(tmp_path, exports):
+    """A zipped 3D Scanner App export, and the mesh of an unzipped one with its frames beside it: batch finds
+    the mesh and the posed photos as ``scantex enhance`` does (the zip had been refused, the frames ignored)."""
+    result = batch([exports["scanner_zip"], exports["scanner"] / "textured_output.obj"], tmp_path / "b", TINY,
+                   workers=1)
+    for record in result.records:
+        assert record["status"] == "done", record.get("error")
+        assert record["scores"]["kind"] == "held-out photos"
+        assert "scantex-capture" not in record["photos"]  # not the zip's temporary folder, gone by now
+    assert result.records[0]["photos"].endswith(f"in {exports['scanner_zip']}")
