@@ -219,15 +219,19 @@ def _enhance_capture(args, config, capture) -> int:
         _echo(args, capture.describe())
     scan = load_scan(capture.mesh)
     truth = load_scan(args.ground_truth) if args.ground_truth else None
-    _echo(args, f"{capture.mesh}: {scan.summary()}")
+    _echo(args, f"{capture.shown(capture.mesh)}: {scan.summary()}")
     photos = None
     photos_path = args.photos or capture.photos
     if photos_path:
+        import dataclasses
+
         from scantex.photos import load_photos
 
         photos = load_photos(photos_path, **({} if args.max_distortion is None
                                              else {"max_distortion_px": args.max_distortion}))
-        _echo(args, f"{photos_path}: {len(photos)} photos ({photos.format})")
+        if capture.extracted is not None:  # named inside the zip in messages and metrics, not where it was unpacked
+            photos = dataclasses.replace(photos, source=capture.shown(photos.source))
+        _echo(args, f"{capture.shown(photos_path)}: {len(photos)} photos ({photos.format})")
     tiles = tile_count(args, scan, photos)
     work = work_dir_for(args.output)
     # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the

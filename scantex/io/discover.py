@@ -89,6 +89,16 @@ class Capture:
                 f" and {len(self.other_meshes) - 4} more" if len(self.other_meshes) > 4 else "") + " (not used)"
         return text
 
+    def shown(self, path: Path) -> Path:
+        """``path`` as the user knows it: a file of a zip's extraction as a path inside the zip
+        (``scan.zip/Scan 23/keyframes``), not the temporary folder it was unpacked into; other paths as they are."""
+        if self.extracted is None:
+            return path
+        try:
+            return self.source / Path(path).relative_to(self.extracted)
+        except ValueError:
+            return path
+
     def close(self) -> None:
         """Remove the zip's extraction, if any."""
         if self.extracted is not None:

@@ -14,6 +14,7 @@ through Ray's object store.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import shutil
@@ -219,9 +220,10 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
             truth = load_scan(scan.ground_truth) if scan.ground_truth else None
             photos_path = scan.photos or capture.photos
             photos = load_photos(photos_path) if photos_path else None
-            if photos_path and not scan.photos:  # what was found, not the zip's temporary folder
-                record["photos"] = str(photos_path) if capture.extracted is None else \
-                    f"{photos_path.relative_to(capture.extracted)} in {scan.mesh}"
+            if photos is not None and capture.extracted is not None:  # named inside the zip, not where it was
+                photos = dataclasses.replace(photos, source=capture.shown(photos.source))  # unpacked
+            if photos_path and not scan.photos:
+                record["photos"] = str(capture.shown(photos_path))
             work = work_dir_for(out)
             work.mkdir(parents=True, exist_ok=True)
             result = enhance(mesh, cfg, ground_truth=truth, photos=photos, work_dir=work, resume=True)

@@ -260,4 +260,8 @@ def test_enhance_takes_the_zip_as_the_app_wrote_it(exports, tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["geometry"]["arrays_identical"]
     assert metrics["held_out_photos"]["input"]["photos"] == 1
+    # the photos named inside the zip, not in the temporary folder it was unpacked into (gone by now)
+    inside = str(exports["scanner_zip"] / "Scan 23 Nov")
+    assert metrics["photos"]["source"] == inside and f"{inside}: 4 photos (3dscannerapp)" in proc.stdout
+    assert "scantex-capture" not in proc.stdout
     assert not leftovers(before)  # the extraction is gone

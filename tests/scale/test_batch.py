@@ -188,4 +188,6 @@ def test_an_apps_export_is_enhanced_with_its_photos_as_enhance_does(tmp_path, ex
         assert record["status"] == "done", record.get("error")
         assert record["scores"]["kind"] == "held-out photos"
         assert "scantex-capture" not in record["photos"]  # not the zip's temporary folder, gone by now
-    assert result.records[0]["photos"].endswith(f"in {exports['scanner_zip']}")
+    assert result.records[0]["photos"].startswith(str(exports["scanner_zip"]))  # inside the zip, as the user knows it
+    metrics = json.loads((tmp_path / "b" / "scanner" / "metrics.json").read_text())
+    assert metrics["photos"]["source"].startswith(str(exports["scanner_zip"]))
