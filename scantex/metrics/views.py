@@ -25,7 +25,7 @@ SCORE_SUPERSAMPLE = 2
 def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | Scan, scans: dict[str, Scan],
                 cameras: list[Camera], caster: RayCaster, hole_faces: np.ndarray,
                 supersample: int = SCORE_SUPERSAMPLE, *, renders: list | None = None,
-                reference_name: str = "reference", scored: list | None = None) -> dict:
+                reference_name: str = "reference", scored: list | None = None, pooled: bool = False) -> dict:
     """PSNR / SSIM / MSE of each scan's renders against ``reference`` renders at ``cameras``.
 
     ``reference`` is a function giving a camera's ``(image, alpha)``, or a scan of the same geometry (a
@@ -41,6 +41,10 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...],
         "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
         order of ``cameras`` (the report shows them next to each view).
+
+    ``pooled``: ``psnr`` is that of the views' mean MSE (``psnr_mean_of_views`` the mean of their PSNRs): a
+    result against the input it was made from leaves some views unchanged, which score ``PSNR_CAP_DB`` each and
+    would make the mean of the views' PSNRs mean little (100, 100 and 23.5 dB: 74.5).
 
     ``renders``: if given, receives one dict a camera, in order: each scan's render (and a reference
     scan's, as ``reference_name``) before its supersamples are averaged, ``uint8`` (see
@@ -91,6 +95,9 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
     result = {}
     for name in scans:
         r = {k: float(np.mean(v)) for k, v in out[name].items() if v}
+        if pooled and "mse" in r:
+            r["psnr_mean_of_views"] = r["psnr"]
+            r["psnr"] = float(min(10 * np.log10(1 / r["mse"]), PSNR_CAP_DB)) if r["mse"] > 0 else PSNR_CAP_DB
         r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim", "patches")}
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())

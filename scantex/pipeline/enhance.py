@@ -1027,7 +1027,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     elif scan.is_textured:
         # no truth: how faithfully the result reproduces the input where the input has colour
         scores["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test_cams, caster, holes,
-                                                  renders=renders, reference_name="input", scored=scored)
+                                                  renders=renders, reference_name="input", scored=scored,
+                                                  pooled=True)
         if patches is None:  # scored against the input's renders, that is the patch measure: not twice
             patches = patch_summary(scores["held_out_vs_input"]["enhanced"]["per_view"]["patches"])
     fill_held_out(tv.views, scored)

@@ -765,6 +765,6 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
                                                           scored=scored)
     elif scan.is_textured:  # how faithfully the result reproduces the input, where the input has colour
         metrics["held_out_vs_input"] = score_views(scan, {"enhanced": enhanced}, test, caster, holes, renders=renders,
-                                                   reference_name="input", scored=scored)
+                                                   reference_name="input", scored=scored, pooled=True)
     fill_held_out(views.views, scored)
     return views, metrics

@@ -106,3 +106,36 @@ def test_a_reference_scan_scores_as_its_renders():
     from scantex.metrics.views import PSNR_CAP_DB
 
     assert by_renders["truth itself"]["psnr"] == PSNR_CAP_DB
+
+
+def test_a_result_scored_against_its_input_pools_the_views_error():
+    """Scored against the input it was made from, a result leaves some views unchanged (the cap, 100 dB each):
+    the mean of the views' PSNRs read 74.5 dB for views of 100, 100 and 23.5. Pooled, the PSNR is that of the
+    views' mean squared error."""
+    from scantex.metrics.views import PSNR_CAP_DB, score_views
+    from scantex.synth import make_wall
+    from scantex.views.planning import plan_views
+    from scantex.views.raycast import RayCaster
+
+    demo = make_wall(grid=(40, 30), gt_texture_size=256, scan_texture_size=128, n_charts=8)
+    scan = demo.scan
+    caster = RayCaster(scan.positions, scan.faces)
+    cameras = plan_views(scan, 3, width=96, height=72, caster=caster)
+    holes = np.zeros(scan.n_faces, bool)
+    # one view sees the truth, two the scan itself
+    scores = score_views(scan, {"same": scan, "truth": demo.ground_truth}, cameras, caster, holes, pooled=True)
+    truth = scores["truth"]
+    assert truth["psnr"] == pytest.approx(10 * np.log10(1 / truth["mse"]))
+    assert truth["psnr_mean_of_views"] == pytest.approx(np.mean(truth["per_view"]["psnr"]))
+    assert scores["same"]["psnr"] == PSNR_CAP_DB  # identical everywhere: the cap, pooled or not
+    # a reference the scan matches in two views of three
+    from scantex.views.render import render
+
+    def reference(cam):
+        image, alpha = render(scan, cam, caster, supersample=2)
+        return (np.clip(image + 0.05, 0, 1) if cam is cameras[2] else image), alpha
+
+    mixed = score_views(reference, {"scan": scan}, cameras, caster, holes, pooled=True)["scan"]
+    assert mixed["per_view"]["psnr"][:2] == [PSNR_CAP_DB, PSNR_CAP_DB] and mixed["per_view"]["psnr"][2] < 30
+    assert mixed["psnr_mean_of_views"] > 70  # what the summary said
+    assert mixed["psnr"] == pytest.approx(mixed["per_view"]["psnr"][2] + 10 * np.log10(3), abs=0.05)
