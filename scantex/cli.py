@@ -156,6 +156,8 @@ def cmd_view(args) -> int:
     from scantex.io.atomic import check_output
 
     require("plotly", "scantex view")  # before the (possibly long) load
+    if args.output.is_dir():
+        raise ScanError(args.output, "is a folder: name the HTML file to write (e.g. -o view.html)")
     scan = load_scan(args.mesh)
     check_output(args.output, scan.inputs)
     out = view_html(scan, args.output, max_faces=args.max_faces)
@@ -581,7 +583,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--unlit", action="store_true",
                    help="plain texture colour instead of the lit preview (directional light + ambient)")
     p.add_argument("--supersample", type=whole(1, 8), default=2, help="rays per pixel per axis (default: 2)")
-    p.add_argument("--seed", type=SEED, default=0, help="random seed for planning and the split")
+    p.add_argument("--seed", type=SEED, default=0,
+                   help="random seed for planning the views and their train/test split (default: 0)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it is an earlier output (scantex wrote it, or it is empty)")
     p.set_defaults(func=cmd_render)
@@ -745,7 +748,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "package, or in NUMBA_CACHE_DIR).")
     p.set_defaults(func=cmd_precompile)
 
-    p = sub.add_parser("info", parents=[common], help="print what a mesh file holds")
+    p = sub.add_parser("info", parents=[common], help="print what a mesh file holds",
+                       description="Print what a mesh file holds: its vertices, faces, UVs and materials with "
+                                   "their textures, its bounds and surface area, and what colour it carries (what "
+                                   "enhance would do with it). Reads only; writes nothing.")
     p.add_argument("mesh", type=Path, help="mesh file")
     p.set_defaults(func=cmd_info)
     return parser
