@@ -89,6 +89,11 @@ def pixel_count(value, key: str, where: Path, what: str) -> int:
     return int(value)
 
 
+#: a principal point farther than this share of the image's side from its centre is refused: a lens's is within
+#: a few per cent of it, and intrinsics for an image twice the photo's size put it at the photo's edge
+MAX_PRINCIPAL_OFFSET = 0.4
+
+
 def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tuple[int, int]:
     """Check a pinhole camera's ``K`` and image size; returns ``(width, height)`` as ints."""
     width = pixel_count(width, "width", where, what)
@@ -101,6 +106,11 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tu
     if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
         raise ScanError(where, f"{what}: intrinsics {K.tolist()} are not of the form "
                                "[[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    off = np.abs(K[:2, 2] - [(width - 1) / 2, (height - 1) / 2]) / [width, height]
+    if (off > MAX_PRINCIPAL_OFFSET).any():
+        raise ScanError(where, f"{what}: the principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies at or past the "
+                               f"edge of the {width}x{height} image: the intrinsics are for another image size "
+                               "(a photo resized after capture? scale fx, fy, cx and cy with it)")
     return width, height
 
 

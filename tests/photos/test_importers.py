@@ -383,8 +383,22 @@ def bad_polycam_without_camera(tmp_path):
     return tmp_path, "keyframe 5.jpg has no camera file"
 
 
+def bad_intrinsics_of_another_size(tmp_path):
+    """3D Scanner App frames resized to half after capture, their intrinsics as the app wrote them: the
+    principal point at the photo's corner (the run had been refused as misaligned, the cause unnamed)."""
+    from scantex.photos.scannerapp import write_3dscannerapp
+
+    full = reference_camera()
+    blank_png(tmp_path / "a.png")
+    write_3dscannerapp(PhotoSet(cameras=(full,), images=(tmp_path / "a.png",), source=tmp_path, format="test"),
+                       tmp_path / "app")
+    image = next((tmp_path / "app").glob("frame_*.jpg"), None) or next((tmp_path / "app").glob("frame_*.png"))
+    Image.open(image).resize((W // 2, H // 2)).save(image)
+    return tmp_path / "app", "the intrinsics are for another image size"
+
+
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
-       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera]
+       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size]
 
 
 @pytest.mark.parametrize("case", BAD, ids=[c.__name__ for c in BAD])
