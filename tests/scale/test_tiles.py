@@ -268,7 +268,7 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
                           str(tmp_path / "config.json"), "--photos", str(toy_photos.source), "--tiles", "2",
                           "--workers", "2", "-o", str(tmp_path / "cli")], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
-    assert "enhancing in 2 overlapping tiles" in run.stdout and "1 held-out photos" in run.stdout
+    assert "enhancing in 2 overlapping tiles" in run.stdout and "1 held-out photo:" in run.stdout
     metrics = json.loads((tmp_path / "cli" / "metrics.json").read_text())
     assert metrics["tiles"]["count"] == 2 and metrics["photos"]["final_texture"]["mode"] == "training"
 
