@@ -15,6 +15,9 @@ from __future__ import annotations
 import concurrent.futures as cf
 import logging
 import multiprocessing
+import os
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -82,7 +85,8 @@ class LocalPool:
             running: dict[cf.Future, Job] = {}
             broken = False
             with cf.ProcessPoolExecutor(max_workers=max(1, min(workers, len(pending))), mp_context=ctx,
-                                        max_tasks_per_child=1) as pool:
+                                        max_tasks_per_child=1, initializer=exit_with_parent,
+                                        initargs=(os.getpid(),)) as pool:
                 while (pending or running) and not broken:
                     while pending and not broken:
                         job = self._next(pending, running, workers, budget, alone)
@@ -130,6 +134,19 @@ class LocalPool:
             if not running or (used + job.memory <= budget and cores + job.cpus <= max(workers, 1)):
                 return job
         return None
+
+
+def exit_with_parent(parent: int, every_s: float = 1.0) -> None:
+    """A pool worker's initializer: a thread that ends the worker when ``parent`` (the process that made the
+    pool) is gone. A parent killed outright (``kill -9``, the out-of-memory killer) runs no clean-up, and its
+    workers, adopted by init, went on computing a tile nobody would fuse, each holding its memory."""
+    def watch() -> None:
+        while True:
+            time.sleep(every_s)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 @dataclass

@@ -135,6 +135,43 @@ def test_pool_blames_only_the_job_whose_worker_died():
     assert results["a"] == 9 and results["b"] == 16
 
 
+def write_pid_and_wait(path):
+    import pathlib
+    import time
+
+    pathlib.Path(path).write_text(str(os.getpid()))
+    time.sleep(120)
+
+
+def test_workers_end_when_their_parent_is_killed(tmp_path):
+    """``kill -9`` of a tiled run (or the out-of-memory killer) left its pool's workers running, adopted by
+    init, each computing a tile nobody would fuse and holding its memory. They end within seconds now."""
+    import signal
+    import time
+
+    pid_file = tmp_path / "worker.pid"
+    script = ("from scantex.scale.executors import Job, LocalPool\n"
+              "from tests.scale.test_batch import write_pid_and_wait\n"
+              f"list(LocalPool(workers=1).run([Job('w', write_pid_and_wait, ({str(pid_file)!r},))]))\n")
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=os.getcwd())
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline and parent.poll() is None
+        time.sleep(0.2)
+    worker = int(pid_file.read_text())
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.2)
+    os.kill(worker, signal.SIGKILL)  # no orphan left by the test itself
+    raise AssertionError("the worker outlived its parent by 15 s")
+
+
 def test_a_scan_refused_after_its_work_folder_was_made_leaves_none(tmp_path):
     """A scan that loads but is refused by ``enhance`` (here: no colour and no photos) fails with its one-line
     error, and its empty work folder ``<name>.partial`` is not left beside the other scans' outputs."""
