@@ -197,11 +197,14 @@ def cmd_enhance(args) -> int:
     from scantex.pipeline.outputs import work_dir_for
 
     config = load_config(args.config) if args.config else preset(args.preset)
+    if args.diffusion and args.refine is False:
+        raise ScanError(None, "--diffusion denoises the refiner's views: it cannot run with --no-refine")
+    refine = True if args.diffusion and args.refine is None else args.refine  # diffusion needs the refiner
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
                                       photos__holdout=args.holdout, photos__refine_poses=args.refine_poses,
                                       photos__final=args.final_texture,
-                                      refine__enabled=args.refine, refine__over_input=args.refine,
+                                      refine__enabled=refine, refine__over_input=refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
                                       refine__diffusion=True if args.diffusion else None), "the options")
     check_output_early(args.output, args.overwrite)
@@ -655,9 +658,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the demo wall; not over the input's own texels, mesh-only mode's default bake, where it "
                         "measured -0.26 dB: --refine asks for it there too)")
     p.add_argument("--diffusion", action="store_true",
-                   help="with the refiner: also denoise the refined views with a small diffusion model "
-                        "trained on them (SDEdit-style partial noising; off by default: it removes detail "
-                        "along with noise on the demo scans)")
+                   help="run the refiner (as --refine) and also denoise its refined views with a small "
+                        "diffusion model trained on them (SDEdit-style partial noising; off by default: it "
+                        "removes detail along with noise on the demo scans)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run from its field checkpoint in DIR.partial (kept by a run "
                         "that was killed or failed after a checkpoint; refused if it is of another input or "

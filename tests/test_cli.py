@@ -102,3 +102,27 @@ def test_the_entry_point_exits_with_mains_code_after_freezing_the_heap(monkeypat
     assert cli.GC_THRESHOLDS[2] > gc.get_threshold()[2]
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.startswith("scantex ")
+
+
+def test_diffusion_alone_runs_the_refiner_it_belongs_to(tmp_path, capsys):
+    """``--diffusion`` denoises the refiner's views; in mesh-only mode the refiner does not run over the input's
+    texels unless asked, so ``--diffusion`` alone ran nothing and said nothing. It now runs the refiner, and
+    ``--no-refine --diffusion`` is refused in one line."""
+    import dataclasses
+
+    from scantex.refine.config import RefineConfig
+    from tests.io.hostile import TINY, assert_clean_error, run_cli, write_cube, write_tiny_config
+
+    mesh = write_cube(tmp_path / "scan")
+    tiny = dataclasses.replace(TINY, views=dataclasses.replace(TINY.views, width=96, height=72),
+                               refine=RefineConfig(enabled=False, steps=2, batch=2, crop=32, max_views=2,
+                                                   diffusion_steps=2))
+    config = write_tiny_config(tmp_path / "tiny.json", tiny)
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "--diffusion", "-q")
+    assert rc == 0, err
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    written = json.loads((tmp_path / "out" / "config.json").read_text())["refine"]
+    assert written["enabled"] and written["over_input"] and written["diffusion"]
+    assert "refine" in metrics or "refine_discarded" in metrics["bake"].get("safety", {})  # it ran
+    assert_clean_error(*run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out2", "--config", config,
+                                "--diffusion", "--no-refine", "-q"), "--no-refine")
