@@ -431,8 +431,12 @@ def enhance_summary(m: dict) -> str:
     if "safety" in m.get("bake", {}):
         lines.append(f"safety fallback: {m['bake']['safety']['why']}; the result keeps the input's texels "
                      f"(holes filled, seams blended)")
-    if not m.get("field", {}).get("trained", True):
-        lines.append(f"field: {m['field']['why']}")
+    field = m.get("field", {})
+    if not field.get("trained", True):
+        lines.append(f"field: {field['why']}")
+    elif field.get("steps_run", 0) < field.get("steps", 0):
+        lines.append(f"field: resumed from its checkpoint: {field['steps'] - field['steps_run']} of its "
+                     f"{field['steps']} steps were trained by the interrupted run, {field['steps_run']} by this one")
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
         f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
     return "\n".join(lines)

@@ -886,10 +886,12 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         seams_in, seams_out = seam_visibility(scan), seam_visibility(baked)
         if share > PATCH_LIMIT and seams_out > (1 - SEAM_GAIN) * seams_in:
             patches = None
+            removed = 1 - seams_out / max(seams_in, 1e-9)
+            seams = (f"removing only {100 * removed:.0f} % of the input's seam visibility" if removed >= 0
+                     else "making the seams more visible, not less")
             safety = {"fallback": "no levelling, no refiner", "patches_before_fallback": round(share, 5),
                       "why": f"levelling and refining drew patches on {100 * share:.1f} % of the held-out views' "
-                             f"pixels while removing only {100 * (1 - seams_out / max(seams_in, 1e-9)):.0f} % of "
-                             f"the input's seam visibility ({seams_in:.2f} -> {seams_out:.2f})"}
+                             f"pixels while {seams} ({seams_in:.2f} -> {seams_out:.2f})"}
             log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
             colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device,
                                                    dataclasses.replace(bake_config, levelling=False), noise)
@@ -1042,6 +1044,7 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
                   "rendered": len(tv.views) if tv.views.rendered is None else int(tv.views.rendered.sum()),
                   "coverage": coverage.summary()},
         "field": {"trained": True, "train_seconds": round(fitted.seconds, 2), "steps_run": fitted.steps_run,
+                  "steps": len(fitted.losses),
                   "final_loss": float(np.mean(fitted.losses[-50:]))} if fitted is not None else {"trained": False},
         # each texture is measured along its own layout's seams
         "seam_visibility": {"input": round(seam_visibility(scan, edges), 3),

@@ -123,7 +123,10 @@ def test_resume_continues_from_checkpoint(tmp_path, toy_demo):
     assert torch.load(ckpt, weights_only=True)["step"] == 40
     resumed = enhance(toy_demo.scan, cfg, work_dir=tmp_path, resume=True)
     # 20 steps were left: the loss history holds all 60, the first 40 restored from the checkpoint
-    assert resumed.metrics["field"]["steps_run"] == 20
+    assert resumed.metrics["field"]["steps_run"] == 20 and resumed.metrics["field"]["steps"] == 60
+    from scantex.cli import enhance_summary  # and the summary says it resumed
+
+    assert "field: resumed from its checkpoint: 40 of its 60 steps" in enhance_summary(resumed.metrics)
 
 
 def test_config_roundtrip(tmp_path):
