@@ -242,7 +242,7 @@ def mesh_only_colour(scan: Scan, fitted, fill: np.ndarray, taught: np.ndarray, c
     colour = levelled_input_colour(scan, offsets, fill, fitted=fitted, taught=taught, charts=charts, device=device,
                                    noise_threshold=threshold)
     return colour, {"source": "input", "noise_level": None if noise is None else round(noise, 5),
-                    "denoised": fitted is not None, "noise_threshold": round(threshold, 5),
+                    "denoised": fitted is not None and threshold > 0, "noise_threshold": round(threshold, 5),
                     "levelling_offset_mean": round(float(np.abs(offsets).mean()) if offsets.size else 0.0, 5),
                     "levelling_offset_max": round(float(np.abs(offsets).max()) if offsets.size else 0.0, 5)}
 
