@@ -241,11 +241,13 @@ def _near_black(scan: Scan):
         with making:
             if m not in tables:
                 image = scan.materials[m].image
-                levels = image[..., :3] if image.dtype == np.uint8 else image[..., :3] * 255.0
-                black = (levels.max(axis=2) <= BLACK_LEVEL).astype(np.float32)
+                level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
+                # the channels' maximum pairwise (numpy's max over a row of three is many times slower)
+                black = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) <= level
                 H, W = black.shape
                 h, w = max(1, H // 4), max(1, W // 4)
-                quarter = black if H < 4 or W < 4 else black[:4 * h, :4 * w].reshape(h, 4, w, 4).mean(axis=(1, 3))
+                quarter = black.astype(np.float32) if H < 4 or W < 4 else \
+                    black[:4 * h, :4 * w].reshape(h, 4, w, 4).sum(axis=(1, 3), dtype=np.uint8) / np.float32(16)
                 reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
                 size = 2 * max(1, int(round(reach))) + 1
                 tables[m] = np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]
