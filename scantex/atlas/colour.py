@@ -241,13 +241,18 @@ def _near_black(scan: Scan):
         with making:
             if m not in tables:
                 image = scan.materials[m].image
-                level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
-                # the channels' maximum pairwise (numpy's max over a row of three is many times slower)
-                black = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) <= level
-                H, W = black.shape
-                h, w = max(1, H // 4), max(1, W // 4)
-                quarter = black.astype(np.float32) if H < 4 or W < 4 else \
-                    black[:4 * h, :4 * w].reshape(h, 4, w, 4).sum(axis=(1, 3), dtype=np.uint8) / np.float32(16)
+                H, W = image.shape[:2]
+                kernel = jit.compiled(_black_blocks) if image.dtype == np.uint8 and H >= 4 and W >= 4 else None
+                if kernel is not None:  # one compiled pass (an 8192² atlas: 0.05 s, numpy's 0.7 s)
+                    quarter = np.empty((H // 4, W // 4), np.float32)
+                    kernel(image, BLACK_LEVEL, quarter)
+                else:
+                    level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
+                    # the channels' maximum pairwise (numpy's max over a row of three is many times slower)
+                    black = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) <= level
+                    h, w = max(1, H // 4), max(1, W // 4)
+                    quarter = black.astype(np.float32) if H < 4 or W < 4 else \
+                        black[:4 * h, :4 * w].reshape(h, 4, w, 4).sum(axis=(1, 3), dtype=np.uint8) / np.float32(16)
                 reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
                 size = 2 * max(1, int(round(reach))) + 1
                 tables[m] = np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]
@@ -264,6 +269,19 @@ def _near_black(scan: Scan):
         return out
 
     return near
+
+
+def _black_blocks(image, level, out):
+    """The compiled twin of :func:`_near_black`'s quarter-resolution table: ``out (H // 4, W // 4)`` the share of
+    each 4x4 block of the 8-bit ``image (H, W, >= 3)`` whose channels are all at most ``level``."""
+    for by in range(out.shape[0]):
+        for bx in range(out.shape[1]):
+            count = 0
+            for y in range(4 * by, 4 * by + 4):
+                for x in range(4 * bx, 4 * bx + 4):
+                    if max(max(image[y, x, 0], image[y, x, 1]), image[y, x, 2]) <= level:
+                        count += 1
+            out[by, bx] = np.float32(count) / np.float32(16)
 
 
 def _dark_texels(scan: Scan):

@@ -540,10 +540,11 @@ def test_levelling_gives_the_same_offsets_whatever_numpy_s_global_generator_hold
 
 def test_the_black_texels_tables_are_the_same_compiled_and_in_numpy(monkeypatch):
     """The black-texel tables of the hole fill (:func:`scantex.atlas.colour._dark_texels`: black, on the dark ramp,
-    or neither) and of :func:`scantex.atlas.holes.partly_untextured_faces`, made in one compiled pass or in numpy:
-    the same lookups and the same faces, on an atlas of every dark level and random colours."""
+    or neither; :func:`scantex.atlas.colour._near_black`: how near black) and of
+    :func:`scantex.atlas.holes.partly_untextured_faces`, made in one compiled pass or in numpy: the same lookups
+    and the same faces, on an atlas of every dark level and random colours."""
     from scantex import jit
-    from scantex.atlas.colour import _dark_texels
+    from scantex.atlas.colour import _dark_texels, _near_black
     from scantex.atlas.holes import partly_untextured_faces
     from tests.conftest import grid_wall
 
@@ -558,11 +559,11 @@ def test_the_black_texels_tables_are_the_same_compiled_and_in_numpy(monkeypatch)
 
     def tables():
         share, dark = _dark_texels(scan)(f, bary)
-        return share, dark, partly_untextured_faces(scan)
+        return share, dark, partly_untextured_faces(scan), _near_black(scan)(f, bary)
 
     compiled = tables()
     monkeypatch.setattr(jit, "compiled", lambda function: None)
     in_numpy = tables()
-    assert 0.05 < compiled[0].mean() < 0.9 and compiled[2].any()
+    assert 0.05 < compiled[0].mean() < 0.9 and compiled[2].any() and 0 < compiled[3].mean() < 1
     for a, b in zip(compiled, in_numpy, strict=True):
         assert np.array_equal(a, b)
