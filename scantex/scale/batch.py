@@ -205,23 +205,23 @@ def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, over
 
         from scantex.io import load_scan
         from scantex.io.atomic import atomic_dir
+        from scantex.io.discover import find_capture
+        from scantex.photos import load_photos
         from scantex.pipeline.enhance import enhance
         from scantex.pipeline.outputs import work_dir_for, write_outputs
         from scantex.report.html import strict_json
 
         torch.set_num_threads(threads)
         cfg = EnhanceConfig.from_dict(config).override(threads=threads)
-        from scantex.io.discover import find_capture
-        from scantex.photos import load_photos
-
         # an app's export as enhance takes it: a zip or folder's mesh, the posed photos beside a mesh
         with find_capture(scan.mesh, photos=scan.photos is None) as capture:
             mesh = load_scan(capture.mesh)
             truth = load_scan(scan.ground_truth) if scan.ground_truth else None
             photos_path = scan.photos or capture.photos
             photos = load_photos(photos_path) if photos_path else None
-            if photos is not None and capture.extracted is not None:  # named inside the zip, not where it was
-                photos = dataclasses.replace(photos, source=capture.shown(photos.source))  # unpacked
+            if photos is not None and capture.extracted is not None:
+                # named inside the zip, not by the temporary folder it was unpacked into
+                photos = dataclasses.replace(photos, source=capture.shown(photos.source))
             if photos_path and not scan.photos:
                 record["photos"] = str(capture.shown(photos_path))
             work = work_dir_for(out)
