@@ -11,6 +11,7 @@ import contextlib
 import logging
 import math
 import sys
+import traceback
 from pathlib import Path
 
 from scantex import __version__
@@ -246,8 +247,9 @@ def _enhance_capture(args, config, capture) -> int:
     folders = []
     if photos is not None:
         inputs += [*photos.images, *(d for d in photos.depths if d is not None), photos.source]
-        if photos.source.is_dir():  # a folder of photos: an output inside it would mix into the photos
-            folders.append(photos.source)
+        for folder in (photos.source, args.photos):  # a folder of photos (as found, or as named by --photos):
+            if folder is not None and Path(folder).is_dir():  # an output inside it would mix into the photos
+                folders.append(Path(folder))
         # a poses file lists its photos (inputs above): an output beside them, in a folder of its own inside
         # the capture's folder (`cd capture && scantex enhance scan.obj --photos cameras.json -o out`), is
         # none of them and holds none of them
@@ -796,8 +798,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except ScanError as e:
-        if args.debug:
-            raise
+        if args.debug:  # the traceback, and the same line and exit status as without --debug
+            traceback.print_exc()
         print(f"scantex: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -819,7 +821,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except OSError as e:  # the system refused a read or write: a full disk, a read-only folder, a long name
         if args.debug:
-            raise
+            traceback.print_exc()
         where = e.filename or getattr(args, "output", None) or getattr(args, "mesh", None)
         problem = e.strerror or (str(e).strip().splitlines() or [type(e).__name__])[0]
         print(f"scantex: error: {where}: {problem}" if where else f"scantex: error: {problem}", file=sys.stderr)

@@ -121,7 +121,7 @@ def corrections_summary(mode: str, corrections: list[dict]) -> str | None:
         text += f" (median {rotation:.2f} deg, {float(np.median([c['translation_mm'] for c in moved])):.0f} mm)"
     if len(moved) < len(corrections):
         text += f", {len(corrections) - len(moved)} kept as recorded"
-    return text + "; each correction in metrics.json (photos.refine_poses)"
+    return text + "; each correction in metrics.json (photos.pose_corrections)"
 
 
 def perturbed_camera(camera: Camera, x: np.ndarray, depth_scale: float) -> Camera:

@@ -925,6 +925,9 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             metrics["input"]["texture"] = vertex_texture_note(vertex_atlas, blends)
         metrics["seam_visibility"]["before_blending"] = round(seam_visibility(baked), 3)
         metrics["uv"] = {"mode": mode, **plan.report}
+        if mode == "keep":  # the kept layout's atlas is baked at its own size, not at the size a new one is made at
+            metrics["uv"]["texture_size"] = max((max(m.image.shape[:2]) for m in enhanced.materials
+                                                 if m.image is not None), default=size)
         metrics["field"]["train_rays"] = int(tv.valid[tv.views.train].sum())
         metrics["field"]["untaught_faces"] = int((~taught & ~fill).sum())
         if field_skipped is not None:

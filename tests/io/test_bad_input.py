@@ -126,7 +126,9 @@ def test_cli_one_line_error_and_nothing_written(tmp_path, case):
 def test_debug_shows_traceback(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "scantex", "info", str(tmp_path / "x.obj"), "--debug"],
                           capture_output=True, text=True, timeout=60)
-    assert proc.returncode != 0 and "Traceback" in proc.stderr
+    # the traceback, and the exit status and one line of a run without --debug (it had exited 1, not 2)
+    assert proc.returncode == 2 and "Traceback" in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("scantex: error: ")
 
 
 def test_missing_texture_is_read_untextured_with_a_warning(tmp_path, caplog):

@@ -126,6 +126,21 @@ def test_enhance_never_replaces_an_input(tmp_path, capsys, monkeypatch, target):
     assert fingerprint(tmp_path) == before
 
 
+def test_an_output_inside_a_photos_folder_named_by_photos_is_refused(tmp_path, capsys, monkeypatch):
+    """``--photos photos/ -o photos/out``: the README says an output may not lie inside the folder of photos
+    --photos names; it was written there (the set's source is its cameras file, not the folder)."""
+    monkeypatch.chdir(tmp_path)
+    mesh = write_cube(tmp_path / "scan")
+    write_photos(tmp_path / "photos")
+    config = write_tiny_config(tmp_path / "cfg" / "tiny.json", dataclasses.replace(
+        TINY, photos=dataclasses.replace(TINY.photos, check_alignment=False)))
+    before = fingerprint(tmp_path)
+    rc, err = run_cli(capsys, "enhance", mesh, "--photos", tmp_path / "photos", "-o", tmp_path / "photos" / "out",
+                      "--config", config, "-q")
+    assert_clean_error(rc, err, "input folder")
+    assert fingerprint(tmp_path) == before
+
+
 def test_an_output_inside_the_capture_folder_is_written_beside_its_inputs(tmp_path, capsys, monkeypatch):
     """``cd capture && scantex enhance scan.obj --photos cameras.json -o out``: the output lies in the folder
     of the poses file, holding none of the inputs, which stay byte for byte as they were."""

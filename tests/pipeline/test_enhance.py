@@ -79,6 +79,8 @@ def test_output_atlas_keeps_the_input_size_and_layout(toy_demo, toy_result):
     assert np.array_equal(toy_result.scan.uvs, toy_demo.scan.uvs)
     field = enhance(toy_demo.scan, TOY.override(bake__source="field", train__steps=5))
     assert field.scan.materials[0].image.shape[:2] == (128, 128)
+    # and the metrics say the size written (they had said the field bake's, 128, for both)
+    assert toy_result.metrics["uv"]["texture_size"] == 64 and field.metrics["uv"]["texture_size"] == 128
 
 
 def test_field_is_trained_only_when_something_uses_it(toy_demo):
