@@ -229,9 +229,38 @@ def _near_black(scan: Scan):
     surface point lies, falling from 1 beside them to 0 at ``FADE_TEXELS``: twice the black share of the square
     that far around it, read from a quarter-resolution table made at the first call (an 8192² atlas: 2048², a
     box filter)."""
+    lookup = _texel_lookup(scan, _near_table, 1)
+    return lambda face_ids, bary: lookup(face_ids, bary)[:, 0]
+
+
+def _near_table(image: np.ndarray) -> np.ndarray:
+    """:func:`_near_black`'s ``(H // 4, W // 4, 1)`` table of ``image``."""
     from scipy.ndimage import uniform_filter
 
     from scantex.atlas.holes import BLACK_LEVEL
+
+    H, W = image.shape[:2]
+    kernel = jit.compiled(_black_blocks) if image.dtype == np.uint8 and H >= 4 and W >= 4 else None
+    if kernel is not None:  # one compiled pass (an 8192² atlas: 0.05 s, numpy's 0.7 s)
+        quarter = np.empty((H // 4, W // 4), np.float32)
+        kernel(image, BLACK_LEVEL, quarter)
+    else:
+        level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
+        # the channels' maximum pairwise (numpy's max over a row of three is many times slower)
+        black = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) <= level
+        h, w = max(1, H // 4), max(1, W // 4)
+        quarter = black.astype(np.float32) if H < 4 or W < 4 else \
+            black[:4 * h, :4 * w].reshape(h, 4, w, 4).sum(axis=(1, 3), dtype=np.uint8) / np.float32(16)
+    reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
+    size = 2 * max(1, int(round(reach))) + 1
+    return np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]
+
+
+def _texel_lookup(scan: Scan, make: Callable[[np.ndarray], np.ndarray], channels: int):
+    """A lookup ``(face_ids, bary) -> (N, channels) float32``: the bilinear lookup, at surface points, of a table
+    ``make(image)`` of each textured material's atlas (0-1 for an 8-bit table), made at the first call that
+    needs it; zeros on materials without a texture. The bake colours chunks in threads: the first to need a
+    table makes it."""
     from scantex.views.render import hit_uvs, sample_texture
 
     tables: dict[int, np.ndarray] = {}
@@ -240,39 +269,24 @@ def _near_black(scan: Scan):
     def table(m: int) -> np.ndarray:
         with making:
             if m not in tables:
-                image = scan.materials[m].image
-                H, W = image.shape[:2]
-                kernel = jit.compiled(_black_blocks) if image.dtype == np.uint8 and H >= 4 and W >= 4 else None
-                if kernel is not None:  # one compiled pass (an 8192² atlas: 0.05 s, numpy's 0.7 s)
-                    quarter = np.empty((H // 4, W // 4), np.float32)
-                    kernel(image, BLACK_LEVEL, quarter)
-                else:
-                    level = BLACK_LEVEL if image.dtype == np.uint8 else BLACK_LEVEL / 255.0
-                    # the channels' maximum pairwise (numpy's max over a row of three is many times slower)
-                    black = np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2]) <= level
-                    h, w = max(1, H // 4), max(1, W // 4)
-                    quarter = black.astype(np.float32) if H < 4 or W < 4 else \
-                        black[:4 * h, :4 * w].reshape(h, 4, w, 4).sum(axis=(1, 3), dtype=np.uint8) / np.float32(16)
-                reach = FADE_TEXELS * max(quarter.shape) / max(H, W)  # in the table's texels
-                size = 2 * max(1, int(round(reach))) + 1
-                tables[m] = np.clip(2.0 * uniform_filter(quarter, size, mode="wrap"), 0, 1)[..., None]
+                tables[m] = make(scan.materials[m].image)
         return tables[m]
 
-    def near(face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
-        out = np.zeros(len(face_ids), np.float32)
+    def lookup(face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(face_ids), channels), np.float32)
         uv = hit_uvs(scan, face_ids, bary)
         materials = scan.face_materials[face_ids]
         for m, material in enumerate(scan.materials):
             sel = np.flatnonzero(materials == m)
             if material.image is not None and sel.size:
-                out[sel] = sample_texture(table(m), uv[sel])[:, 0]
+                out[sel] = sample_texture(table(m), uv[sel])
         return out
 
-    return near
+    return lookup
 
 
 def _black_blocks(image, level, out):
-    """The compiled twin of :func:`_near_black`'s quarter-resolution table: ``out (H // 4, W // 4)`` the share of
+    """The compiled twin of :func:`_near_table`'s quarter-resolution counts: ``out (H // 4, W // 4)`` the share of
     each 4x4 block of the 8-bit ``image (H, W, >= 3)`` whose channels are all at most ``level``."""
     for by in range(out.shape[0]):
         for bx in range(out.shape[1]):
@@ -291,41 +305,31 @@ def _dark_texels(scan: Scan):
     ``w`` and ``dark`` that of ``w`` times the texel's colour. ``base - dark + share * fill`` is then the
     lookup of an atlas whose black texels were replaced by the fill: no dark rim where bilinear lookups mix
     a black texel with a coloured one. The tables (4 bytes a texel) are made at the first call."""
+    lookup = _texel_lookup(scan, _dark_texel_table, 4)
+    diffuse = np.asarray([m.diffuse[:3] for m in scan.materials], np.float32)
+
+    def darkness(face_ids: np.ndarray, bary: np.ndarray, offset=None) -> tuple[np.ndarray, np.ndarray]:
+        """``offset(face_ids, bary)``, when given, is what a colour adds to every texel it looks up: ``dark``
+        then includes the black texels' share of it."""
+        looked = lookup(face_ids, bary)  # 0-1
+        share = looked[:, :1]
+        dark = looked[:, 1:] * diffuse[scan.face_materials[face_ids]]
+        if offset is not None:
+            dark += share * np.asarray(offset(face_ids, bary), np.float32)
+        return share, dark
+
+    return darkness
+
+
+def _dark_texel_table(image: np.ndarray) -> np.ndarray:
+    """:func:`_dark_texels`' ``(H, W, 4) uint8`` table of ``image``: ``w`` times 255, and ``w`` times the texel."""
     from scantex.atlas.holes import BLACK_LEVEL
-    from scantex.views.render import hit_uvs, sample_texture
 
-    tables: dict[int, np.ndarray] = {}
-    making = threading.Lock()  # the bake colours chunks in threads: the first to need a table makes it
-
-    def table(m: int) -> np.ndarray:
-        with making:
-            if m in tables:
-                return tables[m]
-            image = scan.materials[m].image
-            out = np.empty((*image.shape[:2], 4), np.uint8)
-            kernel = jit.compiled(_dark_table) if image.dtype == np.uint8 else None
-            if kernel is not None:  # one compiled pass (an 8192^2 atlas: about 0.2 s, where numpy took 1-2 s)
-                kernel(image, out, BLACK_LEVEL, np.float32(BLACK_LEVEL + DARK_RAMP), np.float32(DARK_RAMP))
-                tables[m] = out
-                return out
-            for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
-                band = out[r:r + 512]
-                if image.dtype != np.uint8:
-                    band[:] = weighted(image[r:r + 512, :, :3].astype(np.float32) * 255.0)
-                    continue
-                # 8-bit texels: w is 1 at BLACK_LEVEL and below (the entry is the texel itself) and 0 from the
-                # ramp's end (the entry is 0), both exactly; only the few texels on the ramp take arithmetic
-                # (an 8192² atlas: 3.4 -> 1.3 s, the same table)
-                levels = image[r:r + 512, :, :3]
-                brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])
-                black = (brightest <= BLACK_LEVEL).view(np.uint8)
-                np.multiply(black, 255, out=band[..., 0])
-                np.multiply(levels, black[..., None], out=band[..., 1:])
-                ramp = np.flatnonzero((brightest > BLACK_LEVEL) & (brightest < BLACK_LEVEL + DARK_RAMP))
-                if ramp.size:
-                    band.reshape(-1, 4)[ramp] = weighted(levels.reshape(-1, 3)[ramp].astype(np.float32))
-            tables[m] = out
-        return tables[m]
+    out = np.empty((*image.shape[:2], 4), np.uint8)
+    kernel = jit.compiled(_dark_table) if image.dtype == np.uint8 else None
+    if kernel is not None:  # one compiled pass (an 8192^2 atlas: about 0.2 s, where numpy took 1-2 s)
+        kernel(image, out, BLACK_LEVEL, np.float32(BLACK_LEVEL + DARK_RAMP), np.float32(DARK_RAMP))
+        return out
 
     def weighted(levels: np.ndarray) -> np.ndarray:
         """``(..., 4)`` table entries of texels ``levels (..., 3)`` in 8-bit levels (float32)."""
@@ -335,29 +339,27 @@ def _dark_texels(scan: Scan):
         # in 8-bit levels: w * 255, and w times the texel (at most BLACK_LEVEL + DARK_RAMP levels)
         return np.concatenate([np.rint(w * 255), np.rint(w * levels)], axis=-1)
 
-    def darkness(face_ids: np.ndarray, bary: np.ndarray, offset=None) -> tuple[np.ndarray, np.ndarray]:
-        """``offset(face_ids, bary)``, when given, is what a colour adds to every texel it looks up: ``dark``
-        then includes the black texels' share of it."""
-        share = np.zeros((len(face_ids), 1), np.float32)
-        dark = np.zeros((len(face_ids), 3), np.float32)
-        uv = hit_uvs(scan, face_ids, bary)
-        materials = scan.face_materials[face_ids]
-        for m, material in enumerate(scan.materials):
-            sel = np.flatnonzero(materials == m)
-            if material.image is None or sel.size == 0:
-                continue
-            looked = sample_texture(table(m), uv[sel])  # 0-1
-            share[sel] = looked[:, :1]
-            dark[sel] = looked[:, 1:] * np.asarray(material.diffuse[:3], np.float32)
-        if offset is not None:
-            dark += share * np.asarray(offset(face_ids, bary), np.float32)
-        return share, dark
-
-    return darkness
+    for r in range(0, image.shape[0], 512):  # a band of rows at a time: bounded memory on 8192² atlases
+        band = out[r:r + 512]
+        if image.dtype != np.uint8:
+            band[:] = weighted(image[r:r + 512, :, :3].astype(np.float32) * 255.0)
+            continue
+        # 8-bit texels: w is 1 at BLACK_LEVEL and below (the entry is the texel itself) and 0 from the ramp's
+        # end (the entry is 0), both exactly; only the few texels on the ramp take arithmetic (an 8192² atlas:
+        # 3.4 -> 1.3 s, the same table)
+        levels = image[r:r + 512, :, :3]
+        brightest = np.maximum(np.maximum(levels[..., 0], levels[..., 1]), levels[..., 2])
+        black = (brightest <= BLACK_LEVEL).view(np.uint8)
+        np.multiply(black, 255, out=band[..., 0])
+        np.multiply(levels, black[..., None], out=band[..., 1:])
+        ramp = np.flatnonzero((brightest > BLACK_LEVEL) & (brightest < BLACK_LEVEL + DARK_RAMP))
+        if ramp.size:
+            band.reshape(-1, 4)[ramp] = weighted(levels.reshape(-1, 3)[ramp].astype(np.float32))
+    return out
 
 
 def _dark_table(image, out, black_level, ramp_end, ramp):
-    """The compiled twin of :func:`_dark_texels`' table for an 8-bit ``image (H, W, >= 3)``: ``out (H, W, 4)`` the
+    """The compiled twin of :func:`_dark_texel_table` for an 8-bit ``image (H, W, >= 3)``: ``out (H, W, 4)`` the
     texel itself behind 255 at ``black_level`` and below, zeros from ``ramp_end`` up, and between them ``w`` = (ramp_end
     - brightest) / ramp times 255 and times the texel, rounded, in float32 as the numpy table computes them."""
     H, W = image.shape[0], image.shape[1]

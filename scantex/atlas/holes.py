@@ -13,7 +13,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 from scantex import jit
-from scantex.arrays import read_only
+from scantex.arrays import read_only, unique_rows
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
 
@@ -83,7 +83,7 @@ def dark_content(scan: Scan, holes: np.ndarray, partly: np.ndarray, black_probes
     region_of_position[touched] = label[idx.size:][touched]
     # the faces around each region: the others that share a position with it (a face counted once a region)
     around = np.flatnonzero(~black & touched[corners].any(axis=1))
-    pairs = np.unique(np.stack([np.repeat(around, 3), region_of_position[corners[around]].ravel()], axis=1), axis=0)
+    pairs = unique_rows(np.stack([np.repeat(around, 3), region_of_position[corners[around]].ravel()], axis=1))
     pairs = pairs[pairs[:, 1] >= 0]
     surround = np.full(n, np.inf)  # no face around: lit
     if len(pairs):

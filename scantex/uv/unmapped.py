@@ -15,6 +15,7 @@ import logging
 
 import numpy as np
 
+from scantex.arrays import unique_rows
 from scantex.atlas.holes import unmapped_faces, whole_tiles
 from scantex.atlas.texelmap import uv_to_pixel
 from scantex.scan import Scan
@@ -84,14 +85,12 @@ def wrap_whole_tiles(scan: Scan) -> tuple[Scan, int]:
     faces = np.flatnonzero(move)
     # a UV vertex that faces in several tiles share becomes one per tile: new vertices for the moved corners
     corners = scan.face_uvs[faces].ravel()
-    shifted = scan.uvs[corners] - np.repeat(tile[faces], 3, axis=0)
-    keys, inverse = np.unique(np.column_stack([corners, np.repeat(tile[faces], 3, axis=0)]), axis=0,
-                              return_inverse=True)
-    first = np.zeros(len(keys), np.int64)
-    first[inverse.ravel()] = np.arange(len(corners))
+    tiles = np.repeat(tile[faces], 3, axis=0)
+    keys, inverse = unique_rows(np.column_stack([corners, tiles]), return_inverse=True)  # (UV vertex, tile)
     face_uvs = scan.face_uvs.copy()
     face_uvs[faces] = len(scan.uvs) + inverse.reshape(-1, 3)
-    uvs = np.concatenate([scan.uvs, shifted[first]]).astype(scan.uvs.dtype)
+    shifted = scan.uvs[keys[:, 0].astype(np.int64)] - keys[:, 1:]
+    uvs = np.concatenate([scan.uvs, shifted]).astype(scan.uvs.dtype)
     log.info("moved %d faces whose UVs lie in one whole tile outside [0, 1] into the atlas (the texture "
              "repeats there)", faces.size)
     return scan.replace(uvs=uvs, face_uvs=face_uvs), int(faces.size)
