@@ -78,14 +78,20 @@ def volume_info(scan: Scan) -> dict:
     if boundary == 0 and scan.n_faces:
         import trimesh
 
-        merged = trimesh.Trimesh(scan.positions, scan.faces, process=False, validate=False)
+        merged = trimesh.Trimesh(scan.positions, scan.faces.copy(), process=False, validate=False)
         merged.merge_vertices(merge_tex=True, merge_norm=True)
     watertight = merged is not None and bool(merged.is_watertight)
     out = {"area": float(scan.face_areas.sum()), "watertight": watertight, "boundary_edges": boundary,
            "volume": None, "note": ""}
-    if watertight:
+    if watertight and not merged.is_winding_consistent:
+        # faces wound both ways: their signed volumes cancel (a cube with one flipped face: 0.5). The
+        # copy is wound one way; a surface that cannot be (one-sided) encloses nothing
+        trimesh.repair.fix_winding(merged)
+    if watertight and merged.is_winding_consistent:
         out["volume"] = float(abs(merged.volume))
         out["note"] = "closed surface: enclosed volume"
+    elif watertight:
+        out["note"] = "closed but one-sided surface (its faces cannot all face one way): it encloses no volume"
     else:
         why = f"{boundary:,} boundary edges" if boundary else "non-manifold edges"
         out["note"] = (f"open surface ({why}): it encloses no volume, so none is reported "

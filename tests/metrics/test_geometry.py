@@ -119,6 +119,20 @@ def test_volume_of_a_closed_mesh_with_split_vertices():
     assert info["area"] == pytest.approx(22.0)
 
 
+def test_volume_of_a_closed_mesh_wound_both_ways():
+    # a file whose faces are not all wound the same way (one flipped triangle, half a sphere's faces): their
+    # signed volumes cancel, and the volume was reported as 0.5 for the unit cube
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    faces = box.faces.copy()
+    faces[0] = faces[0, ::-1]
+    assert volume_info(Scan(box.vertices, faces))["volume"] == pytest.approx(1.0)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    faces = sphere.faces.copy()
+    faces[::2] = faces[::2, ::-1]
+    assert volume_info(Scan(sphere.vertices, faces))["volume"] == pytest.approx(sphere.volume)
+    assert np.array_equal(faces[::2], sphere.faces[::2, ::-1])  # the scan's own faces are not touched
+
+
 def test_open_mesh_has_no_volume_and_says_why():
     info = volume_info(flat_wall(n=5))
     assert info["volume"] is None and not info["watertight"]
