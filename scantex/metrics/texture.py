@@ -10,12 +10,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+import math
+
 import numpy as np
 
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.atlas.texelmap import covered_texels
 from scantex.metrics.image import mse, psnr, ssim
+from scantex.metrics.views import PSNR_CAP_DB
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
@@ -157,11 +160,16 @@ def render_reference(scan: Scan, supersample: int = 2) -> Reference:
 
 def render_scores(reference: Reference, scans: dict[str, Scan], cameras: Sequence[Camera],
                   supersample: int = 2) -> dict:
-    """Mean PSNR / SSIM / MSE over ``cameras`` of each scan's unlit renders against ``reference``.
+    """PSNR / SSIM / MSE over ``cameras`` of each scan's unlit renders against ``reference``.
 
     Unlike :func:`scantex.metrics.views.score_views`, each scan is ray-cast on its own, so the scans
     may differ in geometry; a pixel counts where the reference's mask says so (a scan that does not
     cover it there is scored against its black background).
+
+    ``mse`` and ``ssim`` are means over the views; ``psnr`` is that of the mean MSE (infinite only when every
+    view is identical), ``psnr_mean_of_views`` the mean of the views' PSNRs, each capped at ``PSNR_CAP_DB``:
+    a view that does not see where two textures differ is identical, and one such view made the plain mean
+    infinite ("identical" for textures that differ).
     """
     casters = {name: RayCaster(s.positions, s.faces) for name, s in scans.items()}
     out: dict[str, dict[str, list]] = {name: {"psnr": [], "ssim": [], "mse": []} for name in scans}
@@ -171,8 +179,13 @@ def render_scores(reference: Reference, scans: dict[str, Scan], cameras: Sequenc
             continue
         for name, scan in scans.items():
             img, _ = render(scan, cam, casters[name], supersample=supersample)
-            out[name]["psnr"].append(psnr(img, ref, mask))
+            out[name]["psnr"].append(min(psnr(img, ref, mask), PSNR_CAP_DB))
             out[name]["ssim"].append(ssim(img, ref, mask))
             out[name]["mse"].append(mse(img, ref, mask))
-    return {name: {k: float(np.mean(v)) if v else float("nan") for k, v in d.items()} | {"views": len(d["psnr"])}
-            for name, d in out.items()}
+    result = {}
+    for name, d in out.items():
+        r = {k: float(np.mean(v)) if v else float("nan") for k, v in d.items()}
+        r["psnr_mean_of_views"] = r["psnr"]
+        r["psnr"] = 10 * math.log10(1 / r["mse"]) if r["mse"] > 0 else math.inf if d["mse"] else math.nan
+        result[name] = r | {"views": len(d["psnr"])}
+    return result

@@ -82,3 +82,16 @@ def test_render_scores(wall):
     s = render_scores(render_reference(wall), {"same": wall, "darker": darker}, [cam])
     assert s["same"]["psnr"] == float("inf") and s["same"]["views"] == 1
     assert 10 < s["darker"]["psnr"] < 30 and s["darker"]["ssim"] < 1
+
+
+def test_render_scores_pool_the_views_errors(wall):
+    # b identical to the reference in one view and darker in the other: the views' PSNRs are inf and ~20 dB,
+    # whose plain mean said "inf (identical)" for textures that differ
+    near = Camera.look_at((1.0, -2.5, 1.0), (1.0, 0.0, 1.0), width=64, height=48)
+    far = Camera.look_at((0.5, -3.0, 1.0), (0.5, 0.0, 1.0), width=64, height=48)
+    darker = with_image(wall, (wall.materials[0].image * 0.8).astype(np.uint8))
+    same, changed = render_reference(wall), render_reference(darker)
+    s = render_scores(lambda cam: same(cam) if cam is near else changed(cam), {"b": wall}, [near, far])["b"]
+    errors = render_scores(changed, {"b": wall}, [far])["b"]["mse"]
+    assert s["psnr"] == pytest.approx(10 * np.log10(2 / errors))
+    assert s["psnr_mean_of_views"] == pytest.approx((100 + 10 * np.log10(1 / errors)) / 2)
