@@ -413,18 +413,21 @@ def enhance_summary(m: dict) -> str:
         if m.get("input", {}).get("textured", True):
             lines.append("  (held out from the result only: a capture app's input texture was most likely made from "
                          "these photos too, which favours the input)")
+        if "held_out_photos_vs_ground_truth" in m:
+            s = m["held_out_photos_vs_ground_truth"]
+            lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
+                         f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
         final = m.get("photos", {}).get("final_texture", {})
         if final.get("mode") == "all":
+            views = ("; the held-out views' score vs ground truth is the texture written"
+                     if "held_out_vs_ground_truth" in m else "")
             lines.append(f"texture written: made from all {final['photos']} photos, the held-out ones included (the "
-                         f"scores above are the texture made without them; photos.final {final.get('setting', 'all')})")
+                         f"held-out photos' scores above are the texture made without them{views}; photos.final "
+                         f"{final.get('setting', 'all')})")
     poses = corrections_summary(m.get("photos", {}).get("pose_refinement", "off"),
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         lines.append(f"poses: {poses}")
-    if "held_out_photos_vs_ground_truth" in m:
-        s = m["held_out_photos_vs_ground_truth"]
-        lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
-                     f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
     clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
     if clipped.get("gave_way"):
         lines.append(f"over-exposed photos: {100 * clipped['clipped'] / max(clipped['samples'], 1):.1f} % of the "

@@ -110,7 +110,7 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
                  "metrics.json (computed at the views' resolution; the renders here are finer)."),
     ]
     if getattr(result, "comparisons", None):
-        remade = (metrics.get("photos", {}).get("final_texture") or {}).get("mode") == "all"
+        remade = _remade(metrics)
         aligned = "psnr_aligned" in (metrics.get("held_out_photos") or {}).get("enhanced", {})
         caption = "Photos the result was made without | the input rendered through their cameras | the result."
         if aligned:
@@ -146,6 +146,11 @@ def _section(title: str, body: str, note: str = "") -> str:
     return f'<section id="{slug}"><h2>{html.escape(title)}</h2>{note}{body}</section>'
 
 
+def _remade(m: dict) -> bool:
+    """Whether the texture written was made again from every photo once the held-out ones were scored."""
+    return (m.get("photos", {}).get("final_texture") or {}).get("mode") == "all"
+
+
 def _headline(m: dict) -> str:
     g = m.get("geometry", {})
     rows = []
@@ -175,7 +180,8 @@ def _headline(m: dict) -> str:
                      f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB (colour-matched {_num(i['psnr_matched'])} → "
                      f"{_num(e['psnr_matched'])}), SSIM {i['ssim']:.3f} → {e['ssim']:.3f}; held out from the "
                      "result only: a capture app's input texture was most likely made from these photos too, which "
-                     "favours the input",
+                     "favours the input" + ("; the texture made without them (the one written was then made from "
+                                            "every photo, these included: photos.final)" if _remade(m) else ""),
                      "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
         if "psnr_aligned" in i and "psnr_aligned" in e:
             rows.append(("Held-out photos, poses aligned",
@@ -452,6 +458,8 @@ def _metrics_tables(m: dict) -> str:
         scores = m.get(key)
         if not scores:
             continue
+        if key.startswith("held_out_photos") and _remade(m):
+            label += " (the texture made without these photos; the one written was made from all)"
         names = list(scores)
         cols = sorted({c for s in scores.values() for c in s if c != "per_view"})
         head = "".join(f"<th>{html.escape(n)}</th>" for n in names)

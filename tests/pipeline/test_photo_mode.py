@@ -152,6 +152,15 @@ def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, 
     moved = final["held_out_pose_corrections"]
     assert [c["photo"] for c in moved] == m["held_out"]
     assert result.metrics["held_out_photos"]["enhanced"]["photos"] == 1
+    # the summary says which texture each score is of: the held-out photos' scores, the one made without them;
+    # a held-out view's score against a ground truth, the one written
+    from scantex.cli import enhance_summary
+
+    said = enhance_summary(result.metrics)
+    assert "(the held-out photos' scores above are the texture made without them; photos.final" in said
+    truth = {**result.metrics, "held_out_vs_ground_truth": {"input": {"psnr": 20, "ssim": 0.5},
+                                                              "enhanced": {"psnr": 25, "ssim": 0.6}}}
+    assert "held-out views' score vs ground truth is the texture written" in enhance_summary(truth)
 
 
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
