@@ -18,7 +18,7 @@ A photo pixel teaches the field only where the mesh says what it sees, and only 
 Held-out photos are scored by rendering a scan through their cameras and comparing it with the
 photo on the pixels that pass the same test. A held-out photo's exposure is unknown to any texture,
 so besides the raw score the *colour-matched* score first fits a per-channel gain and offset from the
-render to the photo (least squares, 6 numbers per photo, the same for every scan compared): it
+render to the photo (least squares, 6 numbers per photo, fitted to each scan's render on its own): it
 measures texture detail and alignment rather than a photo's exposure.
 """
 
