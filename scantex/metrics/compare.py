@@ -132,7 +132,9 @@ def summary_lines(result: dict) -> str:
              f"{g['faces'][1]:,}, distinct positions {g['distinct_positions'][0]:,} / {g['distinct_positions'][1]:,}"
              f" ({'identical' if g['arrays_identical'] else 'triangles identical' if g['triangles_identical'] else 'different'})",
              f"distance: Hausdorff {d['hausdorff']:.6g} ({d['hausdorff_rel']:.3g} of the diagonal), mean "
-             f"point-to-mesh a->b {d['mean_a_to_b']:.6g}, b->a {d['mean_b_to_a']:.6g}"]
+             f"point-to-mesh a->b {d['mean_a_to_b']:.6g}, b->a {d['mean_b_to_a']:.6g}"
+             + (f" (from every vertex and {d['samples']:,} surface points a direction: the Hausdorff distance "
+                f"can only be larger)" if d.get("samples") else "")]
     for side, v in zip("ab", g["volume"]):
         lines.append(f"volume {side}: {v['volume']:.6g}" if v["volume"] is not None else f"volume {side}: {v['note']}")
     ta, tb = result["texture"]["a"], result["texture"]["b"]
