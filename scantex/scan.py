@@ -81,7 +81,8 @@ class Material:
         name: the material's name in the file (``newmtl`` in OBJ).
         image: ``(H, W, 3|4) uint8`` texture, row 0 at the top; ``None`` for an untextured material.
         diffuse: ``(4,) float`` RGBA base colour in [0, 1]; multiplies the image when rendering.
-        image_name: file name the texture is written under (``None``: derived from ``name``).
+        image_name: the texture's file name (``None``: derived from ``name``); an OBJ ``x.obj`` writes it
+            as ``x_`` + this name unless it starts with ``x`` (:func:`scantex.io.obj.texture_names`).
         maps: the material's other maps by kind (:data:`GLTF_MAPS`), on the same UV layout as ``image``
             (a Polycam GLB's normal and occlusion maps); a new layout leaves them out.
         gltf: the material's other parameters, as glTF names them (:data:`GLTF_PARAMETERS`): a glTF

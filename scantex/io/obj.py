@@ -414,16 +414,20 @@ def _rows(prefix: str, values: np.ndarray) -> str:
 
 
 def texture_names(scan: Scan, stem: str) -> list[str | None]:
-    """File name of each material's texture: its own name if it has one, else ``stem_material.png``.
+    """File name of each material's texture: ``stem_material.png``, or where it has a name of its own,
+    that name after ``stem_`` (kept as it is when it starts with ``stem``).
 
-    Names are made unique and always end in .png (textures are written losslessly).
+    ``stem`` keeps two meshes saved in one folder from sharing (and overwriting) a texture, and a copy saved
+    beside its input from being refused for the input's texture name. Names are made unique and always end
+    in .png (textures are written losslessly).
     """
     names, used = [], set()
     for m in scan.materials:
         if m.image is None:
             names.append(None)
             continue
-        base = Path(m.image_name).stem if m.image_name else f"{stem}_{m.name}"
+        own = Path(m.image_name).stem if m.image_name else None
+        base = own if own and own.startswith(stem) else f"{stem}_{own or m.name}"
         base = re.sub(r"[^\w.-]+", "_", base)
         name, k = f"{base}.png", 1
         while name in used:

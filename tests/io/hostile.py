@@ -50,7 +50,7 @@ def assert_clean_error(rc: int, err: str, *needles: str) -> None:
 
 
 def write_cube(folder: Path, name: str = "m.obj") -> Path:
-    """The textured cube as ``folder/m.obj`` + ``m.mtl`` + ``tex0.png``."""
+    """The textured cube as ``folder/m.obj`` + ``m.mtl`` + ``m_tex0.png``."""
     save_scan(textured_cube(materials=1), folder / name)
     return folder / name
 

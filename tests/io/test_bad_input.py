@@ -83,8 +83,8 @@ def case_garbage_ply(tmp_path):
 
 def case_texture_not_image(tmp_path):
     obj = write_cube(tmp_path)
-    (tmp_path / "tex0.png").write_text("this is not a picture")
-    return obj, "tex0.png: texture is not an image"
+    (tmp_path / "cube_tex0.png").write_text("this is not a picture")
+    return obj, "cube_tex0.png: texture is not an image"
 
 
 def case_missing_mtl(tmp_path):
@@ -136,11 +136,11 @@ def test_missing_texture_is_read_untextured_with_a_warning(tmp_path, caplog):
     warning names the file and the material."""
     obj = tmp_path / "cube.obj"
     save_scan(textured_cube(materials=2), obj)
-    (tmp_path / "tex0.png").unlink()
+    (tmp_path / "cube_tex0.png").unlink()
     with caplog.at_level("WARNING"):
         scan = load_scan(obj)
     messages = [r.getMessage() for r in caplog.records]
-    assert any("tex0.png: texture named by material 'mat0' not found: the material is read untextured" in m
+    assert any("cube_tex0.png: texture named by material 'mat0' not found: the material is read untextured" in m
                for m in messages)
     assert scan.materials[0].image is None and scan.materials[1].image is not None
     assert scan.is_textured  # the other material keeps its atlas
@@ -153,7 +153,7 @@ def test_a_scan_without_colour_and_without_photos_is_refused_before_any_work(tmp
     from scantex.pipeline.enhance import has_colour
 
     obj = write_cube(tmp_path)
-    (tmp_path / "tex0.png").unlink()
+    (tmp_path / "cube_tex0.png").unlink()
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "scantex", "enhance", str(obj), "-o", str(out)],
                           capture_output=True, text=True, timeout=120)

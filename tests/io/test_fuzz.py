@@ -96,7 +96,7 @@ def nested(data: bytes, rng) -> bytes:
 
 
 OBJ_MUTATIONS = {"m.obj": [truncate, flip, nasty_numbers, bad_index], "m.mtl": [truncate, flip, nasty_numbers],
-                 "tex0.png": [truncate, flip, lie_in_png]}
+                 "m_tex0.png": [truncate, flip, lie_in_png]}
 GLB_MUTATIONS = [truncate, flip, lie_in_glb]
 CAMERA_MUTATIONS = [truncate, flip, nasty_numbers, nested]
 RENDER = ["--views", "1", "--width", "16", "--height", "16", "--supersample", "1", "-q"]
@@ -106,7 +106,7 @@ def cases():
     rng = np.random.default_rng(SEED)
     out = []
     for k in range(36):
-        name = ["m.obj", "m.mtl", "tex0.png"][k % 3]
+        name = ["m.obj", "m.mtl", "m_tex0.png"][k % 3]
         fn = OBJ_MUTATIONS[name][int(rng.integers(0, len(OBJ_MUTATIONS[name])))]
         out.append(("obj", name, fn, int(rng.integers(0, 2**31))))
     for k in range(18):

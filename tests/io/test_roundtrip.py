@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -27,7 +29,7 @@ def float32_scan(scan: Scan) -> Scan:
 
 def test_obj_multi_material_roundtrip_is_exact(tmp_path, cube):
     written = save_scan(cube, tmp_path / "cube.obj")
-    assert {p.name for p in written} == {"cube.obj", "cube.mtl", "tex0.png", "tex1.png"}
+    assert {p.name for p in written} == {"cube.obj", "cube.mtl", "cube_tex0.png", "cube_tex1.png"}
     back = load_scan(tmp_path / "cube.obj")
     # OBJ keeps positions and their indexing exactly: same arrays, not only the same triangles
     assert np.array_equal(back.positions, cube.positions)
@@ -97,6 +99,19 @@ def test_glb_texture_survives(tmp_path, cube):
     assert np.array_equal(back.materials[0].image, cube.materials[0].image)
 
 
+def test_copies_saved_in_one_folder_keep_their_own_textures(tmp_path, cube):
+    """A copy saved beside its input (the README's `save_scan(scan, "copy.obj")`) is not refused for the
+    input's texture name, and two meshes saved in one folder do not share (overwrite) a texture file."""
+    save_scan(cube, tmp_path / "cube.obj")
+    scan = load_scan(tmp_path / "cube.obj")
+    save_scan(scan, tmp_path / "copy.obj")
+    darker = scan.replace(materials=tuple(dataclasses.replace(m, image=m.image // 2) for m in scan.materials))
+    save_scan(darker, tmp_path / "darker.obj")
+    for name, expected in (("cube", cube), ("copy", cube), ("darker", darker)):
+        back = load_scan(tmp_path / f"{name}.obj")
+        assert all(np.array_equal(b.image, m.image) for b, m in zip(back.materials, expected.materials)), name
+
+
 def test_obj_and_glb_of_one_output_share_one_png_encoding(tmp_path, cube):
     """write_outputs encodes each atlas once: the GLB embeds the OBJ's PNG files byte for byte."""
     import json
@@ -106,7 +121,7 @@ def test_obj_and_glb_of_one_output_share_one_png_encoding(tmp_path, cube):
     save_scan(cube, tmp_path / "c.obj", png_cache=cache)
     save_scan(cube, tmp_path / "c.glb", png_cache=cache)
     assert len(cache) == 2
-    pngs = sorted((tmp_path / name).read_bytes() for name in ("tex0.png", "tex1.png"))
+    pngs = sorted((tmp_path / name).read_bytes() for name in ("c_tex0.png", "c_tex1.png"))
     blob = (tmp_path / "c.glb").read_bytes()
     json_len = struct.unpack("<I", blob[12:16])[0]
     doc = json.loads(blob[20:20 + json_len])
