@@ -238,7 +238,7 @@ def _enhance_capture(args, config, capture) -> int:
         if capture.extracted is not None:  # named inside the zip in messages and metrics, not where it was unpacked
             photos = dataclasses.replace(photos, source=capture.shown(photos.source))
         _echo(args, f"{capture.shown(photos_path)}: {len(photos)} photos ({photos.format})")
-    tiles = tile_count(args, scan, photos)
+    tiles = tile_count(args, scan, photos, config.uv.mode)
     work = work_dir_for(args.output)
     # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the
     # work folder (which is removed at the end)
@@ -305,10 +305,10 @@ def compiled_note() -> str | None:
     return f"{seconds:.0f} s of this run compiled {versions} of scantex's loops ({kept})"
 
 
-def tile_count(args, scan, photos) -> int:
+def tile_count(args, scan, photos, uv_mode: str) -> int:
     """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans in
     the kept UV layout, with photos or without; untextured ones with photos or vertex colours, in a layout made
-    for the whole scan; others run whole)."""
+    for the whole scan; others run whole). ``uv_mode``: the run's ``uv.mode`` (``--uv``, or its config's)."""
     from scantex.pipeline.config import TilingConfig
     from scantex.pipeline.enhance import has_colour
 
@@ -320,7 +320,7 @@ def tile_count(args, scan, photos) -> int:
         why = None if photos is not None or scan.vertex_colors is not None else \
             "an untextured scan without photos or vertex colours"
     else:
-        why = f"--uv {args.uv}" if args.uv not in (None, "keep") else None
+        why = f"--uv {uv_mode}" if uv_mode != "keep" else None
     if why is None:
         return n
     if auto:
@@ -330,15 +330,16 @@ def tile_count(args, scan, photos) -> int:
 
 
 def cmd_batch(args) -> int:
-    from scantex.pipeline.config import load_config, preset
+    from scantex.pipeline.config import load_config, preset, validate
     from scantex.scale.batch import batch
     from scantex.scale.inputs import collect_inputs
 
     collect_inputs(args.inputs, exclude=args.output)  # a missing input is reported before any progress bar
     config = load_config(args.config) if args.config else preset(args.preset)
-    config = config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
-                             train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine,
-                             refine__over_input=args.refine)
+    config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
+                                      train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine,
+                                      refine__over_input=args.refine), "the options")
+    _check_device(config.device)
     with progress_bar("enhancing scans", args.quiet) as update:
         result = batch(args.inputs, args.output, config, ray=args.ray, workers=args.workers,
                        cpus_per_scan=args.cpus_per_scan, gpus_per_scan=args.gpus_per_scan, overwrite=args.overwrite,
@@ -536,7 +537,7 @@ def add_executor_options(p, job: str) -> None:
                    help=f"run each {job} as a Ray task declaring its CPUs, GPUs and memory: auto (this machine's "
                         "cluster, started with 'ray start', or else a new local one) or a cluster address "
                         "(needs pip install 'scantex[ray]'; default: a local process pool)")
-    p.add_argument("--workers", type=int, metavar="N",
+    p.add_argument("--workers", type=whole(0, 4096), metavar="N",
                    help=f"local pool: {job}s at once (default: the cores, fewer when their estimated memory "
                         "does not fit)")
     if job == "scan":
@@ -617,7 +618,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset: the synthetic views' number and size, and the field's size where one "
-                        "is trained (default: default; the 80k-face demo scan takes about 15 s on 2 CPU cores)")
+                        "is trained (default: default; the 80k-face demo scan takes about 20 s fast, 30 s default on 2 CPU cores)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
     p.add_argument("--texture-size", type=whole(16, 16384),
                    help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
@@ -635,12 +636,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=SEED, help="random seed (default: 0)")
     p.add_argument("--ground-truth", type=Path, metavar="MESH",
                    help="the same geometry with its true texture (synthetic scans): scores held-out views")
-    p.add_argument("--photos", type=Path, metavar="PATH",
-                   help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
-                        "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
-                        "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
-    p.add_argument("--no-photos", action="store_true",
-                   help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--photos", type=Path, metavar="PATH",
+                        help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
+                             "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
+                             "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
+    source.add_argument("--no-photos", action="store_true",
+                        help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
     p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
                    help="with --photos: the largest lens distortion of the photos' camera model scantex ignores, in "
                         "pixels it moves a pixel by (with a warning: it treats the photos as pinhole images); "
@@ -680,9 +682,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "textured from the photos that see it and the held-out photos score the fused result; an "
                         "untextured scan (with --photos, or vertex colours) is laid out whole first; "
                         "auto: one tile per --tile-faces faces (default: auto)")
-    p.add_argument("--tile-faces", type=int, default=1_000_000, metavar="F",
+    p.add_argument("--tile-faces", type=whole(1), default=1_000_000, metavar="F",
                    help="--tiles auto: the most faces one tile holds (default: 1000000)")
-    p.add_argument("--tile-overlap", type=float, default=0.15, metavar="X",
+    p.add_argument("--tile-overlap", type=real(0.0, 1.0), default=0.15, metavar="X",
                    help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
     add_executor_options(p, "tile")
     p.add_argument("--overwrite", action="store_true",
@@ -710,14 +712,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset for every scan (default: default)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
-    p.add_argument("--texture-size", type=int, help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
-    p.add_argument("--views", type=int, help="number of synthetic views (preset's by default)")
-    p.add_argument("--steps", type=int, help="field training steps (preset's by default)")
+    p.add_argument("--texture-size", type=whole(16, 16384), help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
+    p.add_argument("--views", type=whole(2, 10_000), help="number of synthetic views (preset's by default)")
+    p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="the ViT refinement stage (default: where the bake is the field's colour; --refine "
                         "also over the input's own texels)")
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
-    p.add_argument("--seed", type=int, help="random seed (default: 0)")
+    p.add_argument("--seed", type=SEED, help="random seed (default: 0)")
     add_executor_options(p, "scan")
     p.add_argument("--overwrite", action="store_true",
                    help="redo the scans finished by an earlier run (and accept a config other than OUTDIR's first)")

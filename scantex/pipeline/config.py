@@ -206,6 +206,10 @@ class EnhanceConfig:
     def from_dict(cls, d: dict, where=None) -> EnhanceConfig:
         """The config a ``config.json`` document describes; every value is checked (:func:`validate`).
 
+        A setting the document leaves out is its ``preset``'s (``{"preset": "fast", "train": {"steps": 50}}``
+        is the fast preset with 50 steps); the default preset's where ``preset`` is missing or names none of
+        :data:`PRESETS` (a label of one's own, kept as it is).
+
         Raises:
             ScanError: an unknown key, or a value of the wrong type or out of its range.
         """
@@ -214,15 +218,17 @@ class EnhanceConfig:
                 "refine": RefineConfig}
         if not isinstance(d, dict):
             raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
+        name = d.get("preset", "default")
+        base = PRESETS.get(name, PRESETS["default"]) if isinstance(name, str) else PRESETS["default"]
         kwargs = {}
         for key, value in d.items():
             if key in subs:
-                kwargs[key] = _build(subs[key], value, where, key)
+                kwargs[key] = _build(getattr(base, key), value, where, key)
             elif key in {f.name for f in dataclasses.fields(cls)}:
                 kwargs[key] = value
             else:
                 raise ScanError(where, f"unknown config key '{key}'")
-        return validate(cls(**kwargs), where)
+        return validate(dataclasses.replace(base, **kwargs), where)
 
     def override(self, **dotted) -> EnhanceConfig:
         """A copy with ``section__name=value`` (or top-level ``name=value``) settings changed."""
@@ -253,19 +259,25 @@ class TilingConfig:
     """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
     cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
 
+    def __post_init__(self):
+        if self.tiles < 0 or self.max_faces < 1 or not 0.0 <= self.overlap <= 1.0:  # NaN fails too
+            raise ScanError(None, f"tiling needs tiles >= 0, max_faces >= 1 and overlap from 0 to 1, not "
+                                  f"{self.tiles}, {self.max_faces} and {self.overlap}")
+
     def count(self, n_faces: int) -> int:
         """The number of tiles for a scan of ``n_faces`` faces."""
         return self.tiles if self.tiles > 0 else max(1, math.ceil(n_faces / self.max_faces))
 
 
-def _build(cls, values: dict, where, section: str):
+def _build(base, values: dict, where, section: str):
+    """``base`` (a section's settings) with ``values`` set."""
     if not isinstance(values, dict):
         raise ScanError(where, f"config '{section}' must be an object of settings, not {str(values)[:40]!r}")
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(base)}
     unknown = set(values) - names
     if unknown:
         raise ScanError(where, f"unknown config key '{section}.{sorted(unknown)[0]}'")
-    return cls(**values)
+    return dataclasses.replace(base, **values)
 
 
 PRESETS: dict[str, EnhanceConfig] = {
@@ -340,7 +352,7 @@ RANGES: dict[str, tuple] = {
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),
     "refine.view_scale": (1.0, 8.0), "refine.max_views": (1, 10_000), "refine.diffusion_strength": (0.0, 1.0),
-    "refine.diffusion_steps": (1, BIG),
+    "refine.diffusion_steps": (1, BIG), "photos.temperature": (1e-3, 1e6), "bake.denoise": (0.0, 1e3),
 }
 
 
@@ -382,6 +394,9 @@ def validate(config: EnhanceConfig, where=None) -> EnhanceConfig:
                 raise ScanError(where, f"{bad} {allowed[0]!r} to {allowed[1]!r}")
 
     check(config, "")
+    if 0 < config.bake.texture_size < 16:
+        raise ScanError(where, f"config 'bake.texture_size' is {config.bake.texture_size}, expected 0 (automatic) "
+                               f"or 16 to 16384")
     if config.train.start_levels > config.field.n_levels:
         raise ScanError(where, f"config 'train.start_levels' ({config.train.start_levels}) is more than "
                                f"'field.n_levels' ({config.field.n_levels})")

@@ -69,6 +69,10 @@ class LocalPool:
     """multiprocessing start method: spawn (a clean interpreter per job; torch is not fork-safe)"""
     name: str = field(default="local pool", init=False)
 
+    def __post_init__(self):
+        if self.workers is not None and self.workers < 0:  # none could ever start: the pool would wait forever
+            raise ScanError(None, f"workers is {self.workers}: give a count of 1 or more (0 or none: the cores)")
+
     def resolved(self) -> tuple[int, int]:
         m = machine()
         return (self.workers or m.cores), (self.memory_budget or int(0.85 * m.memory))

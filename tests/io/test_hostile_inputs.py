@@ -33,7 +33,7 @@ def test_render_never_replaces_an_input(tmp_path, capsys, monkeypatch, target):
     scan_dir.mkdir(parents=True)
     mesh = write_cube(scan_dir)
     before = fingerprint(tmp_path / "a")
-    out = {"folder": scan_dir, "parent": tmp_path / "a", "mesh": mesh, "texture": scan_dir / "tex0.png",
+    out = {"folder": scan_dir, "parent": tmp_path / "a", "mesh": mesh, "texture": scan_dir / "m_tex0.png",
            "mtl": scan_dir / "m.mtl"}[target]
     rc, err = run_cli(capsys, "render", mesh, "-o", out, "--overwrite", *RENDER)
     assert_clean_error(rc, err)
@@ -45,7 +45,7 @@ def test_view_and_compare_never_replace_an_input(tmp_path, capsys, monkeypatch):
     mesh = write_cube(tmp_path)
     before = fingerprint(tmp_path)
     assert_clean_error(*run_cli(capsys, "view", mesh, "-o", mesh, "-q"), "input file")
-    assert_clean_error(*run_cli(capsys, "compare", mesh, mesh, "--json", tmp_path / "tex0.png", "-q"))
+    assert_clean_error(*run_cli(capsys, "compare", mesh, mesh, "--json", tmp_path / "m_tex0.png", "-q"))
     assert fingerprint(tmp_path) == before
 
 
@@ -247,7 +247,7 @@ def _cube_with_mtl_line(tmp_path, line):
 
 def _cube_with_texture(tmp_path, data):
     mesh = write_cube(tmp_path)
-    (tmp_path / "tex0.png").write_bytes(data)
+    (tmp_path / "m_tex0.png").write_bytes(data)
     return mesh
 
 
@@ -316,7 +316,10 @@ BAD_CONFIGS = [{"views": {"n_views": 0}}, {"views": {"n_views": 1}}, {"views": {
                {"train": {"steps": 0}}, {"train": {"lr": "fast"}}, {"train": {"batch_rays": 1.5}},
                {"field": {"encoding": "magic"}}, {"field": {"hidden": 0}}, {"bake": {"texture_size": -1}},
                {"seed": -1}, {"views": 3}, [1, 2], {"photos": {"holdout": -1}}, {"uv": {"mode": None}},
-               {"views": {"adaptive": "yes"}}, {"train": {"start_levels": 40}}]
+               {"views": {"adaptive": "yes"}}, {"train": {"start_levels": 40}},
+               # a softmax at temperature 0 divided by zero: a 65 %-black atlas, exit 0
+               {"photos": {"temperature": 0}}, {"photos": {"temperature": -5}}, {"bake": {"denoise": -1}},
+               {"bake": {"texture_size": 3}}]
 
 
 @pytest.mark.parametrize("bad", BAD_CONFIGS, ids=[json.dumps(b)[:40] for b in BAD_CONFIGS])
@@ -343,7 +346,12 @@ def test_nested_config_is_one_clean_line(tmp_path, capsys):
 BAD_NUMBERS = [["render", "--views", "0"], ["render", "--fov", "nan"], ["render", "--supersample", "0"],
                ["render", "--seed", "-1"], ["render", "--width", "0"], ["enhance", "--views", "1"],
                ["enhance", "--seed", "-1"], ["enhance", "--steps", "0"], ["enhance", "--holdout", "inf"],
-               ["enhance", "--texture-size", "-3"], ["compare", "--samples", "0"], ["view", "--max-faces", "0"]]
+               ["enhance", "--texture-size", "-3"], ["compare", "--samples", "0"], ["view", "--max-faces", "0"],
+               # NaN overlap wrote an all-black atlas; 0 faces a tile divided by zero; negative workers waited forever
+               ["enhance", "--tile-overlap", "nan"], ["enhance", "--tile-faces", "0"], ["enhance", "--workers", "-3"],
+               ["enhance", "--photos", "cameras.json", "--no-photos"],
+               ["batch", "--views", "1"], ["batch", "--seed", "-1"], ["batch", "--texture-size", "3"],
+               ["batch", "--workers", "-1"]]
 
 
 @pytest.mark.parametrize("argv", BAD_NUMBERS, ids=[" ".join(a) for a in BAD_NUMBERS])
@@ -477,23 +485,23 @@ def test_tab_separated_obj(tmp_path):
     assert np.array_equal(a.uvs, b.uvs) and b.materials[0].image is not None
 
 
-@pytest.mark.parametrize("line", ["map_Kd -clamp on tex0.png", "map_Kd -blendu off -s 1 1 -o 0.5 tex0.png",
-                                  "map_Kd -imfchan r -mm 0 1 -bm 0.5 -texres 512 tex0.png"])
+@pytest.mark.parametrize("line", ["map_Kd -clamp on m_tex0.png", "map_Kd -blendu off -s 1 1 -o 0.5 m_tex0.png",
+                                  "map_Kd -imfchan r -mm 0 1 -bm 0.5 -texres 512 m_tex0.png"])
 def test_map_kd_options_before_the_file_name(tmp_path, line):
     mesh = write_cube(tmp_path)
     mtl = tmp_path / "m.mtl"
-    mtl.write_text(mtl.read_text().replace("map_Kd tex0.png", line))
+    mtl.write_text(mtl.read_text().replace("map_Kd m_tex0.png", line))
     assert load_scan(mesh).materials[0].image is not None
 
 
-@pytest.mark.parametrize("line", ["map_Kd TEX0.png", "map_Kd C:\\Users\\me\\scans\\tex0.png",
-                                  "map_Kd /home/someone/else/tex0.png", 'map_Kd "tex0.png"'])
+@pytest.mark.parametrize("line", ["map_Kd M_TEX0.png", "map_Kd C:\\Users\\me\\scans\\m_tex0.png",
+                                  "map_Kd /home/someone/else/m_tex0.png", 'map_Kd "m_tex0.png"'])
 def test_map_kd_as_other_machines_write_it(tmp_path, line):
     """A texture named in another case (made on a case-blind disk), by the absolute path of the machine that
     wrote it, or in quotes: the file beside the MTL, as viewers find it."""
     mesh = write_cube(tmp_path)
     mtl = tmp_path / "m.mtl"
-    mtl.write_text(mtl.read_text().replace("map_Kd tex0.png", line))
+    mtl.write_text(mtl.read_text().replace("map_Kd m_tex0.png", line))
     assert load_scan(mesh).materials[0].image is not None
 
 

@@ -139,6 +139,13 @@ def test_config_roundtrip(tmp_path):
     assert back == cfg
 
 
+def test_a_partial_config_takes_its_presets_other_settings(tmp_path):
+    (tmp_path / "c.json").write_text(json.dumps({"preset": "fast", "train": {"steps": 50}}))
+    assert load_config(tmp_path / "c.json") == preset("fast").override(train__steps=50)
+    (tmp_path / "c.json").write_text(json.dumps({"preset": "mine", "views": {"n_views": 5}}))  # one's own label
+    assert load_config(tmp_path / "c.json") == preset("default").override(preset="mine", views__n_views=5)
+
+
 def test_config_rejects_unknown_keys(tmp_path):
     from scantex.errors import ScanError
 

@@ -18,6 +18,7 @@ from scantex.scale.executors import GiB, Job, LocalPool, WorkerLost
 from scantex.scale.inputs import collect_inputs, read_manifest
 from scantex.scale.resources import footprint
 
+from tests.conftest import textured_cube
 from tests.io.test_discover import exports  # noqa: F401  (a fixture)
 from tests.scale.conftest import TINY
 
@@ -228,3 +229,29 @@ def test_an_apps_export_is_enhanced_with_its_photos_as_enhance_does(tmp_path, ex
     assert result.records[0]["photos"].startswith(str(exports["scanner_zip"]))  # inside the zip, as the user knows it
     metrics = json.loads((tmp_path / "b" / "scanner" / "metrics.json").read_text())
     assert metrics["photos"]["source"].startswith(str(exports["scanner_zip"]))
+
+
+def test_impossible_pool_and_tiling_settings_are_refused():
+    """A negative worker count left a pool that never started a job and waited forever; a tile of at most 0
+    faces divided by zero; a NaN overlap wrote a black atlas."""
+    from scantex.pipeline.config import TilingConfig
+
+    with pytest.raises(ScanError, match="workers is -1"):
+        LocalPool(workers=-1)
+    for bad in ({"max_faces": 0}, {"overlap": float("nan")}, {"overlap": -0.5}, {"tiles": -2}):
+        with pytest.raises(ScanError, match="tiling needs"):
+            TilingConfig(**bad)
+
+
+def test_tiling_follows_the_uv_mode_of_a_config(tmp_path, caplog):
+    """A scan over the tiling threshold whose config says uv.mode optimize runs whole (with a warning) rather
+    than being refused by the tiles, as it is with --uv optimize: a rerun with the first run's config.json."""
+    import argparse
+
+    from scantex.cli import tile_count
+
+    args = argparse.Namespace(tiles="auto", tile_faces=4, uv=None, mesh=tmp_path / "m.obj")
+    cube = textured_cube()
+    assert tile_count(args, cube, None, "keep") == 3
+    assert tile_count(args, cube, None, "optimize") == 1
+    assert "cannot be tiled" in caplog.text
