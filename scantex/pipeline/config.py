@@ -394,6 +394,9 @@ def validate(config: EnhanceConfig, where=None) -> EnhanceConfig:
                 raise ScanError(where, f"{bad} {allowed[0]!r} to {allowed[1]!r}")
 
     check(config, "")
+    if config.photos.holdout > 1 and config.photos.holdout != int(config.photos.holdout):
+        raise ScanError(where, f"config 'photos.holdout' is {config.photos.holdout}, expected a share below 1 or a "
+                               f"whole number of photos")
     if 0 < config.bake.texture_size < 16:
         raise ScanError(where, f"config 'bake.texture_size' is {config.bake.texture_size}, expected 0 (automatic) "
                                f"or 16 to 16384")

@@ -585,14 +585,14 @@ def torch_device(config: EnhanceConfig):
     return resolve_device(config.device)
 
 
-def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth: Scan | None = None,
+def enhance(scan: Scan, config: EnhanceConfig | str = EnhanceConfig(), *, ground_truth: Scan | None = None,
             photos: PhotoSet | None = None, work_dir: str | Path | None = None, resume: bool = False,
             reporter: Reporter | None = None) -> EnhanceResult:
     """Enhance ``scan``'s texture; its positions and faces are returned untouched.
 
     Args:
         scan: the input scan (with UVs: the input layout is kept).
-        config: all settings (see :mod:`scantex.pipeline.config` and its presets).
+        config: all settings (see :mod:`scantex.pipeline.config`), or a preset's name (``"fast"``).
         ground_truth: the same geometry with the true texture, when known (synthetic scans): held-out
             views are then scored against it, for the input and for the result.
         photos: the capture's posed photos (photo mode): the field learns from them, with the
@@ -605,6 +605,10 @@ def enhance(scan: Scan, config: EnhanceConfig = EnhanceConfig(), *, ground_truth
     ``config.threads`` (0: every core) bounds the threads of the stages that handle photos or views side by
     side (:func:`scantex.threads.cores`), as it bounds torch's and the bake's.
     """
+    if isinstance(config, str):
+        from scantex.pipeline.config import preset
+
+        config = preset(config)
     with using_cores(config.threads):
         return _enhance(scan, config, ground_truth=ground_truth, photos=photos, work_dir=work_dir, resume=resume,
                         reporter=reporter)

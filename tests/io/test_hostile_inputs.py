@@ -319,7 +319,7 @@ BAD_CONFIGS = [{"views": {"n_views": 0}}, {"views": {"n_views": 1}}, {"views": {
                {"views": {"adaptive": "yes"}}, {"train": {"start_levels": 40}},
                # a softmax at temperature 0 divided by zero: a 65 %-black atlas, exit 0
                {"photos": {"temperature": 0}}, {"photos": {"temperature": -5}}, {"bake": {"denoise": -1}},
-               {"bake": {"texture_size": 3}}]
+               {"bake": {"texture_size": 3}}, {"photos": {"holdout": 1.5}}]
 
 
 @pytest.mark.parametrize("bad", BAD_CONFIGS, ids=[json.dumps(b)[:40] for b in BAD_CONFIGS])

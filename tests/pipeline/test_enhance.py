@@ -18,6 +18,7 @@ from scantex.refine.config import RefineConfig
 from scantex.scan import Scan, triangle_multiset_key
 from scantex.synth import make_wall
 from scantex.synth.degrade import Degradation
+from tests.conftest import textured_cube
 
 TOY = EnhanceConfig(
     preset="toy",
@@ -144,6 +145,13 @@ def test_a_partial_config_takes_its_presets_other_settings(tmp_path):
     assert load_config(tmp_path / "c.json") == preset("fast").override(train__steps=50)
     (tmp_path / "c.json").write_text(json.dumps({"preset": "mine", "views": {"n_views": 5}}))  # one's own label
     assert load_config(tmp_path / "c.json") == preset("default").override(preset="mine", views__n_views=5)
+
+
+def test_enhance_takes_a_presets_name():
+    from scantex.errors import ScanError
+
+    with pytest.raises(ScanError, match="unknown preset 'quick'"):  # not AttributeError: 'str' has no 'threads'
+        enhance(textured_cube(), "quick")
 
 
 def test_config_rejects_unknown_keys(tmp_path):
