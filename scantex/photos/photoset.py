@@ -192,7 +192,8 @@ class PhotoSet:
             (nearest) to the photo's working size.
         depth_factors: ``(N,)`` per photo, ``None`` (its depth map is judged against the scan when it is
             read: :func:`scantex.photos.training.depth_factor`) or the factor that judgement gave on the whole
-            scan, applied as it is (a tile sees too little of a photo's view to judge its map).
+            scan (a tile sees too little of a photo's view to judge its map) or at another pose, applied as
+            it is (0: the map is not of the photo's view, and is not used).
     """
 
     cameras: tuple[Camera, ...]

@@ -66,6 +66,8 @@ class PhotoView:
         rejected: pixels that hit the mesh but failed the test, by reason (for the report).
         bary: ``(H, W, 2) float32`` barycentric coordinates of the hit at the pixel centre (with
             ``face_id``: the surface point the pixel sees, for :func:`texture_seen`), or ``None``.
+        depth_factor: what :func:`depth_factor` found of the photo's depth map (``None``: it has none), for
+            the photo prepared again at another pose (not judged, nor warned about, twice).
     """
 
     index: int
@@ -76,6 +78,7 @@ class PhotoView:
     valid: np.ndarray
     rejected: dict
     bary: np.ndarray | None = None
+    depth_factor: float | None = None
 
     def sampled(self) -> PhotoView:
         """The view without its image and barycentrics, once the texture has been sampled: what the report
@@ -101,17 +104,17 @@ def resize_depth(depth: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def depth_factor(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, tolerance: float,
-                 source=None) -> float | None:
+                 source=None) -> float:
     """The factor that brings ``measured`` (a photo's depth map at the working size, metres) to the mesh's
-    scale, or ``None``: the map is not of this photo's view.
+    scale, or 0: the map is not of this photo's view.
 
     Where at least half of the pixels both see agree within ``tolerance``, the map is right as it is (1; its
     disagreeing pixels are then rejected: an object moved after the scan). When most disagree and one factor
     brings at least 80 % of them within it, the map's unit is off (millimetres read as another unit, a
     tenth-millimetre sensor): that factor, with a warning. When no factor does, the map is not of this
     photo's view (a depth camera not registered to the colour camera, another frame's map): ``None``, with a
-    warning, so that the photo is used without it rather than losing most of its pixels. ``hit``: the pixels
-    that see the mesh cleanly."""
+    warning (0), so that the photo is used without it rather than losing most of its pixels. ``hit``: the
+    pixels that see the mesh cleanly."""
     both = hit & np.isfinite(measured) & (measured > 0)
     if both.sum() < 100:
         return 1.0
@@ -123,7 +126,7 @@ def depth_factor(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, 
         log.warning("%s: the depth map disagrees with the mesh on %.0f %% of the pixels both see, in any unit: "
                     "not this photo's view (a depth camera not registered to the colour camera?); the photo is "
                     "used without it", source or "depth map", 100 * (np.abs(m - d) > tolerance * d).mean())
-        return None
+        return 0.0
     log.warning("%s: the depth map is %.4g times the mesh's depth where both see the surface; read in the mesh's "
                 "scale", source or "depth map", 1 / factor)
     return factor
@@ -168,13 +171,13 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     else:
         hidden = np.zeros_like(any_hit)
 
-    measured = photos.load_depth(i)
+    measured, factor = photos.load_depth(i), None
     if measured is not None:
         measured = resize_depth(measured, W, H)
-        factor = photos.depth_factors[i]  # judged on a whole scan when this one is a part of it
+        factor = photos.depth_factors[i]  # judged on a whole scan when this one is a part of it, or at another pose
         if factor is None:
             factor = depth_factor(measured, mean_depth, clean, settings.depth_tolerance, photos.depths[i])
-        measured = None if factor is None else measured if factor == 1 else measured * np.float32(factor)
+        measured = None if factor == 0 else measured if factor == 1 else measured * np.float32(factor)
     if measured is not None:
         disagree = any_hit & np.isfinite(measured) & (
             np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
@@ -189,7 +192,7 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
         # no depth where another surface is in front: nothing of this scan is seen there, not even through it
         mean_depth = np.where(hidden, np.float32(0), mean_depth)
     return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected,
-                     np.ascontiguousarray(bary, dtype=np.float32))
+                     np.ascontiguousarray(bary, dtype=np.float32), factor)
 
 
 def _footprints(caster: RayCaster, cam: Camera, s: int):
@@ -285,7 +288,8 @@ def halved(view: PhotoView) -> PhotoView:
     valid = np.logical_and.reduce([view.valid[c] for c in corners])  # axes are several times slower
     camera = resized_camera(crop_camera(view.camera, 2 * w, 2 * h), w, h)  # an odd last row or column dropped
     return PhotoView(view.index, camera, image, view.face_id[:2 * h:2, :2 * w:2], view.depth[:2 * h:2, :2 * w:2],
-                     valid, view.rejected, None if view.bary is None else view.bary[:2 * h:2, :2 * w:2])
+                     valid, view.rejected, None if view.bary is None else view.bary[:2 * h:2, :2 * w:2],
+                     view.depth_factor)
 
 
 def crop_camera(camera: Camera, width: int, height: int) -> Camera:

@@ -310,7 +310,8 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             fallback = flat_grey
         photos, train_views, corrections = consensus_poses(
             scan, photos, train_views, canonicalise, caster, fallback, pc.refine_iterations, pc.temperature,
-            prepare=lambda refined: prepare_photos(scan, refined, train, caster, pc.max_side, settings),
+            prepare=lambda refined: prepare_photos(scan, judged(refined, train_views), train, caster, pc.max_side,
+                                                   settings),
             update=update)
     final = None
     if (corrections and len(held) and pc.texturing == "projective"
@@ -324,8 +325,15 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
 
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
                                                 pc.temperature)
-        final = aligned, prepare_photos(scan, aligned, held, caster, pc.max_side, settings), moved
+        final = aligned, prepare_photos(scan, judged(aligned, held_views), held, caster, pc.max_side, settings), moved
     return PhotoData(photos, train_views, held_views, report, corrections, final, mode)
+
+
+def judged(photos: PhotoSet, views) -> PhotoSet:
+    """``photos`` with the depth maps' judgements ``views`` (prepared photos) made: a photo prepared again at
+    another pose keeps its map's factor (not judged, nor warned about, twice)."""
+    found = {v.index: v.depth_factor for v in views}
+    return dataclasses.replace(photos, depth_factors=tuple(found.get(i, f) for i, f in enumerate(photos.depth_factors)))
 
 
 def visibility_settings(pc: PhotosConfig):

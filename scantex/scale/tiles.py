@@ -196,7 +196,7 @@ class TilePhotos:
         hidden: per tile, ``{photo: packed (h, w) mask}`` of the pixels another tile's surface takes
             (:func:`numpy.packbits` of the rows; photos without any are left out).
         depth_factors: ``{photo: factor}``, each training photo's depth map judged against the whole scan
-            (:func:`scantex.photos.training.depth_factor`; ``None``: not of its view, set aside).
+            (:func:`scantex.photos.training.depth_factor`; 0: not of its view, set aside).
         pose_mode: the pose refinement applied (``off``, ``input``; ``consensus`` is left to each tile).
         corrections: the training photos' pose corrections (``input`` mode).
         alignment: the alignment check's report (``None`` when it was skipped).

@@ -171,6 +171,30 @@ def test_depth_maps_in_another_unit_are_rescaled(tmp_path, error, caplog):
     assert ("times the mesh's depth" in caplog.text) == (error != 0)
 
 
+@pytest.mark.parametrize("error", [0.2, None])
+def test_a_photo_prepared_again_keeps_its_depth_maps_judgement(tmp_path, error, caplog):
+    """A photo prepared again at another pose (a held-out photo aligned for the texture from every photo, the
+    consensus poses' rounds) takes the factor its depth map was found to need, or that it is not of its view
+    (0), as it is: the warning was printed twice, and a map set aside on a whole scan was judged again by
+    each tile."""
+    from scantex.pipeline.enhance import judged
+
+    scan, photos = cube_set(tmp_path, depth_error=error or 0.0)
+    if error is None:  # another view's map
+        depth = np.asarray(Image.open(photos.depths[0])).astype(np.float64)
+        noise = np.random.default_rng(0).uniform(0.3, 3.0, depth.shape) * np.median(depth[depth > 0])
+        Image.fromarray(noise.astype(np.uint16)).save(photos.depths[0])
+    caster = RayCaster(scan.positions, scan.faces)
+    with caplog.at_level("WARNING"):
+        first = prepare_photo(scan, photos, 0, caster, 96)
+    assert first.depth_factor == (0.0 if error is None else pytest.approx(1 / 1.2, rel=0.02))
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        again = prepare_photo(scan, judged(photos, [first]), 0, caster, 96)
+    assert caplog.text == "" and again.depth_factor == first.depth_factor
+    assert np.array_equal(again.valid, first.valid)
+
+
 def test_depth_maps_that_disagree_in_places_reject_those_pixels(tmp_path):
     """Where the depth map sees something nearer than the mesh (an object moved after the scan), the
     pixels are rejected; the rest of the photo stays usable."""
