@@ -127,7 +127,7 @@ def check_output_early(output: Path, overwrite: bool) -> None:
 def cmd_render(args) -> int:
     from scantex.io import load_scan
     from scantex.io.atomic import atomic_dir, check_output
-    from scantex.pipeline.enhance import up_axis
+    from scantex.scan import up_axis
     from scantex.views.planning import face_coverage, plan_views
     from scantex.views.raycast import RayCaster
     from scantex.views.viewset import render_views, write_views

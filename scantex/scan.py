@@ -379,3 +379,12 @@ def triangle_multiset_key(positions: np.ndarray, faces: np.ndarray) -> np.ndarra
     best = rank.reshape(3, F).argmin(axis=0)
     rows = rotations[best, np.arange(F)]
     return rows[np.lexsort(rows.T[::-1])]
+
+
+def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
+    """The scan's up direction: ``choice``, or with ``auto`` the one its file declares (glTF: y, by the
+    format's rule; USD: the stage's), else z (OBJ and PLY scans are mostly z-up)."""
+    axes = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+    if choice == "auto":
+        choice = scan.up or "z"
+    return axes[choice]

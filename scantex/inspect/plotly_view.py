@@ -9,13 +9,14 @@ colours. plotly.js is embedded, so the file opens offline.
 
 from __future__ import annotations
 
+import html
 import logging
 from pathlib import Path
 
 import numpy as np
 
 from scantex.io.atomic import atomic_files
-from scantex.scan import Scan
+from scantex.scan import Scan, up_axis
 from scantex.views.render import shade_hits, to_uint8
 
 log = logging.getLogger(__name__)
@@ -39,29 +40,57 @@ def view_html(scan: Scan, path: str | Path, *, max_faces: int = 200_000, title: 
     """
     pio = _plotly_io()
     figure = mesh_figure(scan, max_faces=max_faces, title=title, seed=seed)
-    html = pio.to_html(figure, include_plotlyjs=True, full_html=True)
+    page = pio.to_html(figure, include_plotlyjs=True, full_html=True, config={"displaylogo": False})
+    page = page.replace("<head>", f"<head><title>{html.escape(_name(scan, title))}</title>", 1)
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
-        files.path(path).write_text(html, encoding="utf-8")
+        files.path(path).write_text(page, encoding="utf-8")
     return path
 
 
 def mesh_figure(scan: Scan, *, max_faces: int = 200_000, title: str | None = None, seed: int = 0):
-    """A ``plotly.graph_objects.Figure`` holding :func:`mesh_trace` of ``scan``, titled with what it shows."""
+    """A ``plotly.graph_objects.Figure`` holding :func:`mesh_trace` of ``scan``, titled with what it shows,
+    seen from the side its surface faces with its up axis up (:func:`facing_camera`)."""
     _plotly_io()
     import plotly.graph_objects as go
 
     trace, note = mesh_trace(scan, max_faces=max_faces, seed=seed)
-    name = title if title is not None else (scan.source.name if scan.source is not None else "scan")
     figure = go.Figure(trace)
+    lo, hi = scan.bounds
+    extent = np.maximum(hi - lo, 1e-12)
+    # plotly's aspectmode "data" scales by the mean extent, blowing a flat wall up past the view
+    ratio = np.maximum(extent / extent.max(), 0.02)
     figure.update_layout(
-        title=f"{name} — {note}",
-        scene=dict(aspectmode="data", xaxis_title="x", yaxis_title="y", zaxis_title="z"),
+        # plotly reads its titles as HTML: a file name's own < and & are escaped
+        title=f"{html.escape(_name(scan, title))} — {note}",
+        scene=dict(aspectmode="manual", aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]), z=float(ratio[2])),
+                   camera=facing_camera(scan), xaxis_title="x", yaxis_title="y", zaxis_title="z"),
         margin=dict(l=0, r=0, t=40, b=0),
     )
     return figure
+
+
+def _name(scan: Scan, title: str | None) -> str:
+    return title if title is not None else (scan.source.name if scan.source is not None else "scan")
+
+
+def facing_camera(scan: Scan) -> dict:
+    """A plotly scene camera looking at the side the surface faces (a wall from the front, a little from
+    above; a floor or a room with an open top from 45 degrees above), with the scan's up axis (:func:`scantex.scan.up_axis`: y for
+    glTF) up; plotly's diagonal view for closed objects, whose normals cancel."""
+    up = np.array(up_axis(scan))
+    normals = scan.face_normals * scan.face_areas[:, None]
+    mean = normals.sum(axis=0) / max(scan.face_areas.sum(), 1e-300)
+    length = float(np.linalg.norm(mean))
+    if length < 0.3:
+        eye = np.full(3, 1.25)
+    elif abs(mean @ up) / length > 0.9:  # facing along its up axis (a floor, a room from above): at 45 degrees,
+        eye = 0.9 * (mean / length + np.roll(up, -1))  # so that what stands on it reads
+    else:
+        eye = 1.05 * mean / length + 0.2 * up
+    return dict(eye=dict(zip("xyz", map(float, eye))), up=dict(zip("xyz", map(float, up))))
 
 
 def mesh_trace(scan: Scan, *, max_faces: int = 200_000, seed: int = 0):

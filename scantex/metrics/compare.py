@@ -115,7 +115,7 @@ def compare(a: Scan, b: Scan, *, photos: list[tuple[Camera, np.ndarray]] | None 
         scores = render_scores(photo_reference(photos, a), {"a": a, "b": b}, cameras)
         out["renders"] = {"reference": "photos", **scores}
     else:
-        from scantex.pipeline.enhance import up_axis
+        from scantex.scan import up_axis
         from scantex.views.planning import plan_views
 
         cameras = plan_views(a, n_views, width=width, height=height, fov_deg=60.0, up=up_axis(a), seed=seed)

@@ -27,7 +27,7 @@ from scantex.metrics.views import score_views
 from scantex.photos.photoset import PhotoSet
 from scantex.photos.training import PhotoView
 from scantex.pipeline.config import BakeConfig, EnhanceConfig, PhotosConfig
-from scantex.scan import Scan
+from scantex.scan import Scan, up_axis
 from scantex.threads import side_by_side, using_cores
 from scantex.views.camera import Camera
 from scantex.views.planning import add_views_for_coverage, face_coverage, plan_views
@@ -88,15 +88,6 @@ def has_colour(scan: Scan) -> bool:
         return True
     bases = {tuple(np.round(np.asarray(m.diffuse[:3], np.float64), 4)) for m in scan.materials}
     return len(bases) > 1
-
-
-def up_axis(scan: Scan, choice: str = "auto") -> tuple[float, float, float]:
-    """The scan's up direction: ``choice``, or with ``auto`` the one its file declares (glTF: y, by the
-    format's rule; USD: the stage's), else z (OBJ and PLY scans are mostly z-up)."""
-    axes = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-    if choice == "auto":
-        choice = scan.up or "z"
-    return axes[choice]
 
 
 def render_training_views(scan: Scan, cameras: list[Camera], usable: np.ndarray, supersample: int,

@@ -231,32 +231,11 @@ def _views_3d(before: Scan | None, after: Scan, max_faces: int) -> str:
         if scan is None:
             continue
         figure = mesh_figure(scan, max_faces=max_faces, title=title)
-        lo, hi = scan.bounds
-        extent = np.maximum(hi - lo, 1e-12)
-        # plotly's aspectmode "data" scales by the mean extent, blowing a flat wall up past the view
-        ratio = np.maximum(extent / extent.max(), 0.02)
-        figure.update_layout(height=460, scene=dict(
-            xaxis_visible=False, yaxis_visible=False, zaxis_visible=False, aspectmode="manual",
-            aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]), z=float(ratio[2])), camera=_facing_camera(scan)))
+        figure.update_layout(height=460, scene=dict(xaxis_visible=False, yaxis_visible=False, zaxis_visible=False))
         spec = pio.to_json(figure, validate=False).replace("</", "<\\/")
         panels.append(f'<div class="view3d"><div id="view3d-{key}" class="plot3d"></div>'
                       f'<script type="application/json" class="figure" data-target="view3d-{key}">{spec}</script></div>')
     return f'<div class="row">{"".join(panels)}</div>'
-
-
-def _facing_camera(scan: Scan) -> dict:
-    """A plotly scene camera looking at the side the surface faces (a wall from the front, a room from
-    above its open top); plotly's default diagonal view for closed objects, whose normals cancel."""
-    normals = scan.face_normals * scan.face_areas[:, None]
-    mean = normals.sum(axis=0) / max(scan.face_areas.sum(), 1e-300)
-    length = float(np.linalg.norm(mean))
-    if length < 0.3:
-        return dict(eye=dict(x=1.25, y=1.25, z=1.25))
-    eye = 1.05 * mean / length
-    eye[2] += 0.2  # a little from above, so that depth reads
-    up = (0.0, 1.0, 0.0) if abs(mean[2]) / length > 0.9 else (0.0, 0.0, 1.0)
-    return dict(eye=dict(x=float(eye[0]), y=float(eye[1]), z=float(eye[2])),
-                up=dict(x=up[0], y=up[1], z=up[2]))
 
 
 def _per_view_scores(m: dict) -> tuple[str, dict[str, dict[str, list]]] | None:

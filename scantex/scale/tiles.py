@@ -48,7 +48,7 @@ from scantex.photos.photoset import PhotoSet
 from scantex.pipeline.config import EnhanceConfig, TilingConfig
 from scantex.scale.executors import Job, LocalPool, WorkerLost
 from scantex.scale.resources import GiB, estimate_memory, machine, peak_memory, photo_memory
-from scantex.scan import Scan
+from scantex.scan import Scan, up_axis
 
 log = logging.getLogger(__name__)
 
@@ -732,7 +732,7 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     from scantex.metrics.geometry import geometry_metrics
     from scantex.metrics.views import score_views
     from scantex.pipeline.enhance import (fill_held_out, held_out_rendered_when_scored, render_training_views,
-                                          up_axis, views_teach)
+                                          views_teach)
     from scantex.views.planning import add_views_for_coverage, plan_views
     from scantex.views.raycast import RayCaster
 

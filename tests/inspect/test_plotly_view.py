@@ -13,7 +13,7 @@ import trimesh
 from scantex.io import atomic
 from scantex.inspect import view_html
 from scantex.scan import Material, Scan
-from tests.conftest import textured_cube
+from tests.conftest import grid_wall, textured_cube
 
 
 def mesh_trace(html: str) -> dict:
@@ -53,7 +53,7 @@ def test_writes_self_contained_html(tmp_path, cube):
     assert trace["type"] == "mesh3d"
     assert len(trace["facecolor"]) == cube.n_faces
     assert len(trace["i"]) == cube.n_faces
-    assert '"aspectmode":"data"' in html
+    assert '"aspectmode":"manual"' in html  # "data" scaled by the mean extent: a flat wall opened zoomed far in
 
 
 def test_face_colours_come_from_the_texture(tmp_path):
@@ -120,3 +120,22 @@ def test_title_and_bad_max_faces(tmp_path):
     assert "my cube" in html
     with pytest.raises(ValueError):
         view_html(scan, tmp_path / "x.html", max_faces=0)
+    # plotly reads a title as HTML: a file name's own markup is shown as it is, and the page has a title
+    html = view_html(scan, tmp_path / "t.html", title="a<br>b & c").read_text(encoding="utf-8")
+    assert "a&lt;br&gt;b &amp; c" in html and "a<br>b" not in html
+    assert "<title>a&lt;br&gt;b &amp; c</title>" in html
+
+
+@pytest.mark.parametrize("up", [None, "y"])
+def test_the_view_stands_the_scan_on_its_up_axis(up):
+    """A glTF scan is y-up: its view had z up, and an upright object lay on its side."""
+    from scantex.inspect.plotly_view import mesh_figure
+
+    wall = grid_wall()  # facing -y when z-up
+    scan = wall if up is None else Scan(wall.positions[:, [0, 2, 1]], wall.faces[:, ::-1], wall.uvs, wall.face_uvs,
+                                         None, wall.materials, up="y")
+    camera = mesh_figure(scan).layout.scene.camera
+    assert (camera.up.x, camera.up.y, camera.up.z) == ((0, 0, 1) if up is None else (0, 1, 0))
+    eye = np.array([camera.eye.x, camera.eye.y, camera.eye.z])
+    normal = scan.face_normals.mean(axis=0)
+    assert eye @ normal > 0.9  # from the side the wall faces

@@ -13,7 +13,8 @@ from scantex.deps import MissingDependency
 from scantex.errors import ScanError
 from scantex.io import load_scan, save_scan
 from scantex.io.discover import find_capture
-from scantex.pipeline.enhance import enhance, up_axis
+from scantex.pipeline.enhance import enhance
+from scantex.scan import up_axis
 from tests.conftest import checker
 from tests.pipeline.test_enhance import TOY
 
