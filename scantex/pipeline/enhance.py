@@ -903,6 +903,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             refine_report = None
             baked, enhanced = bake_and_blend(colour, "baking the texture again (fallback)", workers)
             bake_report["safety"] = safety
+            if field_skipped is not None:  # the fallback's texels are not levelled
+                field_skipped = field_skipped.replace("levelled, ", "", 1)
     if photo is None:  # the input's texels, times their base colour: that colour again, outside the texture
         enhanced = with_base_colours_of(enhanced, scan)
     timings["bake"] = time.perf_counter() - t

@@ -161,6 +161,10 @@ def _headline(m: dict) -> str:
         if d is not None:
             text += f"; Hausdorff {d['hausdorff']:.3g}, mean point-to-mesh {d['mean']:.3g}"
         rows.append(("Geometry", text, "good" if same else "bad"))
+    safety = m.get("bake", {}).get("safety")
+    if safety:
+        rows.append(("Safety fallback", f"{safety['why']}: the result keeps the input's texels (holes filled, seams "
+                     "blended)", ""))
     scores = m.get("held_out_vs_ground_truth")
     if scores:
         i, e = scores["input"], scores["enhanced"]

@@ -260,6 +260,11 @@ def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypa
     assert m["bake"]["safety"]["fallback"] == "no levelling, no refiner" and "seam visibility" in m["bake"]["safety"]["why"]
     assert m["bake"]["levelling_offset_max"] == 0 and "refine" not in m
     assert result.scan.positions is toy_demo.scan.positions and result.scan.faces is toy_demo.scan.faces
+    # the field's line no longer says the kept texels are levelled, and the report's summary says why they are kept
+    from scantex.report.html import _headline
+
+    assert "the input's texels are kept (holes filled)" in m["field"]["why"]
+    assert "Safety fallback" in _headline(m) and "Safety fallback" not in _headline(kept)
 
 
 def test_vertex_coloured_mesh_keeps_its_colours_in_a_texture(toy_demo):
