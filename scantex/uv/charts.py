@@ -13,7 +13,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from scantex.uv.param import Distortion, distortions
+from scantex.uv.param import Distortion, distortions, flat_triangles
 
 #: how far a layout's planning has got, ``0..1`` (the UV stages call it; ``None`` reports nothing)
 Progress = Callable[[float], None] | None
@@ -53,6 +53,20 @@ class Charts:
     def distortions(self, triangles_3d: np.ndarray) -> list[Distortion]:
         """Distortion of every chart given the scan's ``(F, 3, 3)`` corner positions."""
         return distortions(triangles_3d, self.uvs[self.face_uvs], self.chart_of_face, self.n_charts)
+
+
+def faces_apart(charts: Charts, faces: np.ndarray, triangles_3d: np.ndarray) -> Charts:
+    """``charts`` with ``faces`` (``(F,) bool``) each a chart of its own, laid flat at its true edge lengths
+    (``triangles_3d (F, 3, 3)``: the scan's corner positions); the other faces keep their charts and UVs."""
+    idx = np.flatnonzero(faces)
+    t = triangles_3d[idx]
+    flat = flat_triangles(np.linalg.norm(np.roll(t, -1, axis=1) - t, axis=2))  # |p1-p0|, |p2-p1|, |p0-p2|
+    face_uvs = charts.face_uvs.copy()
+    face_uvs[idx] = len(charts.uvs) + np.arange(3 * len(idx)).reshape(-1, 3)
+    chart = charts.chart_of_face.copy()
+    chart[idx] = charts.n_charts + np.arange(len(idx))
+    _, chart = np.unique(chart, return_inverse=True)  # a chart all of whose faces left is gone
+    return Charts(chart.astype(np.int64), face_uvs, np.concatenate([charts.uvs, flat.reshape(-1, 2)]))
 
 
 def assemble(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n_faces: int) -> Charts:

@@ -290,6 +290,18 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     return float(overlapped / max(covered, 1))
 
 
+def flat_triangles(lengths: np.ndarray) -> np.ndarray:
+    """``(n, 3, 2)``: triangles with side lengths ``lengths (n, 3)`` (|p1 - p0|, |p2 - p1|, |p0 - p2|) laid flat,
+    p0 at the origin, p1 along +x, p2 above; moved so that their corners' minimum is 0."""
+    a, b, c = lengths[:, 0], lengths[:, 1], lengths[:, 2]
+    x2 = np.divide(a * a + c * c - b * b, 2 * a, out=np.zeros_like(a), where=a > 0)
+    y2 = np.sqrt(np.maximum(c * c - x2 * x2, 0.0))
+    flat = np.zeros((len(lengths), 3, 2))
+    flat[:, 1, 0] = a
+    flat[:, 2, 0], flat[:, 2, 1] = x2, y2
+    return flat - flat.min(axis=1, keepdims=True)
+
+
 def _texel_boxes(triangles_uv: np.ndarray, lo: np.ndarray, scale: float):
     """``(n, 3, 2)`` triangles in texels of size ``1 / scale`` from ``lo``, each one's first texel ``(n, 2)``,
     texel counts along x and y ``(n, 2)`` and in all ``(n,)`` (the texel centres in its bounding box)."""
@@ -305,8 +317,20 @@ def overlap_counts(triangles_uv: np.ndarray, lo: np.ndarray, scale: float, boxes
     """Texels (of size ``1 / scale``, on the grid from ``lo``) whose centre lies strictly inside more than one
     of the ``(n, 3, 2)`` triangles, and inside at least one (see :func:`overlap_share`). ``boxes``: their
     :func:`_texel_boxes` at that grid, where the caller has them."""
-    n = len(triangles_uv)
-    pix, tmin, count, per = boxes if boxes is not None else _texel_boxes(triangles_uv, lo, scale)
+    pix, tmin, count, _ = boxes if boxes is not None else _texel_boxes(triangles_uv, lo, scale)
+    _, x, y = _inside_texels(pix, tmin, count)
+    if x.size == 0:
+        return 0, 0
+    width = int(x.max()) + 2
+    hits = np.bincount(y * width + x)
+    return int((hits > 1).sum()), int((hits > 0).sum())
+
+
+def _inside_texels(pix: np.ndarray, tmin: np.ndarray, count: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(tri, x, y)``: every texel whose centre lies strictly inside one of the triangles ``pix (n, 3, 2)``
+    (texel coordinates), with its triangle, from their :func:`_texel_boxes` ``tmin`` and ``count``."""
+    n, per = len(pix), count[:, 0] * count[:, 1]
     tri = np.repeat(np.arange(n), per)
     offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
     w = np.maximum(count[tri, 0], 1)
@@ -320,11 +344,7 @@ def overlap_counts(triangles_uv: np.ndarray, lo: np.ndarray, scale: float, boxes
 
     s0, s1, s2 = edge(a, b), edge(b, c), edge(c, a)
     inside = ((s0 > 0) & (s1 > 0) & (s2 > 0)) | ((s0 < 0) & (s1 < 0) & (s2 < 0))
-    if not inside.any():
-        return 0, 0
-    width = int(x.max()) + 2
-    hits = np.bincount(y[inside] * width + x[inside])
-    return int((hits > 1).sum()), int((hits > 0).sum())
+    return tri[inside], x[inside], y[inside]
 
 
 #: candidate texels (a triangle's bounding box) rasterised at once by :func:`overlap_shares`
@@ -381,28 +401,61 @@ def overlap_shares(triangles_uv: np.ndarray, chart_of_face: np.ndarray, n_charts
     return out
 
 
+def overlapped_faces(triangles_px: np.ndarray, size: int) -> np.ndarray:
+    """``(F,) bool``: the faces of ``triangles_px (F, 3, 2)`` (in texels of the ``size``² atlas they are packed
+    in) with a texel centre strictly inside another face too: a texel two surfaces share, one of them painted
+    with the other's colours. One compiled pass over the faces (its numpy twin below, where numba is missing)."""
+    from scantex import jit
+
+    out = np.zeros(len(triangles_px), bool)
+    kernel = jit.compiled(_owned_texels)
+    if kernel is not None:
+        kernel(np.ascontiguousarray(triangles_px, np.float64), int(size), out)
+        return out
+    pix, tmin, count, _ = _texel_boxes(triangles_px, np.zeros(2), 1.0)
+    tri, x, y = _inside_texels(pix, tmin, count)
+    keep = (x >= 0) & (x < size) & (y >= 0) & (y < size)
+    tri, key = tri[keep], y[keep] * size + x[keep]
+    _, at, hits = np.unique(key, return_inverse=True, return_counts=True)
+    out[tri[hits[at] > 1]] = True
+    return out
+
+
+def _owned_texels(pix, size, out):
+    """The compiled twin of :func:`overlapped_faces`: each face's texel centres (strictly inside it, within the
+    atlas) claimed in turn; a face reaching one another face claimed flags both in ``out``."""
+    owner = np.full(size * size, -1, np.int32)
+    for f in range(pix.shape[0]):
+        ax, ay, bx, by, cx, cy = pix[f, 0, 0], pix[f, 0, 1], pix[f, 1, 0], pix[f, 1, 1], pix[f, 2, 0], pix[f, 2, 1]
+        x0 = max(int(np.floor(min(ax, bx, cx) - 0.5)) + 1, 0)
+        x1 = min(int(np.floor(max(ax, bx, cx) - 0.5)), size - 1)
+        y0 = max(int(np.floor(min(ay, by, cy) - 0.5)) + 1, 0)
+        y1 = min(int(np.floor(max(ay, by, cy) - 0.5)), size - 1)
+        for y in range(y0, y1 + 1):
+            py = y + 0.5
+            for x in range(x0, x1 + 1):
+                px = x + 0.5
+                s0 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+                s1 = (cx - bx) * (py - by) - (cy - by) * (px - bx)
+                s2 = (ax - cx) * (py - cy) - (ay - cy) * (px - cx)
+                if (s0 > 0 and s1 > 0 and s2 > 0) or (s0 < 0 and s1 < 0 and s2 < 0):
+                    k = y * size + x
+                    if owner[k] < 0:
+                        owner[k] = f
+                    elif owner[k] != f:
+                        out[f] = True
+                        out[owner[k]] = True
+
+
 def _rasterised_overlaps(pix: np.ndarray, tmin: np.ndarray, count: np.ndarray, chart: np.ndarray,
                          out: np.ndarray) -> None:
     """:func:`overlap_share`'s rasterisation for the faces of whole charts (``chart`` of each face, grouped):
     writes each chart's share into ``out``."""
-    per = count[:, 0] * count[:, 1]
-    tri = np.repeat(np.arange(len(pix)), per)
-    offset = np.arange(per.sum()) - np.repeat(np.cumsum(per) - per, per)
-    w = np.maximum(count[tri, 0], 1)
-    x = tmin[tri, 0] + offset % w
-    y = tmin[tri, 1] + offset // w
-    px, py = x + 0.5, y + 0.5
-    a, b, c = pix[tri, 0], pix[tri, 1], pix[tri, 2]
-
-    def edge(p, q):
-        return (q[:, 0] - p[:, 0]) * (py - p[:, 1]) - (q[:, 1] - p[:, 1]) * (px - p[:, 0])
-
-    s0, s1, s2 = edge(a, b), edge(b, c), edge(c, a)
-    inside = ((s0 > 0) & (s1 > 0) & (s2 > 0)) | ((s0 < 0) & (s1 < 0) & (s2 < 0))
-    if not inside.any():
+    tri, x, y = _inside_texels(pix, tmin, count)
+    if tri.size == 0:
         return
     ids, local = np.unique(chart, return_inverse=True)  # a batch holds few charts: their ids fit in 21 bits
-    key = (local[tri[inside]].astype(np.int64) << 42) | (y[inside] << 21) | x[inside]
+    key = (local[tri].astype(np.int64) << 42) | (y << 21) | x
     texel, hits = np.unique(key, return_counts=True)
     of = texel >> 42
     covered = np.bincount(of, minlength=len(ids))

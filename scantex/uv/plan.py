@@ -19,15 +19,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from scantex.scan import Material, Scan
-from scantex.uv.charts import Charts, span
+from scantex.uv.charts import Charts, faces_apart, span
 from scantex.uv.optimize import OptimizeLog, charts_distortion, optimize
 from scantex.uv.pack import pack
+from scantex.uv.param import overlapped_faces
 from scantex.uv.shells import stats, summarise
 from scantex.uv.unwrap import UnwrapLog, UnwrapOptions, unwrap
 
 log = logging.getLogger(__name__)
 
 MODES = ("keep", "optimize", "unwrap")
+#: packings tried while faces of one chart share texels (each lays those faces out apart; one has sufficed)
+MAX_REPACKS = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,9 +162,22 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
 
 
 def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dict) -> Scan:
+    atlas = pack(charts, size, gutter)
+    report["faces_apart"] = 0
+    for _ in range(MAX_REPACKS):
+        # a chart folded onto itself (a merge, a flattening that passed its coarser overlap test) gives two
+        # surfaces the same texels: its faces that share one on the atlas's own grid become charts of their own
+        shared = overlapped_faces(atlas.uvs[atlas.face_uvs] * size, size)
+        if not shared.any():
+            break
+        charts = faces_apart(charts, shared, scan.positions[scan.faces])
+        report["faces_apart"] += int(shared.sum())
+        atlas = pack(charts, size, gutter)
+    if report["faces_apart"]:
+        log.info("UV plan: %d faces that shared texels with others of their chart laid out on their own",
+                 report["faces_apart"])
     d = charts_distortion(scan, charts)
     report["chart_stretch"] = stats([x.stretch for x in d])
-    atlas = pack(charts, size, gutter)
     report["texels_per_metre"] = atlas.texels_per_metre
     report["atlas_utilisation"] = atlas.utilisation
     report["images"] = f"zero placeholders ({size}, {size}, 3) uint8; bake(size={size}) fills them"

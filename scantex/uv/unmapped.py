@@ -19,6 +19,7 @@ from scantex.arrays import unique_rows
 from scantex.atlas.holes import unmapped_faces, whole_tiles
 from scantex.atlas.texelmap import uv_to_pixel
 from scantex.scan import Scan
+from scantex.uv.param import flat_triangles
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,7 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
         H, W = material.image.shape[:2]
         mapped = np.flatnonzero(~unmapped & (scan.face_materials == m))
         density = _texels_per_metre(scan, mapped, W, H)
-        corners = _flat_triangles(lengths[faces]) * density  # [n, 3, 2] texels, from (0, 0)
+        corners = flat_triangles(lengths[faces]) * density  # [n, 3, 2] texels, from (0, 0)
         side = corners.max(axis=(1, 2))
         corners *= np.minimum(1.0, MAX_CHART_TEXELS / np.maximum(side, 1e-12))[:, None, None]
         corners *= np.maximum(1.0, 2.0 / np.maximum(corners.max(axis=(1, 2)), 1e-12))[:, None, None]
@@ -106,18 +107,6 @@ def _texels_per_metre(scan: Scan, faces: np.ndarray, W: int, H: int) -> float:
     uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     area = scan.face_areas[faces].sum()
     return float(np.sqrt(uv_area / area)) if area > 0 and uv_area > 0 else 1000.0
-
-
-def _flat_triangles(lengths: np.ndarray) -> np.ndarray:
-    """``(n, 3, 2)``: triangles with side lengths ``lengths (n, 3)`` (|p1 - p0|, |p2 - p1|, |p0 - p2|) laid flat,
-    p0 at the origin, p1 along +x, p2 above; moved so that their corners' minimum is 0."""
-    a, b, c = lengths[:, 0], lengths[:, 1], lengths[:, 2]
-    x2 = np.divide(a * a + c * c - b * b, 2 * a, out=np.zeros_like(a), where=a > 0)
-    y2 = np.sqrt(np.maximum(c * c - x2 * x2, 0.0))
-    flat = np.zeros((len(lengths), 3, 2))
-    flat[:, 1, 0] = a
-    flat[:, 2, 0], flat[:, 2, 1] = x2, y2
-    return flat - flat.min(axis=1, keepdims=True)
 
 
 def _free_cells(scan: Scan, mapped: np.ndarray, W: int, H: int, cell: int) -> np.ndarray:

@@ -288,3 +288,42 @@ def test_charts_flattened_together_as_one_by_one():
     chart = np.repeat([0, 1, 2, 3], [len(tris), len(tris), 2, 1])
     shares = overlap_shares(uv, chart, 5)
     assert shares[0] == 0 and shares[1] == overlap_share(folded[tris]) > 0.3 and not shares[2:].any()
+
+
+def test_overlapped_faces_are_the_faces_sharing_a_texel(monkeypatch):
+    """The atlas's own grid (its texel centres, strictly inside): a fold's faces, not faces that only share an
+    edge; the compiled pass and its numpy twin agree."""
+    from scantex import jit
+    from scantex.uv.param import _owned_texels, overlapped_faces
+
+    points, tris = flat_grid()  # 2 m: 50 texels a side at 25 texels a metre
+    flat = points[tris][..., :2] * 25
+    folded = points[:, :2].copy()
+    folded[folded[:, 0] > 1.2, 0] = 2.4 - folded[folded[:, 0] > 1.2, 0]  # the right 0.8 m folded back
+    fold = folded[tris] * 25 + [60, 0]
+    both = np.concatenate([flat, fold])
+    found = overlapped_faces(both, 128)
+    assert not found[:len(tris)].any()  # shared edges are no overlap
+    reach = fold[:, :, 0].max(axis=1)
+    assert found[len(tris):][fold[:, :, 0].min(axis=1) > 60 + 1.2 * 25].all()  # every folded face
+    assert not found[len(tris):][reach < 60 + 0.4 * 25 - 1].any()  # the left part, away from the fold
+    assert jit.compiled(_owned_texels) is not None  # numba is installed here: the compiled pass ran
+    monkeypatch.setattr(jit, "compiled", lambda function: None)  # the numpy twin, as where numba is missing
+    assert np.array_equal(overlapped_faces(both, 128), found)
+
+
+def test_faces_sharing_texels_are_laid_out_apart():
+    """A chart folded onto itself (a merge's or a flattening's fold its coarser test let through) gave two
+    surfaces the same texels, one painted with the other's colours: those faces become charts of their own."""
+    from scantex.scan import Scan
+    from scantex.uv.param import overlapped_faces
+    from scantex.uv.plan import _packed_scan
+
+    points, tris = flat_grid()
+    folded = points[:, :2].copy()
+    folded[folded[:, 0] > 1.2, 0] = 2.4 - folded[folded[:, 0] > 1.2, 0]
+    charts = Charts(np.zeros(len(tris), np.int64), tris.copy(), folded.copy())
+    report: dict = {}
+    scan = _packed_scan(Scan(points, tris), charts, 256, 2, report)
+    assert report["faces_apart"] > 0
+    assert not overlapped_faces(scan.uvs[scan.face_uvs] * 256, 256).any()
