@@ -881,12 +881,14 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     t = time.perf_counter() - bake_seconds
     baked, enhanced = bake_and_blend(colour, "baking the texture", workers)
     patches = None  # the result's patch measure, when the safety net below has taken it
-    if photo is None and bake_report["source"] == "input" and mode == "keep":
+    if photo is None and bake_report["source"] == "input" and scan.is_textured:
         # never a patch the input does not have: a result that paints them without removing most of the
-        # input's seam steps falls back to the input's texels, holes filled and seams blended only
+        # input's seam steps falls back to the input's texels, holes filled and seams blended only (on a new
+        # layout, the input's steps are read where the input's seams now lie inside its charts)
         patches = patch_metrics(scan, enhanced, [tv.views.cameras[i] for i in tv.views.test], caster)
         share = patches["enhanced_vs_input"]
-        seams_in, seams_out = seam_visibility(scan), seam_visibility(baked)
+        seams_in = seam_visibility(scan)
+        seams_out = seam_visibility(baked) if mode == "keep" else seam_visibility(baked, seam_edges(scan))
         if share > PATCH_LIMIT and seams_out > (1 - SEAM_GAIN) * seams_in:
             patches = None
             removed = 1 - seams_out / max(seams_in, 1e-9)

@@ -265,6 +265,9 @@ def test_a_result_with_patches_falls_back_to_the_input_texels(toy_demo, monkeypa
 
     assert "the input's texels are kept (holes filled)" in m["field"]["why"]
     assert "Safety fallback" in _headline(m) and "Safety fallback" not in _headline(kept)
+    # a new layout is no way around it (the input's seams read where they now lie inside its charts)
+    moved = enhance(toy_demo.scan, cfg.override(uv__mode="optimize")).metrics
+    assert moved["uv"]["mode"] == "optimize" and moved["bake"]["safety"]["fallback"] == "no levelling, no refiner"
 
 
 def test_vertex_coloured_mesh_keeps_its_colours_in_a_texture(toy_demo):
