@@ -218,12 +218,15 @@ class Scan:
         """``(F, 3, 3) float64`` corner positions of every face."""
         return self.positions[self.faces]
 
-    @property
+    @functools.cached_property
     def triangle_uvs(self) -> np.ndarray:
-        """``(F, 3, 2) float64`` corner UVs of every face (requires UVs)."""
+        """``(F, 3, 2) float64`` corner UVs of every face (requires UVs), read-only, computed once per scan (loops
+        over a Matterport export's hundreds of materials had gathered them again for each)."""
         if self.uvs is None:
             raise ValueError("this scan has no texture coordinates")
-        return self.uvs[self.face_uvs]
+        out = self.uvs[self.face_uvs]
+        out.setflags(write=False)
+        return out
 
     @functools.cached_property
     def bounds(self) -> np.ndarray:

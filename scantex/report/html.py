@@ -42,6 +42,9 @@ MAX_FACES = 100_000
 MAX_VIEWS = 4
 #: longest side of the whole-atlas thumbnails, pixels
 THUMBNAIL = 512
+#: materials whose atlases are shown (those on the most surface): a Matterport export's hundreds made a report of
+#: 830 MB (500 materials, each atlas's thumbnails and crops embedded) and took 7 GB more memory to write
+MAX_ATLASES = 6
 #: the atlas comparison: this many input texels across (the output's atlas shows the same UV square at
 #: its own resolution)
 CROP_TEXELS = 256
@@ -352,9 +355,16 @@ def _atlases(before: Scan, after: Scan) -> str:
 
     rows = []
     crop = _crop_centre(before)
-    for m, (mb, ma) in enumerate(zip(before.materials, after.materials)):
-        if mb.image is None or ma.image is None:
-            continue
+    same = before.triangle_uvs.shape == after.triangle_uvs.shape and np.allclose(before.triangle_uvs,
+                                                                                  after.triangle_uvs)
+    shown = [m for m, (mb, ma) in enumerate(zip(before.materials, after.materials))
+             if mb.image is not None and ma.image is not None]
+    if len(shown) > MAX_ATLASES:
+        area = np.bincount(before.face_materials, before.face_areas, minlength=len(before.materials))
+        cropped = crop[2] if crop is not None else -1  # the material the crop shows a hole of, first
+        shown = sorted(sorted(shown, key=lambda m: (m != cropped, -area[m]))[:MAX_ATLASES])
+    for m in shown:
+        mb, ma = before.materials[m], after.materials[m]
         cells_whole, crops, where = [], {}, {}
         for label, image in (("before", mb.image), ("after", ma.image)):
             H, W = image.shape[:2]
@@ -376,8 +386,6 @@ def _atlases(before: Scan, after: Scan) -> str:
             crops[label] = np.ascontiguousarray(image[y0:y0 + n, x0:x0 + n, :3])
             where[label] = f"texels {x0}–{x0 + n} × {y0}–{y0 + n} of {W}×{H}"
         title = html.escape(mb.name)
-        same = before.triangle_uvs.shape == after.triangle_uvs.shape and np.allclose(before.triangle_uvs,
-                                                                                      after.triangle_uvs)
         note = ("The same UV region of both atlases (the layout is kept, so the same surface)." if same else
                 "The same square of UV space in both atlases; the layouts differ, so it is not the same surface.")
         side = ("<table class='cmp-scores'><caption>material " + title + "</caption>"
@@ -385,7 +393,10 @@ def _atlases(before: Scan, after: Scan) -> str:
                 + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
         rows.append(f"<tr><th colspan=2>material {title}</th></tr><tr>{''.join(cells_whole)}</tr>"
                     f"<tr><td colspan=2>{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}</td></tr>")
-    return f'<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
+    textured = sum(mb.image is not None and ma.image is not None for mb, ma in zip(before.materials, after.materials))
+    more = (f"<p class='note'>The {len(shown)} of {textured} materials on the most surface; the others' atlases "
+            "are in the output folder.</p>" if textured > len(shown) else "")
+    return f'{more}<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
 
 
 def _comparisons(images: dict) -> str:

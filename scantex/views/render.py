@@ -97,6 +97,11 @@ def sample_texture_reference(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return ((top * (1 - fy) + bottom * fy) * scale).astype(np.float32)
 
 
+#: above this many materials, :func:`shade_hits` sorts its points by material once (a Matterport export's
+#: hundreds made a pass over every point per material a share of the bake); below, a pass each is faster
+SORT_MATERIALS = 8
+
+
 def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray | None = None) -> np.ndarray:
     """Unlit RGB ``(N, 3) float32`` of surface points given as ``face_id (N,)`` (all >= 0), ``bary (N, 2)``.
 
@@ -109,8 +114,15 @@ def shade_hits(scan: Scan, face_id: np.ndarray, bary: np.ndarray, uv: np.ndarray
     mat_of_hit = scan.face_materials[face_id]
     if uv is None and scan.has_uvs and any(m.image is not None for m in scan.materials):
         uv = hit_uvs(scan, face_id, bary)
+    sorted_out = len(scan.materials) > SORT_MATERIALS
+    if sorted_out:  # each material's points from one sort, not a pass over them all per material
+        order = np.argsort(mat_of_hit, kind="stable")
+        bounds = np.searchsorted(mat_of_hit[order], np.arange(len(scan.materials) + 1))
     for m, material in enumerate(scan.materials):
-        sel = np.flatnonzero(mat_of_hit == m) if len(scan.materials) > 1 else np.arange(N)
+        if sorted_out:
+            sel = order[bounds[m]:bounds[m + 1]]
+        else:
+            sel = np.flatnonzero(mat_of_hit == m) if len(scan.materials) > 1 else np.arange(N)
         if sel.size == 0:
             continue
         base = np.asarray(material.diffuse[:3], dtype=np.float32)

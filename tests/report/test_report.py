@@ -193,3 +193,20 @@ def test_metrics_are_json_every_parser_reads():
     back = json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
     assert back == {"poses": [{"error_before": None, "error_after": None}], "psnr": 21.5, "counts": [0, 1, 2],
                     "ok": True}
+
+
+def test_only_the_atlases_on_most_surface_are_shown(monkeypatch):
+    """A Matterport export's hundreds of materials made an 830 MB report (each atlas's thumbnails and crops): the
+    report shows the MAX_ATLASES on the most surface and says where the others are."""
+    import scantex.report.html as report
+    from tests.conftest import textured_cube
+
+    cube = textured_cube(materials=6)  # two faces each
+    area = np.bincount(cube.face_materials, cube.face_areas)
+    monkeypatch.setattr(report, "MAX_ATLASES", 3)
+    shown = report._atlases(cube, cube)
+    assert "The 3 of 6 materials on the most surface" in shown
+    crop = report._crop_centre(cube)
+    expected = {int(m) for m in np.argsort(-area)[:3]} if crop is None else None
+    names = set(re.findall(r"<th colspan=2>material (mat\d)</th>", shown))
+    assert len(names) == 3 and (expected is None or names == {f"mat{m}" for m in expected})
