@@ -175,7 +175,8 @@ def _headline(m: dict) -> str:
                      f"PSNR {_num(i['psnr'])} → {_num(e['psnr'])} dB, SSIM {i['ssim']:.3f} → {e['ssim']:.3f}",
                      "good" if e["psnr"] > i["psnr"] else "bad"))
         if "hole_psnr" in i and "hole_psnr" in e:
-            rows.append(("Holes vs ground truth", f"PSNR {_num(i['hole_psnr'])} → {_num(e['hole_psnr'])} dB", ""))
+            rows.append(("Holes vs ground truth", f"PSNR {_num(i['hole_psnr'])} → {_num(e['hole_psnr'])} dB",
+                         "good" if e["hole_psnr"] > i["hole_psnr"] else "bad"))
     elif "held_out_vs_input" in m:
         e = m["held_out_vs_input"]["enhanced"]
         rows.append(("Held-out views vs input renders", f"PSNR {_num(e['psnr'])} dB, SSIM {e['ssim']:.3f} "
@@ -190,6 +191,12 @@ def _headline(m: dict) -> str:
                      "favours the input" + ("; the texture made without them (the one written was then made from "
                                             "every photo, these included: photos.final)" if _remade(m) else ""),
                      "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
+        truth = m.get("held_out_photos_vs_ground_truth")
+        if truth:
+            rows.append(("Held-out photos' cameras vs ground truth",
+                         f"PSNR {_num(truth['input']['psnr'])} → {_num(truth['enhanced']['psnr'])} dB, SSIM "
+                         f"{truth['input']['ssim']:.3f} → {truth['enhanced']['ssim']:.3f}",
+                         "good" if truth["enhanced"]["psnr"] > truth["input"]["psnr"] else "bad"))
         if "psnr_aligned" in i and "psnr_aligned" in e:
             rows.append(("Held-out photos, poses aligned",
                          f"colour-matched PSNR {_num(i['psnr_aligned'])} → {_num(e['psnr_aligned'])} dB, SSIM "
@@ -211,9 +218,10 @@ def _headline(m: dict) -> str:
             rows[-1] = ("Seam visibility", rows[-1][1][:-1] + f", each layout's own; at the input's seams "
                         f"{sv['input']:.2f} → {sv['enhanced_at_input_seams']:.2f})",
                         "good" if max(sv["enhanced"], sv["enhanced_at_input_seams"]) < sv["input"] else "")
-    patches = m.get("patches")
-    if patches and "enhanced_vs_input" in patches:
-        share = patches["enhanced_vs_input"]
+    # a tiled run's fused result has only the held-out views' mean of it (the same measure, per view)
+    share = (m.get("patches") or {}).get("enhanced_vs_input",
+                                         m.get("held_out_vs_input", {}).get("enhanced", {}).get("patches"))
+    if share is not None:
         rows.append(("Patches vs input", f"{100 * share:.2f} % of the held-out pixels have a hard-edged low-frequency "
                      "change against the input (about 0: none; exposure steps removed at seams count too"
                      + ("; in photo mode, so do the contrast and detail the photos show and the input lacks: compare "
@@ -294,7 +302,7 @@ def _renders(before: Scan | None, after: Scan, truth: Scan | None, cameras: list
                               f"{width}×{height} shown")
         right = "enhanced"
         left = "input" if "input" in images else "ground truth" if "ground truth" in images else "enhanced"
-        return _compare(f"view-{k + 1}", images, left, right, table, fit=True)
+        return _compare(f"view-{k + 1}", images, left, right, table, fit=True, split=_split_at(images[right]))
 
     # the views side by side: Embree, numpy and PNG encoding release the interpreter lock
     with ThreadPoolExecutor(PAIR_THREADS) as pool:
@@ -313,10 +321,21 @@ def _scores_table(scores: tuple[str, dict] | None, caption: str) -> str:
     return f"<table class='cmp-scores'><caption>{html.escape(caption)}</caption>{rows}</table>"
 
 
-def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, side: str, *, fit: bool) -> str:
+def _split_at(image: np.ndarray) -> float:
+    """Where a view's wipe opens, in percent of its width: the middle of the columns its surface covers (the
+    middle of the image showed one side alone where the surface fills one half of the view)."""
+    columns = np.flatnonzero(image[..., :3].max(axis=(0, 2)) > 0)
+    if columns.size == 0:
+        return 50.0
+    return float(np.clip(100 * (columns[0] + columns[-1] + 1) / (2 * image.shape[1]), 10, 90))
+
+
+def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, side: str, *, fit: bool,
+             split: float = 50.0) -> str:
     """A wipe viewer over ``images`` (all shown over the same box: the largest image's size), ``left``
     and ``right`` shown first; ``side`` is HTML put beside it. ``fit``: open fitted to the box, else at
-    1:1 (one pixel of the largest image per CSS pixel)."""
+    1:1 (one pixel of the largest image per CSS pixel). ``split``: where the split opens, percent of the
+    width."""
     H = max(im.shape[0] for im in images.values())
     W = max(im.shape[1] for im in images.values())
     # at 1:1, a box a little larger than a small image leaves room to zoom in
@@ -345,7 +364,7 @@ def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, sid
             '<div class="cmp-divider"><div class="cmp-handle"></div></div>'
             '<span class="cmp-label cmp-label-a"></span><span class="cmp-label cmp-label-b"></span></div>'
             f'<div class="cmp-side">{side}</div></div>'
-            f'<input type="range" class="cmp-split" min="0" max="100" step="0.1" value="50" '
+            f'<input type="range" class="cmp-split" min="0" max="100" step="0.1" value="{split:.1f}" '
             f'style="width:{box_w}px" aria-label="split position">'
             f'<div class="cmp-sources" hidden>{sources}</div></div>')
 
@@ -513,7 +532,9 @@ def _num(v) -> str:
 
 
 def _fmt(v) -> str:
-    if isinstance(v, bool) or v is None or isinstance(v, str):
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if v is None or isinstance(v, str):
         return html.escape(str(v) if v is not None else "—")
     if isinstance(v, (int, np.integer)):
         return f"{int(v):,}"
@@ -715,6 +736,7 @@ PAGE = """<!DOCTYPE html>
 <html lang="en">
 <head>
 <meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
 <title>{title}</title>
 <style>{style}</style>
 {plotlyjs}

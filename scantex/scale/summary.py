@@ -75,7 +75,8 @@ def index_html(summary: dict, table: list[dict]) -> str:
             f"{summary['pending']} pending ({html.escape(summary['executor'])}{took}; updated {summary['updated']})")
     body = "\n".join(cell(r) for r in table)
     return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>scantex batch</title>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1"><title>scantex batch</title>
 <style>
 body {{ font-family: system-ui, sans-serif; margin: 2em; }}
 table {{ border-collapse: collapse; }} td, th {{ padding: 4px 10px; border-bottom: 1px solid #ddd; text-align: left; }}

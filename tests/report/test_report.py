@@ -210,3 +210,26 @@ def test_only_the_atlases_on_most_surface_are_shown(monkeypatch):
     expected = {int(m) for m in np.argsort(-area)[:3]} if crop is None else None
     names = set(re.findall(r"<th colspan=2>material (mat\d)</th>", shown))
     assert len(names) == 3 and (expected is None or names == {f"mat{m}" for m in expected})
+
+
+def test_the_summary_of_a_tiled_run_and_of_photos_scored_against_a_truth():
+    """A tiled run's metrics hold the patch measure only in the held-out views' scores; photo mode with a ground
+    truth scores the held-out photos' cameras against it: both are in the summary. Booleans read yes / no."""
+    import scantex.report.html as report
+
+    tiled = {"held_out_vs_input": {"enhanced": {"psnr": 40.0, "ssim": 0.99, "patches": 0.0206}}}
+    assert "Patches vs input" in report._headline(tiled) and "2.06 %" in report._headline(tiled)
+    scores = {"input": {"psnr": 15.95, "ssim": 0.5, "psnr_matched": 16.0, "photos": 2},
+              "enhanced": {"psnr": 24.71, "ssim": 0.7, "psnr_matched": 25.0, "photos": 2}}
+    photos = {"held_out_photos": scores, "held_out_photos_vs_ground_truth": scores}
+    assert "Held-out photos&#x27; cameras vs ground truth" in report._headline(photos)
+    assert report._fmt(True) == "yes" and report._fmt(False) == "no"
+
+
+def test_a_views_wipe_opens_where_its_surface_is():
+    import scantex.report.html as report
+
+    image = np.zeros((40, 100, 3), np.uint8)
+    image[:, 10:40] = 200  # the surface fills the left third
+    assert report._split_at(image) == pytest.approx(25.0)
+    assert report._split_at(np.zeros((4, 4, 3), np.uint8)) == 50.0
