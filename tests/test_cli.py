@@ -126,3 +126,21 @@ def test_diffusion_alone_runs_the_refiner_it_belongs_to(tmp_path, capsys):
     assert "refine" in metrics or "refine_discarded" in metrics["bake"].get("safety", {})  # it ran
     assert_clean_error(*run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out2", "--config", config,
                                 "--diffusion", "--no-refine", "-q"), "--no-refine")
+
+
+def test_refine_with_photos_says_photo_mode_skips_the_refiner(tmp_path, capsys, caplog, monkeypatch):
+    """Photo mode does not run the refiner unless refine.with_photos: --refine there changed nothing, silently."""
+    import scantex.pipeline.enhance as pipeline
+    from scantex.errors import ScanError
+    from tests.io.hostile import run_cli, write_cube, write_photos, write_tiny_config
+
+    def stop(*args, **kwargs):
+        raise ScanError(None, "stopped here: the test needs only what comes before the run")
+
+    monkeypatch.setattr(pipeline, "enhance", stop)
+    mesh = write_cube(tmp_path / "scan")
+    config = write_tiny_config(tmp_path / "tiny.json")
+    photos = write_photos(tmp_path / "photos")
+    with caplog.at_level("WARNING"):
+        run_cli(capsys, "enhance", mesh, "--photos", photos, "-o", tmp_path / "out", "--config", config, "--refine")
+    assert "--refine: photo mode does not run the refiner" in caplog.text
