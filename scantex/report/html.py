@@ -425,20 +425,37 @@ def _comparisons(images: dict) -> str:
 
 
 def _crop_centre(scan: Scan) -> tuple[float, float, int] | None:
-    """UV centre and material of the detail crop: the first hole if the scan has one (where the input
-    is at its worst), else the middle of the first seam edge, else none."""
+    """UV centre and material of the detail crop: a hole if the scan has one (where the input is at its
+    worst), else a face on a seam, else none; of those (up to 200, spread over them), the one whose crop
+    the most surface fills (a hole at a chart's edge showed a crop of gutter, the unused texels between
+    charts, more than of surface)."""
     if not scan.is_textured:
         return None
-    holes = np.flatnonzero(untextured_faces(scan))
-    if holes.size:
-        f = holes[len(holes) // 2]
-    else:
+    candidates = np.flatnonzero(untextured_faces(scan))
+    if not candidates.size:
         edges = seam_edges(scan)
         if not len(edges):
             return None
-        f = edges.faces[len(edges) // 2, 0]
-    u, v = scan.triangle_uvs[f].mean(axis=0)
-    return float(u % 1.0), float(v % 1.0), int(scan.face_materials[f])
+        candidates = edges.faces[:, 0]
+    candidates = candidates[np.linspace(0, len(candidates) - 1, min(200, len(candidates))).astype(int)]
+    uv = scan.triangle_uvs
+    centres = uv.mean(axis=1) % 1.0
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    faces = np.arange(scan.n_faces)
+    if faces.size > 50_000:  # a sample of the surface is enough to rank the crops
+        faces = np.sort(np.random.default_rng(0).choice(faces, 50_000, replace=False))
+    material, centre, surface = scan.face_materials[faces], centres[faces], area[faces]
+    best, filled = candidates[0], -1.0
+    for f in candidates:
+        m = scan.face_materials[f]
+        image = scan.materials[m].image
+        half = CROP_TEXELS / 2 / (image.shape[1] if image is not None else CROP_TEXELS)
+        inside = surface[(material == m) & (np.abs(centre - centres[f]) < half).all(axis=1)].sum()
+        if inside > filled:
+            best, filled = f, inside
+    u, v = centres[best]
+    return float(u), float(v), int(scan.face_materials[best])
 
 
 def _metrics_tables(m: dict) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -233,3 +234,21 @@ def test_a_views_wipe_opens_where_its_surface_is():
     image[:, 10:40] = 200  # the surface fills the left third
     assert report._split_at(image) == pytest.approx(25.0)
     assert report._split_at(np.zeros((4, 4, 3), np.uint8)) == 50.0
+
+
+def test_the_atlas_crop_is_centred_where_surface_fills_it():
+    """Of the holes, the crop shows the one with the most surface around it in the atlas: a hole at a chart's
+    edge showed a crop of gutter (unused texels) more than of surface."""
+    import scantex.report.html as report
+    from scantex.scan import Scan
+    from tests.conftest import grid_wall
+
+    wall = grid_wall(n=40)
+    image = np.kron(wall.materials[0].image, np.ones((8, 8, 1), np.uint8))  # 1024²: a crop is an eighth of it
+    H, W = image.shape[:2]
+    image[H - 120:, :120] = 0  # a large hole at the atlas's corner (the most hole faces)
+    image[H // 2 - 24:H // 2 + 24, W // 2 - 24:W // 2 + 24] = 0  # a small one in its middle
+    scan = Scan(wall.positions, wall.faces, wall.uvs, wall.face_uvs, None,
+                (dataclasses.replace(wall.materials[0], image=image),))
+    u, v, _ = report._crop_centre(scan)
+    assert abs(u - 0.5) < 0.1 and abs(v - 0.5) < 0.1
