@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import logging
 import math
 import sys
@@ -207,7 +208,10 @@ def cmd_enhance(args) -> int:
                                       photos__final=args.final_texture,
                                       refine__enabled=refine, refine__over_input=refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
-                                      refine__diffusion=True if args.diffusion else None), "the options")
+                                      refine__diffusion=True if args.diffusion else None,
+                                      tiling__tiles=None if args.tiles is None else 0 if args.tiles == "auto"
+                                      else args.tiles, tiling__max_faces=args.tile_faces,
+                                      tiling__overlap=args.tile_overlap), "the options")
     check_output_early(args.output, args.overwrite)
     check_output(work_dir_for(args.output), role="the work folder")
     _check_device(config.device)
@@ -229,8 +233,6 @@ def _enhance_capture(args, config, capture) -> int:
     photos = None
     photos_path = args.photos or capture.photos
     if photos_path:
-        import dataclasses
-
         from scantex.photos import load_photos
 
         photos = load_photos(photos_path, **({} if args.max_distortion is None
@@ -242,7 +244,7 @@ def _enhance_capture(args, config, capture) -> int:
             log.warning("--%s: photo mode does not run the refiner (it learns from renders of the input texture, "
                         "which the photos outclass: -0.12 dB on the demo wall); refine.with_photos in a --config "
                         "runs it", "diffusion" if args.diffusion else "refine")
-    tiles = tile_count(args, scan, photos, config.uv.mode)
+    tiles = tile_count(args, scan, photos, config)
     work = work_dir_for(args.output)
     # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the
     # work folder (which is removed at the end)
@@ -265,10 +267,10 @@ def _enhance_capture(args, config, capture) -> int:
             remove_work_dir(work, keep_checkpoint=False, remove_folder=False)
         if tiles > 1:
             from scantex.scale.executors import executor
-            from scantex.scale.tiles import TilingConfig, enhance_tiled
+            from scantex.scale.tiles import enhance_tiled
 
             _echo(args, f"enhancing in {tiles} overlapping tiles" + (" on Ray" if args.ray else ""))
-            result = enhance_tiled(scan, config, TilingConfig(tiles=tiles, overlap=args.tile_overlap),
+            result = enhance_tiled(scan, config, dataclasses.replace(config.tiling, tiles=tiles),
                                    ground_truth=truth, photos=photos, runner=executor(args.ray, args.workers),
                                    reporter=BarReporter(args.quiet))
         else:
@@ -309,22 +311,21 @@ def compiled_note() -> str | None:
     return f"{seconds:.0f} s of this run compiled {versions} of scantex's loops ({kept})"
 
 
-def tile_count(args, scan, photos, uv_mode: str) -> int:
-    """Tiles for this run: ``--tiles N``, or automatically one per ``--tile-faces`` faces (textured scans in
-    the kept UV layout, with photos or without; untextured ones with photos or vertex colours, in a layout made
-    for the whole scan; others run whole). ``uv_mode``: the run's ``uv.mode`` (``--uv``, or its config's)."""
-    from scantex.pipeline.config import TilingConfig
+def tile_count(args, scan, photos, config) -> int:
+    """Tiles for this run: ``tiling.tiles`` (``--tiles N``), or automatically (0, ``auto``) one per ``--tile-faces``
+    faces (textured scans in the kept UV layout, with photos or without; untextured ones with photos or vertex
+    colours, in a layout made for the whole scan; others run whole)."""
     from scantex.pipeline.enhance import has_colour
 
-    auto = args.tiles == "auto"
-    n = TilingConfig(tiles=0 if auto else int(args.tiles), max_faces=args.tile_faces).count(scan.n_faces)
+    auto = config.tiling.tiles == 0
+    n = config.tiling.count(scan.n_faces)
     if n <= 1 or (photos is None and not has_colour(scan)):  # nothing to enhance: enhance says so
         return 1
     if not scan.is_textured:  # laid out whole first, for the photos or the vertex colours; else nothing to lay out
         why = None if photos is not None or scan.vertex_colors is not None else \
             "an untextured scan without photos or vertex colours"
     else:
-        why = f"--uv {uv_mode}" if uv_mode != "keep" else None
+        why = f"--uv {config.uv.mode}" if config.uv.mode != "keep" else None
     if why is None:
         return n
     if auto:
@@ -680,15 +681,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted run from its field checkpoint in DIR.partial (kept by a run "
                         "that was killed or failed after a checkpoint; refused if it is of another input or "
                         "other settings)")
-    p.add_argument("--tiles", type=tiles_arg, default="auto", metavar="N|auto",
+    p.add_argument("--tiles", type=tiles_arg, metavar="N|auto",
                    help="cut the surface into N overlapping tiles, enhance each as its own job (local processes, "
                         "or Ray tasks with --ray) and fuse them with smooth weights; with --photos, each tile is "
                         "textured from the photos that see it and the held-out photos score the fused result; an "
                         "untextured scan (with --photos, or vertex colours) is laid out whole first; "
-                        "auto: one tile per --tile-faces faces (default: auto)")
-    p.add_argument("--tile-faces", type=whole(1), default=1_000_000, metavar="F",
+                        "auto: one tile per --tile-faces faces (default: auto, or --config's tiling.tiles)")
+    p.add_argument("--tile-faces", type=whole(1), metavar="F",
                    help="--tiles auto: the most faces one tile holds (default: 1000000)")
-    p.add_argument("--tile-overlap", type=real(0.0, 1.0), default=0.15, metavar="X",
+    p.add_argument("--tile-overlap", type=real(0.0, 1.0), metavar="X",
                    help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
     add_executor_options(p, "tile")
     p.add_argument("--overwrite", action="store_true",

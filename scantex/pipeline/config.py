@@ -182,6 +182,33 @@ class PhotosConfig:
 
 
 @dataclass(frozen=True)
+class TilingConfig:
+    """How :func:`scantex.scale.tiles.enhance_tiled` cuts a huge scan into tiles (kept here, with the other
+    settings, so that a run deciding whether to tile imports none of the tiling machinery)."""
+
+    tiles: int = 0
+    """tiles to cut the surface into (0: automatic, one per max_faces faces; 1: no tiling)"""
+    max_faces: int = 1_000_000
+    """automatic tiling: the most faces one tile should hold"""
+    overlap: float = 0.15
+    """overlap of neighbouring tiles on each side of their border, as a share of a tile's size"""
+    harmonize: bool = False
+    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
+    cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
+
+    def __post_init__(self):
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                      for v in (self.tiles, self.max_faces, self.overlap))  # else validate() names the type
+        if numbers and (self.tiles < 0 or self.max_faces < 1 or not 0.0 <= self.overlap <= 1.0):  # NaN fails too
+            raise ScanError(None, f"tiling needs tiles >= 0, max_faces >= 1 and overlap from 0 to 1, not "
+                                  f"{self.tiles}, {self.max_faces} and {self.overlap}")
+
+    def count(self, n_faces: int) -> int:
+        """The number of tiles for a scan of ``n_faces`` faces."""
+        return self.tiles if self.tiles > 0 else max(1, math.ceil(n_faces / self.max_faces))
+
+
+@dataclass(frozen=True)
 class EnhanceConfig:
     preset: str = "default"
     """the preset these settings started from"""
@@ -198,6 +225,9 @@ class EnhanceConfig:
     bake: BakeConfig = default(default_factory=BakeConfig)
     photos: PhotosConfig = default(default_factory=PhotosConfig)
     refine: RefineConfig = default(default_factory=RefineConfig)
+    tiling: TilingConfig = default(default_factory=TilingConfig)
+    """how a huge scan is cut into tiles (the CLI's --tiles, --tile-faces, --tile-overlap); :func:`enhance` itself
+    enhances whatever it is given whole"""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -215,7 +245,7 @@ class EnhanceConfig:
         """
         subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
                 "bake": BakeConfig, "photos": PhotosConfig,
-                "refine": RefineConfig}
+                "refine": RefineConfig, "tiling": TilingConfig}
         if not isinstance(d, dict):
             raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
         name = d.get("preset", "default")
@@ -244,31 +274,6 @@ class EnhanceConfig:
         return cfg
 
 
-@dataclass(frozen=True)
-class TilingConfig:
-    """How :func:`scantex.scale.tiles.enhance_tiled` cuts a huge scan into tiles (kept here, with the other
-    settings, so that a run deciding whether to tile imports none of the tiling machinery)."""
-
-    tiles: int = 0
-    """tiles to cut the surface into (0: automatic, one per max_faces faces; 1: no tiling)"""
-    max_faces: int = 1_000_000
-    """automatic tiling: the most faces one tile should hold"""
-    overlap: float = 0.15
-    """overlap of neighbouring tiles on each side of their border, as a share of a tile's size"""
-    harmonize: bool = False
-    """level each tile's overall colour with a per-channel gain fitted on the overlaps before fusing (off: it
-    cost 0.12 dB on the toy wall and did not change the steps at the borders; bench/bench_tiles.py)"""
-
-    def __post_init__(self):
-        if self.tiles < 0 or self.max_faces < 1 or not 0.0 <= self.overlap <= 1.0:  # NaN fails too
-            raise ScanError(None, f"tiling needs tiles >= 0, max_faces >= 1 and overlap from 0 to 1, not "
-                                  f"{self.tiles}, {self.max_faces} and {self.overlap}")
-
-    def count(self, n_faces: int) -> int:
-        """The number of tiles for a scan of ``n_faces`` faces."""
-        return self.tiles if self.tiles > 0 else max(1, math.ceil(n_faces / self.max_faces))
-
-
 def _build(base, values: dict, where, section: str):
     """``base`` (a section's settings) with ``values`` set."""
     if not isinstance(values, dict):
@@ -277,7 +282,10 @@ def _build(base, values: dict, where, section: str):
     unknown = set(values) - names
     if unknown:
         raise ScanError(where, f"unknown config key '{section}.{sorted(unknown)[0]}'")
-    return dataclasses.replace(base, **values)
+    try:
+        return dataclasses.replace(base, **values)
+    except ScanError as e:  # a section's own check (tiling): named by the file
+        raise ScanError(where, e.problem) from None
 
 
 PRESETS: dict[str, EnhanceConfig] = {
@@ -353,6 +361,7 @@ RANGES: dict[str, tuple] = {
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),
     "refine.view_scale": (1.0, 8.0), "refine.max_views": (1, 10_000), "refine.diffusion_strength": (0.0, 1.0),
     "refine.diffusion_steps": (1, BIG), "photos.temperature": (1e-3, 1e6), "bake.denoise": (0.0, 1e3),
+    "tiling.tiles": (0, 100_000), "tiling.max_faces": (1, BIG), "tiling.overlap": (0.0, 1.0),
 }
 
 

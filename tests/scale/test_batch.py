@@ -243,15 +243,24 @@ def test_impossible_pool_and_tiling_settings_are_refused():
             TilingConfig(**bad)
 
 
-def test_tiling_follows_the_uv_mode_of_a_config(tmp_path, caplog):
+def test_tiling_follows_the_config(tmp_path, caplog):
     """A scan over the tiling threshold whose config says uv.mode optimize runs whole (with a warning) rather
-    than being refused by the tiles, as it is with --uv optimize: a rerun with the first run's config.json."""
+    than being refused by the tiles, as it is with --uv optimize; the tiling itself is in the config (written to
+    config.json), so that a tiled run's config.json tiles its rerun the same way."""
     import argparse
 
     from scantex.cli import tile_count
+    from scantex.pipeline.config import EnhanceConfig, load_config, save_config
 
-    args = argparse.Namespace(tiles="auto", tile_faces=4, uv=None, mesh=tmp_path / "m.obj")
+    args = argparse.Namespace(mesh=tmp_path / "m.obj")
     cube = textured_cube()
-    assert tile_count(args, cube, None, "keep") == 3
-    assert tile_count(args, cube, None, "optimize") == 1
+    config = EnhanceConfig().override(tiling__max_faces=4)
+    assert tile_count(args, cube, None, config) == 3
+    assert tile_count(args, cube, None, config.override(uv__mode="optimize")) == 1
     assert "cannot be tiled" in caplog.text
+    save_config(config.override(tiling__tiles=2, tiling__overlap=0.3), tmp_path / "config.json")
+    again = load_config(tmp_path / "config.json")
+    assert (again.tiling.tiles, again.tiling.overlap) == (2, 0.3) and tile_count(args, cube, None, again) == 2
+    (tmp_path / "bad.json").write_text(json.dumps({"tiling": {"overlap": float("nan")}}))
+    with pytest.raises(ScanError, match="bad.json"):
+        load_config(tmp_path / "bad.json")
