@@ -422,7 +422,8 @@ def enhance_summary(m: dict) -> str:
         if "held_out_photos_vs_ground_truth" in m:
             s = m["held_out_photos_vs_ground_truth"]
             lines.append(f"held-out photo cameras vs ground truth: PSNR {s['input']['psnr']:.2f} -> "
-                         f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+                         f"{s['enhanced']['psnr']:.2f} dB, SSIM {s['input']['ssim']:.3f} -> "
+                         f"{s['enhanced']['ssim']:.3f}")
         final = m.get("photos", {}).get("final_texture", {})
         if final.get("mode") == "all":
             views = ("; the held-out views' score vs ground truth is the texture written"
@@ -623,7 +624,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset: the synthetic views' number and size, and the field's size where one "
-                        "is trained (default: default; the 80k-face demo scan takes about 20 s fast, 30 s default on 2 CPU cores)")
+                        "is trained (default: default; the 80k-face demo scan takes about 20 s fast, 30 s default on "
+                        "2 CPU cores)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
     p.add_argument("--texture-size", type=whole(16, 16384),
                    help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
@@ -717,7 +719,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
                    help="speed/quality preset for every scan (default: default)")
     p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
-    p.add_argument("--texture-size", type=whole(16, 16384), help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
+    p.add_argument("--texture-size", type=whole(16, 16384),
+                   help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the "
+                        "input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: "
+                        "2048 or 4096, as fine as its photos)")
     p.add_argument("--views", type=whole(2, 10_000), help="number of synthetic views (preset's by default)")
     p.add_argument("--steps", type=whole(1), help="field training steps (preset's by default)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,

@@ -78,8 +78,9 @@ def _name(scan: Scan, title: str | None) -> str:
 
 def facing_camera(scan: Scan) -> dict:
     """A plotly scene camera looking at the side the surface faces (a wall from the front, a little from
-    above; a floor or a room with an open top from 45 degrees above), with the scan's up axis (:func:`scantex.scan.up_axis`: y for
-    glTF) up; plotly's diagonal view for closed objects, whose normals cancel."""
+    above; a floor or a room with an open top from 45 degrees above), with the scan's up axis up
+    (:func:`scantex.scan.up_axis`: y for glTF); plotly's diagonal view for closed objects, whose normals
+    cancel."""
     up = np.array(up_axis(scan))
     normals = scan.face_normals * scan.face_areas[:, None]
     mean = normals.sum(axis=0) / max(scan.face_areas.sum(), 1e-300)

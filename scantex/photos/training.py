@@ -112,9 +112,9 @@ def depth_factor(measured: np.ndarray, mesh_depth: np.ndarray, hit: np.ndarray, 
     disagreeing pixels are then rejected: an object moved after the scan). When most disagree and one factor
     brings at least 80 % of them within it, the map's unit is off (millimetres read as another unit, a
     tenth-millimetre sensor): that factor, with a warning. When no factor does, the map is not of this
-    photo's view (a depth camera not registered to the colour camera, another frame's map): ``None``, with a
-    warning (0), so that the photo is used without it rather than losing most of its pixels. ``hit``: the
-    pixels that see the mesh cleanly."""
+    photo's view (a depth camera not registered to the colour camera, another frame's map): 0, with a
+    warning, so that the photo is used without it rather than losing most of its pixels. ``hit``: the pixels
+    that see the mesh cleanly."""
     both = hit & np.isfinite(measured) & (measured > 0)
     if both.sum() < 100:
         return 1.0

@@ -243,16 +243,14 @@ class EnhanceConfig:
         Raises:
             ScanError: an unknown key, or a value of the wrong type or out of its range.
         """
-        subs = {"views": ViewsConfig, "field": FieldSettings, "train": TrainConfig, "uv": UVConfig,
-                "bake": BakeConfig, "photos": PhotosConfig,
-                "refine": RefineConfig, "tiling": TilingConfig}
+        sections = {"views", "field", "train", "uv", "bake", "photos", "refine", "tiling"}
         if not isinstance(d, dict):
             raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
         name = d.get("preset", "default")
         base = PRESETS.get(name, PRESETS["default"]) if isinstance(name, str) else PRESETS["default"]
         kwargs = {}
         for key, value in d.items():
-            if key in subs:
+            if key in sections:
                 kwargs[key] = _build(getattr(base, key), value, where, key)
             elif key in {f.name for f in dataclasses.fields(cls)}:
                 kwargs[key] = value

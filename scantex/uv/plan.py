@@ -29,7 +29,7 @@ from scantex.uv.unwrap import UnwrapLog, UnwrapOptions, unwrap
 log = logging.getLogger(__name__)
 
 MODES = ("keep", "optimize", "unwrap")
-#: packings tried while faces of one chart share texels (each lays those faces out apart; one has sufficed)
+#: packings tried while faces share texels (each lays those faces out apart; one has sufficed on the real scans)
 MAX_REPACKS = 3
 
 
@@ -174,7 +174,7 @@ def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dic
         report["faces_apart"] += int(shared.sum())
         atlas = pack(charts, size, gutter)
     if report["faces_apart"]:
-        log.info("UV plan: %d faces that shared texels with others of their chart laid out on their own",
+        log.info("UV plan: %d faces that shared texels with others laid out as charts of their own",
                  report["faces_apart"])
     d = charts_distortion(scan, charts)
     report["chart_stretch"] = stats([x.stretch for x in d])
