@@ -90,7 +90,10 @@ def build_report(result, *, input_scan: Scan | None = None, ground_truth: Scan |
     views = result.views.views
     cameras = [views.cameras[i] for i in views.test[:MAX_VIEWS]] or list(views.cameras[:MAX_VIEWS])
 
-    name = (before.source.name if before is not None and before.source is not None else "scan")
+    source = before.source if before is not None else None
+    # with its folder: a capture app names every export's mesh alike (3D Scanner App: textured_output.obj), and a
+    # batch's reports were all titled by that one name
+    name = "scan" if source is None else f"{source.parent.name}/{source.name}" if source.parent.name else source.name
     plotly = has_module("plotly")
     if not plotly:
         log.warning(missing_message("plotly", "the report's 3D view") + "; the report is written without it")

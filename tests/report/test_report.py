@@ -113,6 +113,15 @@ def test_report_without_input_scan(result):
     assert len(figures(page)) == 1 and 'class="thumb"' not in page
 
 
+def test_the_title_names_the_scan_with_its_folder(result):
+    """Capture apps name every export's mesh alike: a batch's reports were all "scantex report: textured_output.obj"."""
+    from pathlib import Path
+
+    scan = result.input_scan.replace(source=Path("/scans/kitchen/textured_output.obj"))
+    page = build_report(dataclasses.replace(result, input_scan=scan))
+    assert "<title>scantex report: kitchen/textured_output.obj</title>" in page
+
+
 def test_enhance_outputs_include_report_and_zero_distances(tmp_path):
     """A real (tiny) enhance run: every output folder holds metrics.json and report.html, and the
     geometry distances between input and output are exactly zero."""
