@@ -381,7 +381,8 @@ def _atlases(before: Scan, after: Scan) -> str:
                                                                                   after.triangle_uvs)
     shown = [m for m, (mb, ma) in enumerate(zip(before.materials, after.materials))
              if mb.image is not None and ma.image is not None]
-    if len(shown) > MAX_ATLASES:
+    textured = len(shown)
+    if textured > MAX_ATLASES:
         area = np.bincount(before.face_materials, before.face_areas, minlength=len(before.materials))
         cropped = crop[2] if crop is not None else -1  # the material the crop shows a hole of, first
         shown = sorted(sorted(shown, key=lambda m: (m != cropped, -area[m]))[:MAX_ATLASES])
@@ -415,7 +416,6 @@ def _atlases(before: Scan, after: Scan) -> str:
                 + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
         rows.append(f"<tr><th colspan=2>material {title}</th></tr><tr>{''.join(cells_whole)}</tr>"
                     f"<tr><td colspan=2>{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}</td></tr>")
-    textured = sum(mb.image is not None and ma.image is not None for mb, ma in zip(before.materials, after.materials))
     more = (f"<p class='note'>The {len(shown)} of {textured} materials on the most surface; the others' atlases "
             "are in the output folder.</p>" if textured > len(shown) else "")
     return f'{more}<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"

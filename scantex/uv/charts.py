@@ -59,8 +59,7 @@ def faces_apart(charts: Charts, faces: np.ndarray, triangles_3d: np.ndarray) -> 
     """``charts`` with ``faces`` (``(F,) bool``) each a chart of its own, laid flat at its true edge lengths
     (``triangles_3d (F, 3, 3)``: the scan's corner positions); the other faces keep their charts and UVs."""
     idx = np.flatnonzero(faces)
-    t = triangles_3d[idx]
-    flat = flat_triangles(np.linalg.norm(np.roll(t, -1, axis=1) - t, axis=2))  # |p1-p0|, |p2-p1|, |p0-p2|
+    flat = flat_triangles(triangles_3d[idx])
     face_uvs = charts.face_uvs.copy()
     face_uvs[idx] = len(charts.uvs) + np.arange(3 * len(idx)).reshape(-1, 3)
     chart = charts.chart_of_face.copy()

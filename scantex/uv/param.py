@@ -290,9 +290,10 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     return float(overlapped / max(covered, 1))
 
 
-def flat_triangles(lengths: np.ndarray) -> np.ndarray:
-    """``(n, 3, 2)``: triangles with side lengths ``lengths (n, 3)`` (|p1 - p0|, |p2 - p1|, |p0 - p2|) laid flat,
-    p0 at the origin, p1 along +x, p2 above; moved so that their corners' minimum is 0."""
+def flat_triangles(triangles: np.ndarray) -> np.ndarray:
+    """``(n, 3, 2)``: the triangles ``(n, 3, 3)`` (corner positions) laid flat at their true side lengths, p0 at
+    the origin, p1 along +x, p2 above; moved so that their corners' minimum is 0."""
+    lengths = np.linalg.norm(triangles[:, [1, 2, 0]] - triangles, axis=2)  # |p1 - p0|, |p2 - p1|, |p0 - p2|
     a, b, c = lengths[:, 0], lengths[:, 1], lengths[:, 2]
     x2 = np.divide(a * a + c * c - b * b, 2 * a, out=np.zeros_like(a), where=a > 0)
     y2 = np.sqrt(np.maximum(c * c - x2 * x2, 0.0))

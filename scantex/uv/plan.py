@@ -170,7 +170,7 @@ def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dic
         shared = overlapped_faces(atlas.uvs[atlas.face_uvs] * size, size)
         if not shared.any():
             break
-        charts = faces_apart(charts, shared, scan.positions[scan.faces])
+        charts = faces_apart(charts, shared, scan.triangles)
         report["faces_apart"] += int(shared.sum())
         atlas = pack(charts, size, gutter)
     if report["faces_apart"]:

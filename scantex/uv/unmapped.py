@@ -36,8 +36,6 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
     if not scan.is_textured:
         return scan, None
     scan, wrapped = wrap_whole_tiles(scan)
-    tri = scan.triangles  # [F, 3, 3]
-    lengths = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2)  # [F, 3]: |p1 - p0|, |p2 - p1|, |p0 - p2|
     unmapped = unmapped_faces(scan) & (scan.face_areas > 0)
     if not unmapped.any():
         return scan, ({"faces": 0, "charted": 0, "left": 0, "wrapped": wrapped} if wrapped else None)
@@ -52,7 +50,7 @@ def chart_unmapped_faces(scan: Scan, gutter_texels: int = 4) -> tuple[Scan, dict
         H, W = material.image.shape[:2]
         mapped = np.flatnonzero(~unmapped & (scan.face_materials == m))
         density = _texels_per_metre(scan, mapped, W, H)
-        corners = flat_triangles(lengths[faces]) * density  # [n, 3, 2] texels, from (0, 0)
+        corners = flat_triangles(scan.positions[scan.faces[faces]]) * density  # [n, 3, 2] texels, from (0, 0)
         side = corners.max(axis=(1, 2))
         corners *= np.minimum(1.0, MAX_CHART_TEXELS / np.maximum(side, 1e-12))[:, None, None]
         corners *= np.maximum(1.0, 2.0 / np.maximum(corners.max(axis=(1, 2)), 1e-12))[:, None, None]
