@@ -622,11 +622,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "export as written (a 3D Scanner App folder, a Polycam zip, ...): its mesh is found, and "
                         "its posed photos are used when it holds them")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output folder")
-    p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
-                   help="speed/quality preset: the synthetic views' number and size, and the field's size where one "
-                        "is trained (default: default; the 80k-face demo scan takes about 20 s fast, 30 s default on "
-                        "2 CPU cores)")
-    p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
+    settings = p.add_mutually_exclusive_group()
+    settings.add_argument("--preset", choices=["fast", "default", "best"], default="default",
+                          help="speed/quality preset: the synthetic views' number and size, and the field's size "
+                               "where one is trained (default: default; the 80k-face demo scan takes about 20 s fast, "
+                               "30 s default on 2 CPU cores)")
+    settings.add_argument("--config", type=Path,
+                          help="a config.json from an earlier run, in place of --preset (it names its own)")
     p.add_argument("--texture-size", type=whole(16, 16384),
                    help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
     p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
@@ -716,9 +718,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mesh files, apps' zipped exports, folders of meshes, or manifests (.json, .csv, .txt) "
                         "listing scans and their photos")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR", help="the batch's output folder")
-    p.add_argument("--preset", choices=["fast", "default", "best"], default="default",
-                   help="speed/quality preset for every scan (default: default)")
-    p.add_argument("--config", type=Path, help="a config.json from an earlier run (overrides --preset)")
+    settings = p.add_mutually_exclusive_group()
+    settings.add_argument("--preset", choices=["fast", "default", "best"], default="default",
+                          help="speed/quality preset for every scan (default: default)")
+    settings.add_argument("--config", type=Path,
+                          help="a config.json from an earlier run, in place of --preset (it names its own)")
     p.add_argument("--texture-size", type=whole(16, 16384),
                    help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the "
                         "input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: "

@@ -350,6 +350,8 @@ BAD_NUMBERS = [["render", "--views", "0"], ["render", "--fov", "nan"], ["render"
                # NaN overlap wrote an all-black atlas; 0 faces a tile divided by zero; negative workers waited forever
                ["enhance", "--tile-overlap", "nan"], ["enhance", "--tile-faces", "0"], ["enhance", "--workers", "-3"],
                ["enhance", "--photos", "cameras.json", "--no-photos"],
+               # the config was taken and the preset dropped without a word
+               ["enhance", "--preset", "fast"], ["batch", "--preset", "best", "--config", "tiny.json"],
                ["batch", "--views", "1"], ["batch", "--seed", "-1"], ["batch", "--texture-size", "3"],
                ["batch", "--workers", "-1"]]
 
