@@ -59,10 +59,10 @@ def index_html(summary: dict, table: list[dict]) -> str:
             else name
         scores = "" if row["psnr_enhanced"] is None else (
             f"{row['psnr_input']:.2f} → {row['psnr_enhanced']:.2f}" if row["psnr_input"] is not None
-            else f"{row['psnr_enhanced']:.2f}")
+            else f"fidelity {row['psnr_enhanced']:.2f}")
         ssim = "" if row["ssim_enhanced"] is None else (
             f"{row['ssim_input']:.3f} → {row['ssim_enhanced']:.3f}" if row["ssim_input"] is not None
-            else f"{row['ssim_enhanced']:.3f}")
+            else f"fidelity {row['ssim_enhanced']:.3f}")
         status = row["status"] + (" (earlier run)" if row["reused"] else "")
         return (f'<tr class="{row["status"]}"><td>{link}</td><td>{html.escape(status)}</td>'
                 f'<td>{html.escape(row["score"])}</td><td>{scores}</td><td>{ssim}</td>'
@@ -84,8 +84,10 @@ tr.failed td {{ background: #fdecea; }} tr.pending td {{ color: #888; }} td.erro
 </style></head><body>
 <h1>scantex batch</h1>
 <p>{head}</p>
-<p>PSNR (dB) and SSIM on each scan's held-out views: input → enhanced. Also in
-<a href="summary.csv">summary.csv</a> and <a href="summary.json">summary.json</a>.</p>
+<p>PSNR (dB) and SSIM on each scan's held-out views: input → enhanced. A scan with neither a ground truth nor
+held-out photos has nothing to score against: its "fidelity" is the enhanced texture's renders against the input's
+(high: little changed; not a gain). Also in <a href="summary.csv">summary.csv</a> and
+<a href="summary.json">summary.json</a>.</p>
 <table><tr><th>scan</th><th>status</th><th>scored</th><th>PSNR</th><th>SSIM</th><th>time</th><th>peak memory</th>
 <th>faces</th><th>host</th><th>error</th></tr>
 {body}

@@ -264,3 +264,19 @@ def test_tiling_follows_the_config(tmp_path, caplog):
     (tmp_path / "bad.json").write_text(json.dumps({"tiling": {"overlap": float("nan")}}))
     with pytest.raises(ScanError, match="bad.json"):
         load_config(tmp_path / "bad.json")
+
+
+def test_index_says_a_fidelity_is_no_gain(tmp_path):
+    """A scan without ground truth or photos has only its fidelity to the input: the index read it as an
+    enhanced PSNR in the column captioned "input → enhanced"."""
+    from scantex.scale.summary import write_summary
+
+    fidelity = {"kind": "held-out views vs input renders (fidelity)", "psnr_enhanced": 31.5, "ssim_enhanced": 0.93}
+    scored = {"kind": "held-out photos", "psnr_input": 20.0, "psnr_enhanced": 22.5, "ssim_input": 0.7,
+              "ssim_enhanced": 0.75}
+    records = [{"name": n, "status": "done", "report": f"{n}/report.html", "scores": s}
+               for n, s in (("room", fidelity), ("wall", scored))]
+    write_summary(tmp_path, records, executor="local")
+    index = (tmp_path / "index.html").read_text()
+    assert "<td>fidelity 31.50</td><td>fidelity 0.930</td>" in index
+    assert "<td>20.00 → 22.50</td><td>0.700 → 0.750</td>" in index
