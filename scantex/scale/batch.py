@@ -27,7 +27,7 @@ from pathlib import Path
 
 from scantex.errors import ScanError
 from scantex.pipeline.config import EnhanceConfig
-from scantex.scale.executors import Job, LocalPool, WorkerLost, executor as make_executor
+from scantex.scale.executors import Job, LocalPool, WorkerLost, check_not_bootstrapping, executor as make_executor
 from scantex.scale.inputs import ScanInput, collect_inputs
 from scantex.scale.resources import GiB, footprint, machine, peak_memory
 
@@ -88,6 +88,7 @@ def batch(inputs: Sequence[str | Path], out_dir: str | Path, config: EnhanceConf
             another config (without ``overwrite``), Ray asked for but not installed. A scan that fails
             does not raise: its record says why.
     """
+    check_not_bootstrapping()  # a worker re-running the caller's script writes no summary of its own
     t0 = time.perf_counter()
     config = config or EnhanceConfig()
     out_dir = Path(out_dir)

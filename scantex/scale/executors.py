@@ -16,10 +16,12 @@ import concurrent.futures as cf
 import logging
 import multiprocessing
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from scantex.errors import ScanError
 from scantex.scale.resources import GiB, machine
@@ -81,6 +83,7 @@ class LocalPool:
         """Yield ``(job, result)`` as jobs finish; ``result`` is the function's return value or a
         :class:`WorkerLost`. A job whose worker died beside others is run again alone once, so that only
         the job that died is blamed."""
+        check_not_bootstrapping()
         workers, budget = self.resolved()
         pending = list(jobs)
         alone = set()  # keys of jobs that must run with nothing beside them
@@ -118,8 +121,8 @@ class LocalPool:
                         running.clear()
                         for job in lost:
                             if job.key in alone or len(lost) == 1:
-                                yield job, WorkerLost("the worker process died (out of memory? see the system "
-                                                      "log)")
+                                yield job, WorkerLost(f"the worker process died (out of memory? see the system "
+                                                      f"log{_unguarded_hint()})")
                             else:
                                 alone.add(job.key)
                                 pending.insert(0, job)
@@ -138,6 +141,27 @@ class LocalPool:
             if not running or (used + job.memory <= budget and cores + job.cpus <= max(workers, 1)):
                 return job
         return None
+
+
+def _unguarded_hint() -> str:
+    """What else kills every spawned worker at once when a script, not scantex's command, started the pool: each
+    worker imports the script again, and one that starts its jobs at import dies in its bootstrap."""
+    main = sys.modules.get("__main__")
+    script = getattr(main, "__file__", None)
+    ours = getattr(getattr(main, "__spec__", None), "name", "").startswith("scantex") or \
+        getattr(getattr(main, "run", None), "__module__", None) == "scantex.cli"  # python -m scantex; the command
+    if not script or ours:
+        return ""
+    return (f"; or {Path(script).name} starts its jobs when imported, which each worker does again: call them "
+            f"under `if __name__ == \"__main__\":`")
+
+
+def check_not_bootstrapping() -> None:
+    """A spawned worker importing its parent's script again must not start a pool of its own (the script
+    starts its jobs at import): say so in the worker's log, where multiprocessing's own error would be."""
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise ScanError(None, "this script starts scantex's jobs when it is imported, and every worker process "
+                              "imports it again: call them under `if __name__ == \"__main__\":`")
 
 
 def exit_with_parent(parent: int, every_s: float = 1.0) -> None:

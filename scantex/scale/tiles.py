@@ -516,7 +516,9 @@ def enhance_tiled(scan: Scan, config: EnhanceConfig = EnhanceConfig(), tiling: T
         scan's positions and faces are the input's own arrays.
     """
     from scantex.pipeline.enhance import Reporter
+    from scantex.scale.executors import check_not_bootstrapping
 
+    check_not_bootstrapping()  # before the work a worker that re-runs the caller's script would do for nothing
     reporter = reporter or Reporter()
     if ground_truth is not None and (ground_truth.positions.shape != scan.positions.shape
                                      or ground_truth.faces.shape != scan.faces.shape):

@@ -136,6 +136,29 @@ def test_pool_blames_only_the_job_whose_worker_died():
     assert results["a"] == 9 and results["b"] == 16
 
 
+def test_a_script_that_starts_jobs_at_import_is_told_so(tmp_path):
+    """Each spawned worker imports the calling script again: a script that starts its jobs at import, not under
+    ``if __name__ == "__main__":``, killed every worker in its bootstrap, and the run ended on "the worker process
+    died (out of memory?)"."""
+    script = tmp_path / "unguarded.py"
+    script.write_text("from scantex.scale.executors import Job, LocalPool\n"
+                      "from tests.scale.test_batch import square\n"
+                      "print(list(LocalPool(workers=1).run([Job('a', square, (3,))]))[0][1])\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                          cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": os.getcwd()})
+    assert "worker process died" in proc.stdout
+    assert 'unguarded.py starts its jobs when imported, which each worker does again' in proc.stdout
+    assert "every worker process imports it again" in proc.stderr  # the worker's own log says why it stopped
+    guarded = tmp_path / "guarded.py"
+    guarded.write_text("from scantex.scale.executors import Job, LocalPool\n"
+                       "from tests.scale.test_batch import square\n"
+                       "if __name__ == '__main__':\n"
+                       "    print(list(LocalPool(workers=1).run([Job('a', square, (3,))]))[0][1])\n")
+    proc = subprocess.run([sys.executable, str(guarded)], capture_output=True, text=True, timeout=120,
+                          cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": os.getcwd()})
+    assert proc.stdout.strip() == "9", proc.stderr
+
+
 def write_pid_and_wait(path):
     import pathlib
     import time
