@@ -64,7 +64,8 @@ def mesh_figure(scan: Scan, *, max_faces: int = 200_000, title: str | None = Non
     ratio = np.maximum(extent / extent.max(), 0.02)
     figure.update_layout(
         # plotly reads its titles as HTML: a file name's own < and & are escaped
-        title=f"{html.escape(_name(scan, title))} — {note}",
+        title=dict(text=f"{html.escape(_name(scan, title))} — {note}", x=0.01, xanchor="left"),
+        modebar=dict(orientation="v"),  # down the right side: across the top it covered a narrow view's title
         scene=dict(aspectmode="manual", aspectratio=dict(x=float(ratio[0]), y=float(ratio[1]), z=float(ratio[2])),
                    camera=facing_camera(scan), xaxis_title="x", yaxis_title="y", zaxis_title="z"),
         margin=dict(l=0, r=0, t=40, b=0),

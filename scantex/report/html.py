@@ -361,7 +361,7 @@ def _compare(key: str, images: dict[str, np.ndarray], left: str, right: str, sid
             '<button type="button" data-zoom="1" title="one image pixel per screen pixel">1:1</button>'
             '<button type="button" data-zoom="fit" title="the whole image">fit</button>'
             '<span class="cmp-zoom"></span></div>'
-            f'<div class="cmp-body"><div class="cmp-view" style="width:{box_w}px;height:{box_h}px">'
+            f'<div class="cmp-body"><div class="cmp-view" style="width:{box_w}px;aspect-ratio:{box_w}/{box_h}">'
             '<div class="cmp-layer cmp-a"><img class="cmp-img" alt=""></div>'
             '<div class="cmp-layer cmp-b"><img class="cmp-img" alt=""></div>'
             '<div class="cmp-divider"><div class="cmp-handle"></div></div>'
@@ -397,8 +397,8 @@ def _atlases(before: Scan, after: Scan) -> str:
             # (2-3 levels at the 99th percentile) of the one-step Lanczos
             thumb = Image.fromarray(image[..., :3]).resize((max(1, round(W * scale)), max(1, round(H * scale))),
                                                            Image.LANCZOS, reducing_gap=2.0)
-            cells_whole.append(f"<td>{_img(np.asarray(thumb), f'{label} atlas', 'thumb')}"
-                               f"<div class='cap'>{label}: {W}×{H}</div></td>")
+            cells_whole.append(f"<div>{_img(np.asarray(thumb), f'{label} atlas', 'thumb')}"
+                               f"<div class='cap'>{label}: {W}×{H}</div></div>")
             # the same region of the UV square in both atlases, whatever their sizes
             cu, cv = crop[:2] if crop is not None and crop[2] == m else (0.5, 0.5)
             size = CROP_TEXELS / mb.image.shape[1]
@@ -414,11 +414,12 @@ def _atlases(before: Scan, after: Scan) -> str:
         side = ("<table class='cmp-scores'><caption>material " + title + "</caption>"
                 + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in where.items())
                 + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
-        rows.append(f"<tr><th colspan=2>material {title}</th></tr><tr>{''.join(cells_whole)}</tr>"
-                    f"<tr><td colspan=2>{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}</td></tr>")
+        # divs, not a table: a viewer in a table cell widened the table past a phone's screen
+        rows.append(f"<h3>material {title}</h3><div class='row'>{''.join(cells_whole)}</div>"
+                    f"{_compare(f'atlas-{m}', crops, 'before', 'after', side, fit=False)}")
     more = (f"<p class='note'>The {len(shown)} of {textured} materials on the most surface; the others' atlases "
             "are in the output folder.</p>" if textured > len(shown) else "")
-    return f'{more}<table class="images">{"".join(rows)}</table>' if rows else "<p>No atlas to show.</p>"
+    return more + "".join(rows) if rows else "<p>No atlas to show.</p>"
 
 
 def _comparisons(images: dict) -> str:
@@ -601,13 +602,15 @@ def strict_json(value, **kwargs) -> str:
 STYLE = """
 body { font: 14px/1.45 system-ui, sans-serif; margin: 0 auto; max-width: 1280px; padding: 0 16px 48px; color: #222; }
 h1 { margin: 20px 0 4px; } h2 { margin-top: 32px; border-bottom: 1px solid #ddd; } h3 { margin-bottom: 4px; }
-table { border-collapse: collapse; margin: 6px 0; } th, td { padding: 3px 10px; text-align: left; vertical-align: top; }
+table { border-collapse: collapse; margin: 6px 0; display: block; overflow-x: auto; max-width: 100%; }
+th, td { padding: 3px 10px; text-align: left; vertical-align: top; }
 th { font-weight: 600; } table tr:nth-child(even) { background: #f6f6f6; }
 table.images tr { background: none; } table.images img { display: block; max-width: 100%; image-rendering: pixelated; }
 img.render { width: 300px; } img.thumb { width: 384px; } img.sheet { width: 960px; }
+img.render, img.thumb, img.sheet { max-width: 100%; height: auto; }
 .headline td.good { color: #176b2c; } .headline td.bad { color: #a31515; font-weight: 600; }
 .note, .cap { color: #666; font-size: 12px; } .row { display: flex; gap: 12px; flex-wrap: wrap; }
-.view3d { flex: 1 1 480px; min-width: 360px; } .plot3d { height: 460px; }
+.view3d { flex: 1 1 480px; min-width: min(360px, 100%); } .plot3d { height: 460px; }
 .bar { background: #5b8def; height: 10px; min-width: 1px; } .timings td:last-child { width: 320px; }
 pre { background: #f6f6f6; padding: 8px; overflow: auto; max-height: 480px; }
 """
@@ -642,7 +645,7 @@ COMPARE_STYLE = """
 .cmp-controls label { margin-right: 6px; } .cmp-zoom { color: #666; margin-left: 6px; font-size: 12px; }
 .cmp-body { display: flex; gap: 16px; align-items: flex-start; flex-wrap: wrap; }
 .cmp-view { position: relative; overflow: hidden; background: #333; cursor: grab; touch-action: none;
-            user-select: none; flex: none; }
+            user-select: none; flex: none; max-width: 100%; }
 .cmp-view.panning { cursor: grabbing; }
 .cmp-layer { position: absolute; inset: 0; overflow: hidden; }
 .cmp-layer img { position: absolute; left: 0; top: 0; transform-origin: 0 0; max-width: none;
@@ -654,7 +657,8 @@ COMPARE_STYLE = """
               background: #fff; border: 2px solid #333; }
 .cmp-label { position: absolute; top: 6px; padding: 1px 6px; background: rgba(0,0,0,.6); color: #fff; font-size: 12px;
              pointer-events: none; } .cmp-label-a { left: 6px; } .cmp-label-b { right: 6px; }
-.cmp-split { display: block; margin: 4px 0 0; } .cmp-scores caption { text-align: left; color: #666; font-size: 12px; }
+.cmp-split { display: block; margin: 4px 0 0; max-width: 100%; }
+.cmp-scores caption { text-align: left; color: #666; font-size: 12px; }
 """
 
 #: the wipe viewers: the right image is clipped to the right of the split; both images share one zoom
@@ -685,6 +689,7 @@ COMPARE_SCRIPT = """
     }
     function zoomAt(s, mx, my) {
       s = Math.min(64, Math.max(Math.min(1, fitScale()) / 2, s));
+      state.fitted = false;
       state.x = mx - (mx - state.x) * s / state.s;
       state.y = my - (my - state.y) * s / state.s;
       state.s = s;
@@ -712,7 +717,7 @@ COMPARE_SCRIPT = """
         if (z === 'in') { zoomAt(state.s * 2, cx, cy); }
         else if (z === 'out') { zoomAt(state.s / 2, cx, cy); }
         else if (z === '1') { zoomAt(1, cx, cy); }
-        else { zoomAt(fitScale(), cx, cy); }
+        else { zoomAt(fitScale(), cx, cy); state.fitted = true; }
       });
     });
     view.addEventListener('wheel', function (e) {
@@ -746,7 +751,13 @@ COMPARE_SCRIPT = """
     choose();
     setSplit(split.value);
     state.s = root.dataset.open === 'fit' ? fitScale() : 1;
+    state.fitted = root.dataset.open === 'fit';
     apply();
+    // the box follows the page's width (a phone turned, a window resized): a fitted image fits it again
+    window.addEventListener('resize', function () {
+      if (state.fitted) { state.s = fitScale(); }
+      apply();
+    });
   }
   document.querySelectorAll('.compare').forEach(setup);
 })();

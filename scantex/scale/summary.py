@@ -79,7 +79,8 @@ def index_html(summary: dict, table: list[dict]) -> str:
 <meta name="viewport" content="width=device-width, initial-scale=1"><title>scantex batch</title>
 <style>
 body {{ font-family: system-ui, sans-serif; margin: 2em; }}
-table {{ border-collapse: collapse; }} td, th {{ padding: 4px 10px; border-bottom: 1px solid #ddd; text-align: left; }}
+table {{ border-collapse: collapse; display: block; overflow-x: auto; max-width: 100%; }}
+td, th {{ padding: 4px 10px; border-bottom: 1px solid #ddd; text-align: left; }}
 tr.failed td {{ background: #fdecea; }} tr.pending td {{ color: #888; }} td.error {{ font-family: monospace; }}
 </style></head><body>
 <h1>scantex batch</h1>

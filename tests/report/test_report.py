@@ -106,6 +106,17 @@ def test_decimates_large_meshes_for_display(tmp_path, result):
     assert sorted(p.name for p in path.parent.iterdir()) == ["report.html"]
 
 
+def test_a_phone_screen_holds_every_viewer(page):
+    """On a 390-px phone the 720-px wipe viewers, and the atlas viewer's table, widened the page: it scrolled
+    sideways. A viewer now keeps its aspect in at most the page's width, and no viewer sits in a table."""
+    boxes = re.findall(r'<div class="cmp-view" style="([^"]*)"', page)
+    assert boxes and all(re.fullmatch(r"width:\d+px;aspect-ratio:\d+/\d+", b) for b in boxes)
+    assert re.search(r"\.cmp-view \{[^}]*max-width: 100%", page) and re.search(r"\.cmp-split \{[^}]*max-width: 100%", page)
+    for table in re.findall(r"<table.*?</table>", page, flags=re.S):
+        assert 'class="compare"' not in table
+    assert "window.addEventListener('resize'" in page  # a fitted image fits the new width again
+
+
 def test_report_without_input_scan(result):
     from dataclasses import replace
 
@@ -218,7 +229,7 @@ def test_only_the_atlases_on_most_surface_are_shown(monkeypatch):
     assert "The 3 of 6 materials on the most surface" in shown
     crop = report._crop_centre(cube)
     expected = {int(m) for m in np.argsort(-area)[:3]} if crop is None else None
-    names = set(re.findall(r"<th colspan=2>material (mat\d)</th>", shown))
+    names = set(re.findall(r"<h3>material (mat\d)</h3>", shown))
     assert len(names) == 3 and (expected is None or names == {f"mat{m}" for m in expected})
 
 
