@@ -111,7 +111,8 @@ def test_a_phone_screen_holds_every_viewer(page):
     sideways. A viewer now keeps its aspect in at most the page's width, and no viewer sits in a table."""
     boxes = re.findall(r'<div class="cmp-view" style="([^"]*)"', page)
     assert boxes and all(re.fullmatch(r"width:\d+px;aspect-ratio:\d+/\d+", b) for b in boxes)
-    assert re.search(r"\.cmp-view \{[^}]*max-width: 100%", page) and re.search(r"\.cmp-split \{[^}]*max-width: 100%", page)
+    for rule in ("cmp-view", "cmp-split"):
+        assert re.search(rf"\.{rule} \{{[^}}]*max-width: 100%", page)
     for table in re.findall(r"<table.*?</table>", page, flags=re.S):
         assert 'class="compare"' not in table
     assert "window.addEventListener('resize'" in page  # a fitted image fits the new width again
