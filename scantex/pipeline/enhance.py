@@ -895,8 +895,10 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             seams = (f"removing only {100 * removed:.0f} % of the input's seam visibility" if removed >= 0
                      else "making the seams more visible, not less")
             safety = {"fallback": "no levelling, no refiner", "patches_before_fallback": round(share, 5),
+                      # the steps before seam blending, which both ways blend: the summary's seam visibility
+                      # is the result's, after it
                       "why": f"levelling and refining drew patches on {100 * share:.1f} % of the held-out views' "
-                             f"pixels while {seams} ({seams_in:.2f} -> {seams_out:.2f})"}
+                             f"pixels while {seams} ({seams_in:.2f} -> {seams_out:.2f} before seam blending)"}
             log.warning("%s: falling back to the input's texels (holes filled, seams blended)", safety["why"])
             colour, bake_report = mesh_only_colour(scan, fitted, excluded, taught, charts, device,
                                                    dataclasses.replace(bake_config, levelling=False), noise)
