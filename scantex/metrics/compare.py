@@ -14,7 +14,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.metrics.geometry import geometry_metrics
-from scantex.metrics.texture import atlas_scores, layouts_match, render_reference, render_scores, \
+from scantex.metrics.texture import atlas_scores, kept_faces, render_reference, render_scores, \
     texture_summary
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -106,7 +106,7 @@ def compare(a: Scan, b: Scan, *, photos: list[tuple[Camera, np.ndarray]] | None 
                  "texture": {"a": texture_summary(a), "b": texture_summary(b)}}
     if not (a.is_textured and b.is_textured):
         out["atlas"] = {"skipped": "a scan has no texture atlas"}
-    elif layouts_match(a, b):
+    elif (kept := kept_faces(a, b)) is not None and kept.any():
         out["atlas"] = atlas_scores(b, a)
     else:
         out["atlas"] = {"skipped": "the UV layouts differ; see the render scores"}
@@ -144,8 +144,10 @@ def summary_lines(result: dict) -> str:
     if "skipped" in atlas:
         lines.append(f"atlas: skipped ({atlas['skipped']})")
     else:
-        lines.append(f"atlas (b vs a, {atlas['texels']:,} covered texels): PSNR {_db(atlas['psnr'])}, "
-                     f"SSIM {atlas['ssim']:.3f}")
+        some = atlas["faces"] < atlas["faces_total"]
+        lines.append(f"atlas (b vs a, {atlas['texels']:,} covered texels"
+                     + (f" of {atlas['faces']:,} of the {atlas['faces_total']:,} faces: those both map alike, of "
+                        f"some area" if some else "") + f"): PSNR {_db(atlas['psnr'])}, SSIM {atlas['ssim']:.3f}")
     r = result["renders"]
     if r["reference"] == "photos":
         for side in "ab":

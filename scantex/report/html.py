@@ -28,6 +28,7 @@ from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges
 from scantex.io.atomic import atomic_files
 from scantex.metrics.image import psnr, ssim
+from scantex.metrics.texture import kept_faces
 from scantex.metrics.views import PSNR_CAP_DB, SCORE_SUPERSAMPLE
 from scantex.scan import Scan
 from scantex.views.camera import Camera
@@ -53,6 +54,8 @@ CROP_TEXELS = 256
 RENDER_DISPLAY = 720
 #: the wipe viewer's largest size on the page, CSS pixels
 VIEWER_SIZE = (720, 540)
+#: the share of faces a layout may map apart and still be "kept" (the faces the input gave no texture space)
+KEPT_APART = 0.01
 #: a 3D view's trace arrays that hold the mesh itself (positions, triangles), the same in both views
 MESH_GEOMETRY = ("x", "y", "z", "i", "j", "k")
 
@@ -397,8 +400,9 @@ def _atlases(before: Scan, after: Scan) -> str:
 
     rows = []
     crop = _crop_centre(before)
-    same = before.triangle_uvs.shape == after.triangle_uvs.shape and np.allclose(before.triangle_uvs,
-                                                                                  after.triangle_uvs)
+    kept = kept_faces(before, after)
+    apart = 0 if kept is None else int((~kept).sum())
+    same = kept is not None and apart <= KEPT_APART * kept.size
     shown = [m for m, (mb, ma) in enumerate(zip(before.materials, after.materials))
              if mb.image is not None and ma.image is not None]
     textured = len(shown)
@@ -429,8 +433,10 @@ def _atlases(before: Scan, after: Scan) -> str:
             crops[label] = np.ascontiguousarray(image[y0:y0 + n, x0:x0 + n, :3])
             where[label] = f"texels {x0}–{x0 + n} × {y0}–{y0 + n} of {W}×{H}"
         title = html.escape(mb.name)
-        note = ("The same UV region of both atlases (the layout is kept, so the same surface)." if same else
-                "The same square of UV space in both atlases; the layouts differ, so it is not the same surface.")
+        note = ("The same square of UV space in both atlases; the layouts differ, so it is not the same surface."
+                if not same else "The same UV region of both atlases (the layout is kept, so the same surface)."
+                if not apart else f"The same UV region of both atlases (the layout is kept, so the same surface; "
+                f"{apart:,} faces the input gave no texture space have charts of their own in free space).")
         side = ("<table class='cmp-scores'><caption>material " + title + "</caption>"
                 + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in where.items())
                 + f"<tr><td colspan=2 class='cap'>{html.escape(note)}</td></tr></table>")
