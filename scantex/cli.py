@@ -750,8 +750,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", parents=[common], help="geometry and texture metrics between two meshes",
                        description="Measure B against A: vertex/face counts, volume, Hausdorff and mean "
                                    "point-to-mesh distance both ways; seam visibility, texel density and "
-                                   "coverage of each atlas; atlas-space PSNR/SSIM over the faces both UV layouts map alike; "
-                                   "and render PSNR/SSIM, against photos when --cameras is given, else of "
+                                   "coverage of each atlas; atlas-space PSNR/SSIM over the faces both UV "
+                                   "layouts map alike; and render PSNR/SSIM, against photos when --cameras is given, else of "
                                    "B's renders against A's (PSNR of the views' mean squared error, SSIM their "
                                    "mean; against photos as recorded, on the pixels A covers: enhance's "
                                    "held-out score also fits each photo's exposure, so it differs).")
