@@ -36,6 +36,12 @@ def untextured_faces(scan: Scan) -> np.ndarray:
     return _black_faces(scan)[0]
 
 
+def visible_holes(scan: Scan) -> np.ndarray:
+    """``(F,) bool``: :func:`untextured_faces` of some area, the holes a viewer can see (a capture app's mesh
+    holds faces of no area: the bathroom's 3,869, black in its atlas, counted as holes that never show)."""
+    return untextured_faces(scan) & (scan.face_areas > 0)
+
+
 def _black_faces(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
     """``(holes (F,), partly (F,))``: :func:`untextured_faces` and :func:`partly_untextured_faces`, dark content
     left out of both (:func:`dark_content`). Computed once per scan; read-only."""

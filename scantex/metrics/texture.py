@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from scantex.atlas.holes import untextured_faces
+from scantex.atlas.holes import visible_holes
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.atlas.texelmap import covered_texels
 from scantex.metrics.image import mse, psnr, ssim
@@ -110,26 +110,32 @@ def chart_texel_density(scan: Scan, unit_m: float = 1.0) -> tuple[np.ndarray, np
 
 
 def texel_density(scan: Scan, unit_m: float = 1.0) -> dict:
-    """Summary of :func:`chart_texel_density` in texels per cm: area-weighted mean, median, spread."""
+    """Summary of :func:`chart_texel_density` in texels per cm: area-weighted mean and median, and the spread, over
+    the charts of some surface area (a chart of faces of no area has no density: the bathroom's made its median
+    0); ``charts`` counts them all."""
     density, area = chart_texel_density(scan, unit_m)
-    if area.sum() <= 0:
+    some = area > 0
+    if not some.any():
         return {"px_per_cm_mean": 0.0, "px_per_cm_median": 0.0, "px_per_cm_min": 0.0, "px_per_cm_max": 0.0,
                 "charts": len(density)}
+    density, area = density[some], area[some]
+    order = np.argsort(density)
+    half = np.searchsorted(np.cumsum(area[order]), 0.5 * area.sum())  # half the surface has a density at most this
     return {"px_per_cm_mean": float(np.average(density, weights=area)),
-            "px_per_cm_median": float(np.median(density)),
+            "px_per_cm_median": float(density[order[min(half, len(order) - 1)]]),
             "px_per_cm_min": float(density.min()), "px_per_cm_max": float(density.max()),
-            "charts": len(density)}
+            "charts": len(some)}
 
 
 def coverage(scan: Scan) -> dict:
     """How much of the atlas the charts use, and how much of the surface has colour.
 
     ``atlas_used``: summed UV triangle area over the atlas area (overlapping charts count twice, so it
-    can pass 1); ``textured_area_share``: surface area not left black (see
-    :func:`scantex.atlas.holes.untextured_faces`).
+    can pass 1); ``textured_area_share``: surface area not left black; ``hole_faces``: the faces left black
+    (see :func:`scantex.atlas.holes.visible_holes`).
     """
     area = scan.face_areas
-    holes = untextured_faces(scan)
+    holes = visible_holes(scan)
     out = {"textured_area_share": float(1.0 - area[holes].sum() / max(area.sum(), 1e-300)),
            "hole_faces": int(holes.sum())}
     if scan.has_uvs:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.atlas.bake import SurfaceColour, bake, output_size, with_base_colours_of
-from scantex.atlas.holes import untextured_faces
+from scantex.atlas.holes import untextured_faces, visible_holes
 from scantex.atlas.inpaint import grow_faces
 from scantex.atlas.levelling import chart_gains
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells, with_seams_of
@@ -1050,7 +1050,8 @@ def measure(scan: Scan, enhanced: Scan, ground_truth: Scan | None, tv: TrainingV
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "textured": scan.is_textured,
-                  "charts": int(charts.max()) + 1, "hole_faces": int(holes.sum()), "seam_edges": len(edges)},
+                  "charts": int(charts.max()) + 1, "hole_faces": int(visible_holes(scan).sum()),
+                  "seam_edges": len(edges)},
         "views": {"total": len(tv.views), "train": len(tv.views.train), "test": len(tv.views.test),
                   # photo mode without a field renders the held-out views alone (nothing trains on the others)
                   "rendered": len(tv.views) if tv.views.rendered is None else int(tv.views.rendered.sum()),

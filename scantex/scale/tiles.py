@@ -729,7 +729,7 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     ``photos`` (photo mode) as an untiled photo-mode run plans and renders them: no views added for coverage,
     and only the held-out ones rendered (nothing trains on the others). ``renders``: if given, receives the
     held-out views' renders as scored (:func:`scantex.metrics.views.score_views`), for the report."""
-    from scantex.atlas.holes import untextured_faces
+    from scantex.atlas.holes import untextured_faces, visible_holes
     from scantex.atlas.seams import seam_visibility
     from scantex.metrics.geometry import geometry_metrics
     from scantex.metrics.views import score_views
@@ -755,7 +755,7 @@ def measure_whole(scan: Scan, enhanced: Scan, ground_truth: Scan | None, config:
     metrics: dict = {
         "geometry": geometry_metrics(scan, enhanced),
         "input": {"vertices": scan.n_vertices, "faces": scan.n_faces, "textured": scan.is_textured,
-                  "hole_faces": int(holes.sum())},
+                  "hole_faces": int(visible_holes(scan).sum())},
         "views": {"total": len(views.views), "test": len(views.views.test)},
         "seam_visibility": {"input": round(seam_visibility(scan), 3), "enhanced": round(seam_visibility(enhanced), 3)},
     }

@@ -86,6 +86,22 @@ def test_texel_density_of_a_two_metre_wall(wall):
     assert density[0] == pytest.approx(128 / 2, rel=2e-3) and area[0] == pytest.approx(4e-4, rel=2e-3)
 
 
+def test_faces_of_no_area_count_for_neither_density_nor_holes(wall):
+    """The bathroom's 3,869 faces of no area, black in its atlas, each a chart of its own, made its texel density
+    median 0 px/cm and its hole count 3,918 where 49 holes show."""
+    image = wall.materials[0].image.copy()
+    image[:40, :40] = 0
+    holed = with_image(wall, image)
+    n = len(wall.uvs)
+    flat = dataclasses.replace(holed, faces=np.vstack([wall.faces, [[0, 0, 1]] * 3]),
+                               uvs=np.vstack([wall.uvs, [[0.01, 0.99], [0.02, 0.99], [0.01, 0.98]]]),
+                               face_uvs=np.vstack([wall.face_uvs, [[n, n + 1, n + 2]] * 3]),
+                               face_materials=np.append(wall.face_materials, [0] * 3))
+    d, before = texel_density(flat), texel_density(holed)
+    assert d["charts"] == 2 and d["px_per_cm_median"] == d["px_per_cm_min"] == pytest.approx(128 / 200, rel=2e-3)
+    assert coverage(flat)["hole_faces"] == coverage(holed)["hole_faces"] > 0 and before["charts"] == 1
+
+
 def test_coverage_sees_black_holes(wall):
     full = coverage(wall)
     assert full["atlas_used"] == pytest.approx(1.0) and full["textured_area_share"] == 1.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -69,6 +70,14 @@ def test_summary_counts(cube):
     assert s.shells == 6 and s.seam_edges == 12
     assert s.stretch["max"] > 1.0  # 0.29 x 0.46 rectangles on unit squares are anisotropic
     assert summarise(Scan(cube.positions, cube.faces)) is None
+    # a face of no area, a chart of its own (the bathroom has 3,869): no density, no zero in the figures
+    n = len(cube.uvs)
+    flat = dataclasses.replace(cube, faces=np.vstack([cube.faces, [[0, 0, 1]]]),
+                               uvs=np.vstack([cube.uvs, [[0.01, 0.01], [0.02, 0.01], [0.01, 0.02]]]),
+                               face_uvs=np.vstack([cube.face_uvs, [[n, n + 1, n + 2]]]),
+                               face_materials=np.append(cube.face_materials, 0))
+    density = summarise(flat).density_px_per_cm
+    assert summarise(flat).shells == 7 and density == s.density_px_per_cm and density["min"] > 0
 
 
 # -- optimize -------------------------------------------------------------------------------------
