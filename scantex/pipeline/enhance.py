@@ -715,12 +715,12 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
         if not (tc.always or denoising_matters(noise, config.bake.denoise)):
             field_skipped = (
                 f"not trained: the input's texels are kept ({'levelled, ' if bake_config.levelling else ''}holes "
-                "filled) and denoising against the field is off (bake.denoise 0, the default; train.always trains "
-                "it anyway)"
+                "filled) and denoising against the field is off (bake.denoise 0, the default; set train.always "
+                "to train it all the same)"
                 if config.bake.denoise == 0 else
                 f"not trained: the atlas's estimated noise ({noise:.4f}) times bake.denoise "
                 f"({config.bake.denoise:g}) is below half an 8-bit step, so denoising against the "
-                f"field could not change a texel (train.always trains it anyway)")
+                f"field could not change a texel (set train.always to train it all the same)")
             log.info("field %s", field_skipped)
     if photos_need_no_field(scan, config, photos):
         field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to the "
@@ -728,7 +728,7 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
                             "fill what no photo sees" if scan.is_textured else
                             "photos' average colours by a transform fitted in closed form from their overlaps; "
                             "what no photo sees takes the photos' colours around it")
-                         + " (train.always trains it anyway)")
+                         + " (set train.always to train it all the same)")
         log.info("field %s", field_skipped)
     fitted = None
     if field_skipped is None:
