@@ -12,6 +12,7 @@ import dataclasses
 import logging
 import math
 import sys
+import time
 import traceback
 from pathlib import Path
 
@@ -227,6 +228,7 @@ def _enhance_capture(args, config, capture) -> int:
 
     if capture.kind != "file" or capture.photos is not None:
         _echo(args, capture.describe())
+    started = time.perf_counter()
     scan = load_scan(capture.mesh)
     truth = load_scan(args.ground_truth) if args.ground_truth else None
     _echo(args, f"{capture.shown(capture.mesh)}: {scan.summary()}")
@@ -244,6 +246,7 @@ def _enhance_capture(args, config, capture) -> int:
             log.warning("--%s: photo mode does not run the refiner (it learns from renders of the input texture, "
                         "which the photos outclass: -0.12 dB on the demo wall); refine.with_photos in a --config "
                         "runs it", "diffusion" if args.diffusion else "refine")
+    around = {"reading the inputs": time.perf_counter() - started}
     tiles = tile_count(args, scan, photos, config)
     work = work_dir_for(args.output)
     # whatever -o and --overwrite say, no input is replaced or deleted: not by the output, not by the
@@ -278,15 +281,17 @@ def _enhance_capture(args, config, capture) -> int:
                 log.warning("--ray and --workers place tiles; this scan is enhanced whole, here (see --tiles)")
             result = enhance(scan, config, ground_truth=truth, photos=photos, work_dir=work, resume=args.resume,
                              reporter=BarReporter(args.quiet))
+        started = time.perf_counter()
         with atomic_dir(args.output, overwrite=args.overwrite, inputs=inputs, folders=folders) as tmp:
             write_outputs(result, tmp)
+        around["writing the outputs"] = time.perf_counter() - started
     except BaseException as e:
         kept = remove_work_dir(work, keep_checkpoint=True)
         if kept is not None and not (isinstance(e, ScanError) and e.path == kept):
             log.warning("kept the checkpoint %s: run the same command with --resume to continue", kept)
         raise
     remove_work_dir(work, keep_checkpoint=False)
-    _echo(args, enhance_summary(result.metrics))
+    _echo(args, enhance_summary(result.metrics, around))
     kept = shading_summary(result.input_scan, result.scan)
     if kept:
         _echo(args, kept)
@@ -375,7 +380,9 @@ def shading_summary(before, after) -> str | None:
     return "\n".join(lines) or None
 
 
-def enhance_summary(m: dict) -> str:
+def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
+    """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
+    inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
 
     g = m["geometry"]
@@ -450,7 +457,8 @@ def enhance_summary(m: dict) -> str:
         lines.append(f"field: resumed from its checkpoint: {field['steps'] - field['steps_run']} of its "
                      f"{field['steps']} steps were trained by the interrupted run, {field['steps_run']} by this one")
     lines.append(f"time: {m['timings_s']['total']:.0f} s " + ", ".join(
-        f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total"))
+        f"{k} {v:.0f}" for k, v in m["timings_s"].items() if k != "total")
+        + "".join(f"; {k} {v:.0f} s" for k, v in (around or {}).items()))
     return "\n".join(lines)
 
 
