@@ -45,3 +45,10 @@ def read_only(array: np.ndarray) -> np.ndarray:
     """``array``, made read-only in place: for results a cache hands to several callers."""
     array.setflags(write=False)
     return array
+
+
+def uv_areas(triangles: np.ndarray) -> np.ndarray:
+    """The unsigned areas ``(F,)`` of 2-D triangles ``(F, 3, 2)`` (UV triangles: in UV units, or texels when
+    their corners are in texels)."""
+    e1, e2 = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.padding import fill_gutters, gutter_sources, pad_gutters
 from scantex.atlas.texelmap import covered_texels, rasterised_cheaply, texel_map, texel_strips
 from scantex.scan import Scan
@@ -216,8 +217,7 @@ def _plans(scan: Scan, size: int, scale: int = 2, only: np.ndarray | None = None
 
 def _estimated_texels(tri_uv: np.ndarray, H: int, W: int) -> int:
     """Texels the triangles ``(F, 3, 2)`` cover, from their UV area (exact but for overlaps and edges)."""
-    e1, e2 = tri_uv[:, 1] - tri_uv[:, 0], tri_uv[:, 2] - tri_uv[:, 0]
-    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    area = uv_areas(tri_uv).sum()
     return max(1, min(H * W, int(round(area * H * W))))
 
 
@@ -287,9 +287,7 @@ def texture_from_vertex_colours(scan: Scan, size: int = 2048, *, texels_per_vert
     while size < 8192 and LAYOUT_SHARE * size * size < texels_per_vertex * positions:
         size *= 2
     planned = plan_uvs(scan, "unwrap", texture_size=size, time_budget_s=time_budget_s).scan
-    uv = planned.triangle_uvs
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    used = 0.5 * float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())  # the charts' share of the atlas
+    used = float(uv_areas(planned.triangle_uvs).sum())  # the charts' share of the atlas
     while size < 8192 and used * size * size < texels_per_vertex * positions:
         size *= 2
 

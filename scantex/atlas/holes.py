@@ -13,7 +13,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 from scantex import jit
-from scantex.arrays import read_only, unique_rows
+from scantex.arrays import read_only, unique_rows, uv_areas
 from scantex.scan import Scan
 from scantex.views.render import sample_texture
 
@@ -128,9 +128,8 @@ def unmapped_faces(scan: Scan) -> np.ndarray:
     """``(F,) bool``: faces whose UVs lie entirely outside the atlas (but inside no one whole tile of the plane:
     :func:`whole_tiles`), or whose UV triangle has no area."""
     uv = scan.triangle_uvs  # [F, 3, 2]
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     outside = ((uv < 0) | (uv > 1)).any(axis=2).all(axis=1) & ~whole_tiles(uv)[1]
-    return (np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 1e-14) | outside
+    return (uv_areas(uv) < 0.5e-14) | outside
 
 
 def whole_tiles(uv: np.ndarray, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.holes import visible_holes
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells
 from scantex.atlas.texelmap import covered_texels
@@ -97,9 +98,7 @@ def chart_texel_density(scan: Scan, unit_m: float = 1.0) -> tuple[np.ndarray, np
     area_cm2 = scan.face_areas * (unit_m * 100.0) ** 2
     texels = np.zeros(scan.n_faces)
     if scan.has_uvs:
-        uv = scan.triangle_uvs
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        uv_area = uv_areas(scan.triangle_uvs)
         size = np.array([m.image.shape[0] * m.image.shape[1] if m.image is not None else 0
                          for m in scan.materials], np.float64)
         texels = uv_area * size[scan.face_materials]
@@ -139,9 +138,7 @@ def coverage(scan: Scan) -> dict:
     out = {"textured_area_share": float(1.0 - area[holes].sum() / max(area.sum(), 1e-300)),
            "hole_faces": int(holes.sum())}
     if scan.has_uvs:
-        uv = scan.triangle_uvs
-        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        uv_area = uv_areas(scan.triangle_uvs)
         used = [m for m in range(len(scan.materials)) if scan.materials[m].image is not None]
         out["atlas_used"] = float(uv_area.sum() / max(len(used), 1))
     return out

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.bake import SurfaceColour, bake, output_size, with_base_colours_of
 from scantex.atlas.holes import untextured_faces, visible_holes
 from scantex.atlas.inpaint import grow_faces
@@ -1105,9 +1106,7 @@ def used_texels(scan: Scan) -> int:
     """About how many texels of the input's atlases its faces cover (their UV area in texels)."""
     if not scan.is_textured:
         return 0
-    uv = scan.triangle_uvs
-    a, b = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    area = uv_areas(scan.triangle_uvs)
     total = 0.0
     for m, material in enumerate(scan.materials):
         if material.image is not None:

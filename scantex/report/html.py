@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.holes import untextured_faces
 from scantex.atlas.seams import seam_edges
 from scantex.io.atomic import atomic_files
@@ -470,8 +471,7 @@ def _crop_centre(scan: Scan) -> tuple[float, float, int] | None:
     candidates = candidates[np.linspace(0, len(candidates) - 1, min(200, len(candidates))).astype(int)]
     uv = scan.triangle_uvs
     centres = uv.mean(axis=1) % 1.0
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = uv_areas(uv)
     faces = np.arange(scan.n_faces)
     if faces.size > 50_000:  # a sample of the surface is enough to rank the crops
         faces = np.sort(np.random.default_rng(0).choice(faces, 50_000, replace=False))

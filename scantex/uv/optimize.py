@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.seams import texture_vertices, uv_shells
 from scantex.scan import Scan
 from scantex.uv.charts import Charts, Progress, assemble, compact, span
@@ -63,8 +64,7 @@ def shell_pieces(scan: Scan, texture_size: int, equalise_density: bool) -> tuple
     shells = uv_shells(scan)
     tex = texel_uvs(scan, texture_size)  # [F, 3, 2]
     S = int(shells.max()) + 1
-    e1, e2 = tex[:, 1] - tex[:, 0], tex[:, 2] - tex[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    uv_area = uv_areas(tex)
     surface = np.bincount(shells, scan.face_areas, S)
     density = np.sqrt(np.divide(np.bincount(shells, uv_area, S), surface, out=np.zeros(S), where=surface > 0))
     common = float(np.median(density[density > 0])) if (density > 0).any() else 1.0

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import uv_areas
+
 
 def face_frames(triangles_3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each face in its own orthonormal 2D frame.
@@ -273,9 +275,7 @@ def overlap_share(triangles_uv: np.ndarray, texels: int | None = None) -> float:
     texels = int(np.clip(8 * n, 2048, 200_000)) if texels is None else texels
     if n == 0:
         return 0.0
-    e1 = triangles_uv[:, 1] - triangles_uv[:, 0]
-    e2 = triangles_uv[:, 2] - triangles_uv[:, 0]
-    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    area = uv_areas(triangles_uv).sum()
     if area <= 0:
         return 0.0
     lo = triangles_uv.reshape(-1, 2).min(axis=0)
@@ -359,9 +359,7 @@ def overlap_shares(triangles_uv: np.ndarray, chart_of_face: np.ndarray, n_charts
     share an edge and do not mirror each other lie on its two sides (a caller checks for mirrored faces)."""
     out = np.zeros(n_charts)
     n = np.bincount(chart_of_face, minlength=n_charts)
-    e1 = triangles_uv[:, 1] - triangles_uv[:, 0]
-    e2 = triangles_uv[:, 2] - triangles_uv[:, 0]
-    area = 0.5 * np.bincount(chart_of_face, np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), n_charts)
+    area = np.bincount(chart_of_face, uv_areas(triangles_uv), n_charts)
     faces = np.flatnonzero((n[chart_of_face] > 2) & (area[chart_of_face] > 0))
     if faces.size == 0:
         return out

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scantex.scan import Material, Scan
-from scantex.uv.charts import Charts, faces_apart, span
+from scantex.uv.charts import Charts, faces_apart, groups_apart, span
 from scantex.uv.optimize import OptimizeLog, charts_distortion, optimize
 from scantex.uv.pack import pack
 from scantex.uv.param import overlapped_faces
@@ -29,8 +29,8 @@ from scantex.uv.unwrap import UnwrapLog, UnwrapOptions, unwrap
 log = logging.getLogger(__name__)
 
 MODES = ("keep", "optimize", "unwrap")
-#: packings tried while faces share texels (each lays those faces out apart; one has sufficed on the real scans)
-MAX_REPACKS = 3
+#: packings tried while faces share texels (the first moves them a group at a time, the others one by one)
+MAX_REPACKS = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,18 +164,21 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
 def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dict) -> Scan:
     atlas = pack(charts, size, gutter)
     report["faces_apart"] = 0
-    for _ in range(MAX_REPACKS):
+    positions, triangles = scan.welded_geometry()
+    for attempt in range(MAX_REPACKS):
         # a chart folded onto itself (a merge, a flattening that passed its coarser overlap test) gives two
-        # surfaces the same texels: its faces that share one on the atlas's own grid become charts of their own
+        # surfaces the same texels: its faces that share one on the atlas's own grid move to charts of their own,
+        # first a group at a time (all but the largest group of each chart), then, if some still share, one by one
         shared = overlapped_faces(atlas.uvs[atlas.face_uvs] * size, size)
         if not shared.any():
             break
-        charts = faces_apart(charts, shared, scan.triangles)
+        charts = (groups_apart(charts, shared, positions, triangles) if attempt == 0 else
+                  faces_apart(charts, shared, scan.triangles))
         report["faces_apart"] += int(shared.sum())
         atlas = pack(charts, size, gutter)
     if report["faces_apart"]:
-        log.info("UV plan: %d faces that shared texels with others laid out as charts of their own",
-                 report["faces_apart"])
+        log.info("UV plan: %d faces shared texels with others: moved to charts of their own (all but the largest "
+                 "group of each chart)", report["faces_apart"])
     d = charts_distortion(scan, charts)
     report["chart_stretch"] = stats([x.stretch for x in d])
     report["texels_per_metre"] = atlas.texels_per_metre

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scantex.arrays import uv_areas
 from scantex.atlas.seams import SeamEdges, seam_edges, uv_shells
 from scantex.scan import Scan
 from scantex.uv.param import distortions
@@ -66,9 +67,7 @@ def texel_density(scan: Scan, chart_of_face: np.ndarray | None = None, texture_s
     """``(C,)`` texels per centimetre of every chart: ``sqrt(texel area / surface area in cm²)``."""
     if chart_of_face is None:
         chart_of_face = uv_shells(scan)
-    tex = texel_uvs(scan, texture_size)
-    e1, e2 = tex[:, 1] - tex[:, 0], tex[:, 2] - tex[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    uv_area = uv_areas(texel_uvs(scan, texture_size))
     C = int(chart_of_face.max()) + 1
     surface = np.bincount(chart_of_face, scan.face_areas, C) * 1e4  # cm²
     texels = np.bincount(chart_of_face, uv_area, C)

@@ -15,7 +15,7 @@ import logging
 
 import numpy as np
 
-from scantex.arrays import unique_rows
+from scantex.arrays import unique_rows, uv_areas
 from scantex.atlas.holes import unmapped_faces, whole_tiles
 from scantex.atlas.texelmap import uv_to_pixel
 from scantex.scan import Scan
@@ -100,9 +100,7 @@ def _texels_per_metre(scan: Scan, faces: np.ndarray, W: int, H: int) -> float:
     metre when they have none)."""
     if faces.size == 0:
         return 1000.0
-    uv = scan.triangle_uvs[faces] * [W, H]
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    uv_area = uv_areas(scan.triangle_uvs[faces] * [W, H]).sum()
     area = scan.face_areas[faces].sum()
     return float(np.sqrt(uv_area / area)) if area > 0 and uv_area > 0 else 1000.0
 

@@ -327,3 +327,19 @@ def test_faces_sharing_texels_are_laid_out_apart():
     scan = _packed_scan(Scan(points, tris), charts, 256, 2, report)
     assert report["faces_apart"] > 0
     assert not overlapped_faces(scan.uvs[scan.face_uvs] * 256, 256).any()
+    # the fold's far layer (its faces mirrored) moves whole, one chart: face by face it made one chart a face
+    from scantex.atlas.seams import uv_shells
+
+    assert uv_shells(scan).max() + 1 == 2
+    # overlaps without a mirror (two pieces of one chart laid over each other): all but the largest group move,
+    # each whole
+    shifted = points[:, :2].copy()
+    shifted[shifted[:, 0] > 1.2, 0] -= 0.8
+    right = (points[tris][:, :, 0] > 1.2 - 1e-9).all(axis=1)
+    corner_of = tris.copy()
+    corner_of[right] += len(points)  # the right part a piece of its own in the chart, not joined at x = 1.2
+    charts = Charts(np.zeros(len(tris), np.int64), corner_of, np.concatenate([points[:, :2], shifted]))
+    report = {}
+    scan = _packed_scan(Scan(points, tris), charts, 256, 2, report)
+    assert report["faces_apart"] > 0 and not overlapped_faces(scan.uvs[scan.face_uvs] * 256, 256).any()
+    assert uv_shells(scan).max() + 1 <= 3
