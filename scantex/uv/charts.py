@@ -13,7 +13,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from scantex.uv.param import Distortion, distortions, flat_triangles
+from scantex.uv.param import Distortion, distortion, distortions, flat_triangles
 
 #: how far a layout's planning has got, ``0..1`` (the UV stages call it; ``None`` reports nothing)
 Progress = Callable[[float], None] | None
@@ -68,6 +68,10 @@ def faces_apart(charts: Charts, faces: np.ndarray, triangles_3d: np.ndarray) -> 
     return Charts(chart.astype(np.int64), face_uvs, np.concatenate([charts.uvs, flat.reshape(-1, 2)]))
 
 
+#: a group of faces moved apart whose conformal map stretches it more than this (L2 stretch) moves face by face
+GROUP_STRETCH = 1.1
+
+
 def groups_apart(charts: Charts, faces: np.ndarray, positions: np.ndarray, triangles: np.ndarray) -> Charts:
     """``charts`` with the ``faces`` (``(F,) bool``) that share texels moved out group by group. A chart folded
     onto itself overlaps in two layers, of which one need move: where some of a chart's faces are mirrored
@@ -113,8 +117,10 @@ def groups_apart(charts: Charts, faces: np.ndarray, positions: np.ndarray, trian
         members = idx[group == g]
         used, local = np.unique(triangles[members], return_inverse=True)
         flat = lscm(positions[used], local.reshape(-1, 3)) if len(members) > 1 else None
-        if flat is None or not np.isfinite(flat).all() or np.ptp(flat, axis=0).min() <= 0:
-            alone[members] = True
+        if (flat is None or not np.isfinite(flat).all() or np.ptp(flat, axis=0).min() <= 0
+                or not distortion(positions[used][local.reshape(-1, 3)], flat[local.reshape(-1, 3)]).stretch
+                <= GROUP_STRETCH):
+            alone[members] = True  # a face alone lies flat at its true size
             continue
         face_uvs[members] = base + local.reshape(-1, 3)
         chart_of_face[members] = next_chart
