@@ -47,8 +47,9 @@ def read_only(array: np.ndarray) -> np.ndarray:
     return array
 
 
-def uv_areas(triangles: np.ndarray) -> np.ndarray:
-    """The unsigned areas ``(F,)`` of 2-D triangles ``(F, 3, 2)`` (UV triangles: in UV units, or texels when
-    their corners are in texels)."""
+def uv_areas(triangles: np.ndarray, *, signed: bool = False) -> np.ndarray:
+    """The areas ``(F,)`` of 2-D triangles ``(F, 3, 2)`` (UV triangles: in UV units, or texels when their corners
+    are in texels); ``signed``: positive counter-clockwise, negative for a mirrored triangle."""
     e1, e2 = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
-    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    return area if signed else np.abs(area)
