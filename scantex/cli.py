@@ -409,7 +409,10 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
             lines.append(f"holes: PSNR {s['input']['hole_psnr']:.2f} -> {s['enhanced']['hole_psnr']:.2f} dB")
     elif "held_out_vs_input" in m:
         s = m["held_out_vs_input"]["enhanced"]
-        lines.append(f"held-out views, enhanced vs input renders (fidelity, not quality): PSNR {s['psnr']:.2f} dB")
+        outside = (f" ({s['psnr_outside_holes']:.2f} dB outside the input's holes, which are filled)"
+                   if "psnr_outside_holes" in s else "")
+        lines.append(f"held-out views, enhanced vs input renders (fidelity, not quality): PSNR {s['psnr']:.2f} dB"
+                     + outside)
     if "held_out_photos" in m:
         s, n = m["held_out_photos"], m["held_out_photos"]["input"].get("photos", 0)
         blind = len(m.get("photos", {}).get("held_out", [])) - n  # held out, but they see none of the mesh

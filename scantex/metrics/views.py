@@ -34,12 +34,13 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
 
     Pixels count where the reference fully covers them; a view whose images are identical scores
     ``PSNR_CAP_DB``; ``hole_psnr`` is over pixels whose surface is
-    one of ``hole_faces`` (what the input left black); ``patches`` is the share of pixels where the scan
+    one of ``hole_faces`` (what the input left black), ``psnr_outside_holes`` the PSNR of all the views' other
+    pixels together (a result's fidelity to the input where the input had colour); ``patches`` is the share of pixels where the scan
     has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
 
     Returns:
-        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr"], "per_view": {"psnr": [...], "ssim": [...],
-        "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
+        ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr", "psnr_outside_holes"], "per_view": {"psnr":
+        [...], "ssim": [...], "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
         order of ``cameras`` (the report shows them next to each view).
 
     ``pooled``: ``psnr`` is that of the views' mean MSE (``psnr_mean_of_views`` the mean of their PSNRs): a
@@ -72,9 +73,11 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         mask = ref_alpha >= 0.999
         g = cast_gbuffer(caster, cam)
         holes = mask & (g.face_id >= 0) & hole_faces[np.where(g.face_id >= 0, g.face_id, 0)]
+        outside = mask & ~holes
         return {name: ({"psnr": min(psnr(img, ref, mask), PSNR_CAP_DB), "ssim": ssim(img, ref, mask),
                         "mse": float(((img - ref) ** 2)[mask].mean()), "patches": patch_score(img, ref, mask)},
-                       ((img - ref) ** 2)[holes] if holes.any() else None)
+                       ((img - ref) ** 2)[holes] if holes.any() else None,
+                       (float(((img - ref) ** 2)[outside].sum()), int(outside.sum()) * img.shape[-1]))
                 for name, (img, _) in shown.items()}, fine, images
 
     # the views side by side: Embree and numpy release the interpreter lock (SSIM's filtering does not)
@@ -86,12 +89,15 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         scored.extend(scored_renders)
     out: dict[str, dict] = {name: {"psnr": [], "ssim": [], "mse": [], "patches": []} for name in scans}
     hole_pixels = {name: [] for name in scans}
+    outside = {name: [0.0, 0] for name in scans}  # squared errors and values over the pixels of no hole
     for view_scores in per_view:
-        for name, (values, hole_errors) in view_scores.items():
+        for name, (values, hole_errors, (errors, count)) in view_scores.items():
             for k, v in values.items():
                 out[name][k].append(v)
             if hole_errors is not None:
                 hole_pixels[name].append(hole_errors)
+            outside[name][0] += errors
+            outside[name][1] += count
     result = {}
     for name in scans:
         r = {k: float(np.mean(v)) for k, v in out[name].items() if v}
@@ -102,5 +108,7 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         if hole_pixels[name]:
             e = float(np.concatenate(hole_pixels[name]).mean())
             r["hole_psnr"] = float(min(10 * np.log10(1 / e), PSNR_CAP_DB)) if e > 0 else PSNR_CAP_DB
+            e = outside[name][0] / max(outside[name][1], 1)
+            r["psnr_outside_holes"] = float(min(10 * np.log10(1 / e), PSNR_CAP_DB)) if e > 0 else PSNR_CAP_DB
         result[name] = r
     return result
