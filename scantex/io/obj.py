@@ -290,6 +290,9 @@ def _parse_lines(path: Path, data: bytes) -> _Parsed:
 #: the bytes the bulk reader reads: a number of a v, vt or vn line; an f line's indices (white space in both)
 _NUMBER = b"0123456789+-.eE \t\r\n"
 _INDICES = b"0123456789/ \t\r\n"
+#: what else ends a line for the line reader (``str.splitlines``): vertical tab, form feed, file, group and record
+#: separators, NEL, the line and paragraph separators (UTF-8)
+_OTHER_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e", b"\xc2\x85", b"\xe2\x80\xa8", b"\xe2\x80\xa9")
 #: line kinds in the bulk reader
 _OTHER, _V, _VT, _VN, _F = range(5)
 #: lines the bulk reader parses at once: its memory beyond the file's own bytes does not grow with the file
@@ -329,8 +332,8 @@ def _parse_bulk(data: bytes) -> _Parsed | None:
     skipped = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a byte-order mark (Windows editors'), no text
     buf = np.frombuffer(data, np.uint8)[skipped:]
     size = buf.size
-    if size == 0 or data.count(b"\r") != data.count(b"\r\n"):
-        return None
+    if size == 0 or data.count(b"\r") != data.count(b"\r\n") or any(b in data for b in _OTHER_BREAKS):
+        return None  # lines that end otherwise than in "\n" (str.splitlines' line breaks: the line reader's)
     starts = np.concatenate([[0]] + [np.flatnonzero(buf[i:i + (1 << 26)] == 10) + (i + 1)  # 64 MB at a time
                                      for i in range(0, size, 1 << 26)])
     lengths = np.diff(np.append(starts, size))  # each line with its newline
@@ -548,8 +551,9 @@ def _triangles_fast(face_lines: list) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return out[0], out[1], out[2]
 
 
-#: what bulk-parsed face lines may hold: digits, slashes and white space
-_DIGITS_AND_SEPARATORS = re.compile(r"[0-9/\s]*")
+#: what bulk-parsed face lines may hold: digits, slashes and the white space numpy reads as such (str.split's other
+#: white space, a no-break space, would end np.fromstring's reading early)
+_DIGITS_AND_SEPARATORS = re.compile(r"[0-9/ \t]*")
 #: a number of 19 digits or more: past int64's range, which ``np.fromstring`` would clip to its maximum
 _LONG_NUMBER = re.compile(r"[0-9]{19}")
 

@@ -357,3 +357,20 @@ def test_obj_bulk_reader_leaves_the_rest_to_the_line_reader(tmp_path, monkeypatc
         taken += bulk
         assert_same_mesh(scan, line_by_line)
     assert taken > 5
+
+
+@pytest.mark.parametrize("data", [b"v 1 2 3\nv 0 1 0\nf 1 1 2\n\x0cv 5 5 5\nf 3 1 2\n",
+                                  b"v 1 2 3\nv 0 1 0\nusemtl a\xc2\x85f 1 1 2\nf 1 1 2\n",
+                                  b"v 1 2 3\nv 0 1 0\nusemtl \xe2\x80\xa8b\nf 1 1 2\n",
+                                  b"v 1 2 3\nv 0 1 0\nf 1 1\xc2\xa02\n", b"v 1 2 3\nv 0 1 0\nf 1 1\x1f2\n"],
+                         ids=["form feed", "NEL", "line separator", "no-break space", "unit separator"])
+def test_obj_lines_end_and_split_where_the_line_reader_says(tmp_path, data, monkeypatch):
+    """Found by fuzzing the bulk reader against the line reader: str.splitlines ends a line at a form feed, NEL or
+    line separator, where the bulk reader read on (a vertex, a face or a material name lost or made up); and a
+    no-break space between indices made the line reader's own bulk pass raise numpy's ValueError, an internal
+    error, instead of reading the face."""
+    path = tmp_path / "m.obj"
+    path.write_bytes(data)
+    scan, line_by_line, bulk = read_both_ways(path, monkeypatch)
+    assert not bulk
+    assert_same_mesh(scan, line_by_line)
