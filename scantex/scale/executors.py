@@ -148,8 +148,8 @@ def _unguarded_hint() -> str:
     worker imports the script again, and one that starts its jobs at import dies in its bootstrap."""
     main = sys.modules.get("__main__")
     script = getattr(main, "__file__", None)
-    ours = getattr(getattr(main, "__spec__", None), "name", "").startswith("scantex") or \
-        getattr(getattr(main, "run", None), "__module__", None) == "scantex.cli"  # python -m scantex; the command
+    ours = (getattr(getattr(main, "__spec__", None), "name", "").startswith("scantex")  # python -m scantex
+            or getattr(getattr(main, "run", None), "__module__", None) == "scantex.cli")  # the scantex command
     if not script or ours:
         return ""
     return (f"; or {Path(script).name} starts its jobs when imported, which each worker does again: call them "
