@@ -762,10 +762,10 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Measure B against A: vertex/face counts, volume, Hausdorff and mean "
                                    "point-to-mesh distance both ways; seam visibility, texel density and "
                                    "coverage of each atlas; atlas-space PSNR/SSIM over the faces both UV "
-                                   "layouts map alike; and render PSNR/SSIM, against photos when --cameras is given, else of "
-                                   "B's renders against A's (PSNR of the views' mean squared error, SSIM their "
-                                   "mean; against photos as recorded, on the pixels A covers: enhance's "
-                                   "held-out score also fits each photo's exposure, so it differs).")
+                                   "layouts map alike; and render PSNR/SSIM, against photos when --cameras is "
+                                   "given, else of B's renders against A's (PSNR of the views' mean squared "
+                                   "error, SSIM their mean; against photos as recorded, on the pixels A covers: "
+                                   "enhance's held-out score also fits each photo's exposure, so it differs).")
     p.add_argument("a", type=Path, help="the reference mesh (e.g. the input scan, or a ground truth)")
     p.add_argument("b", type=Path, help="the mesh measured against it (e.g. enhanced.obj)")
     p.add_argument("--cameras", type=Path, metavar="JSON",

@@ -33,15 +33,15 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
     caster, supersample=supersample)`` would render it, with one ray cast fewer per camera.
 
     Pixels count where the reference fully covers them; a view whose images are identical scores
-    ``PSNR_CAP_DB``; ``hole_psnr`` is over pixels whose surface is
-    one of ``hole_faces`` (what the input left black), ``psnr_outside_holes`` the PSNR of all the views' other
-    pixels together (a result's fidelity to the input where the input had colour); ``patches`` is the share of pixels where the scan
-    has a low-frequency edge the reference lacks (:mod:`scantex.metrics.patches`).
+    ``PSNR_CAP_DB``; ``hole_psnr`` is over pixels whose surface is one of ``hole_faces`` (what the input left
+    black), ``psnr_outside_holes`` that of all the views' other pixels together (a result's fidelity to the input
+    where the input had colour); ``patches`` is the share of pixels where the scan has a low-frequency edge the
+    reference lacks (:mod:`scantex.metrics.patches`).
 
     Returns:
         ``{name: {"psnr", "ssim", "mse", "patches", ["hole_psnr", "psnr_outside_holes"], "per_view": {"psnr":
-        [...], "ssim": [...], "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and patch share in the
-        order of ``cameras`` (the report shows them next to each view).
+        [...], "ssim": [...], "patches": [...]}}}``: means over the views, and each view's own PSNR, SSIM and
+        patch share in the order of ``cameras`` (the report shows them next to each view).
 
     ``pooled``: ``psnr`` is that of the views' mean MSE (``psnr_mean_of_views`` the mean of their PSNRs): a
     result against the input it was made from leaves some views unchanged, which score ``PSNR_CAP_DB`` each and
