@@ -71,6 +71,9 @@ def faces_apart(charts: Charts, faces: np.ndarray, triangles_3d: np.ndarray) -> 
 
 #: a group of faces moved apart whose conformal map stretches it more than this (L2 stretch) moves face by face
 GROUP_STRETCH = 1.1
+#: groups moved apart laid flat whole: at most this many, the largest (a conformal map takes about 2 ms: on a mesh
+#: whose layout folds everywhere the rest move face by face)
+MAX_GROUPS = 1000
 
 
 def groups_apart(charts: Charts, faces: np.ndarray, positions: np.ndarray, triangles: np.ndarray) -> Charts:
@@ -112,11 +115,14 @@ def groups_apart(charts: Charts, faces: np.ndarray, positions: np.ndarray, trian
     face_uvs, chart_of_face = charts.face_uvs.copy(), charts.chart_of_face.copy()
     uvs, next_chart, base = [charts.uvs], charts.n_charts, len(charts.uvs)
     alone = np.zeros(len(faces), bool)
-    for g in np.flatnonzero(~stays):
+    moving = np.flatnonzero(~stays)
+    flattened = set(moving[np.argsort(-size[moving], kind="stable")][:MAX_GROUPS].tolist())
+    for g in moving:
         members = idx[group == g]
         used, local = np.unique(triangles[members], return_inverse=True)
         local = local.reshape(-1, 3)
-        flat = lscm(positions[used], local) if len(members) > 1 else None
+        whole = g in flattened and len(members) > 1
+        flat = lscm(positions[used], local) if whole else None
         if (flat is None or not np.isfinite(flat).all() or np.ptp(flat, axis=0).min() <= 0
                 or not distortion(positions[used][local], flat[local]).stretch <= GROUP_STRETCH):
             alone[members] = True  # a face alone lies flat at its true size

@@ -312,7 +312,7 @@ def test_overlapped_faces_are_the_faces_sharing_a_texel(monkeypatch):
     assert np.array_equal(overlapped_faces(both, 128), found)
 
 
-def test_faces_sharing_texels_are_laid_out_apart():
+def test_faces_sharing_texels_are_laid_out_apart(monkeypatch):
     """A chart folded onto itself (a merge's or a flattening's fold its coarser test let through) gave two
     surfaces the same texels, one painted with the other's colours: those faces become charts of their own."""
     from scantex.scan import Scan
@@ -343,3 +343,9 @@ def test_faces_sharing_texels_are_laid_out_apart():
     scan = _packed_scan(Scan(points, tris), charts, 256, 2, report)
     assert report["faces_apart"] > 0 and not overlapped_faces(scan.uvs[scan.face_uvs] * 256, 256).any()
     assert uv_shells(scan).max() + 1 <= 3
+    # past MAX_GROUPS conformal maps, groups move face by face (bounded time on a layout folded everywhere)
+    import scantex.uv.charts as charts_module
+
+    monkeypatch.setattr(charts_module, "MAX_GROUPS", 0)
+    scan = _packed_scan(Scan(points, tris), charts, 256, 2, {})
+    assert not overlapped_faces(scan.uvs[scan.face_uvs] * 256, 256).any() and uv_shells(scan).max() + 1 > 3
