@@ -59,10 +59,15 @@ def chart_gains(scan: Scan, charts: np.ndarray, *, edges: SeamEdges | None = Non
     return gains
 
 
+#: seams on a crease sharper than this join two surfaces (a wall and the floor), whose colours differ for real:
+#: levelling leaves them
+MAX_CREASE_DEG = 30.0
+
+
 def seam_offsets(scan: Scan, *, exclude: np.ndarray | None = None, edges: SeamEdges | None = None,
                  samples_per_edge: int = 4, inset_texels: float = 1.5, smoothness: float = 1.0,
-                 anchor: float = 1e-3, robust: float = 0.05, max_step: float = 0.15, max_crease_deg: float = 30.0,
-                 iterations: int = 2) -> np.ndarray:
+                 anchor: float = 1e-3, robust: float = 0.05, max_step: float = 0.15,
+                 max_crease_deg: float = MAX_CREASE_DEG, iterations: int = 2) -> np.ndarray:
     """Local seam levelling: an additive colour offset ``(T, 3)`` per UV vertex (texture coordinate).
 
     The classical global + local adjustment (Lempitsky & Ivanov 2007; Waechter et al. 2014), solved over
