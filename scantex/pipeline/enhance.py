@@ -167,7 +167,7 @@ def taught_faces(tv: TrainingViews, n_faces: int, min_rays: int = 4) -> np.ndarr
 PATCH_LIMIT = 0.01
 #: ... unless they removed at least this share of the input's seam visibility at the seams levelling levels
 #: (:func:`levelled_seams`: what levelling is for; before seam blending: the demo wall's levelling removes 52 % with
-#: 1.3 % patches, a synthetic room's 58 % with 2.0 %; on a Polycam plant it removed 16 % while drawing 5.4 %)
+#: 0.9 % patches, a synthetic room's 58 % with 2.0 %; on a Polycam plant it removed 16 % while drawing 5.4 %)
 SEAM_GAIN = 0.3
 #: photos this many times finer than the input atlas (pixels vs texels per cm) have photo mode bake an atlas
 #: twice as fine (:func:`photo_atlas_scale`)
