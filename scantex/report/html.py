@@ -471,11 +471,10 @@ def _crop_centre(scan: Scan) -> tuple[float, float, int] | None:
     candidates = candidates[np.linspace(0, len(candidates) - 1, min(200, len(candidates))).astype(int)]
     uv = scan.triangle_uvs
     centres = uv.mean(axis=1) % 1.0
-    area = uv_areas(uv)
     faces = np.arange(scan.n_faces)
     if faces.size > 50_000:  # a sample of the surface is enough to rank the crops
         faces = np.sort(np.random.default_rng(0).choice(faces, 50_000, replace=False))
-    material, centre, surface = scan.face_materials[faces], centres[faces], area[faces]
+    material, centre, surface = scan.face_materials[faces], centres[faces], uv_areas(uv[faces])
     best, filled = candidates[0], -1.0
     for f in candidates:
         m = scan.face_materials[f]

@@ -164,7 +164,6 @@ def plan_uvs(scan: Scan, mode: str = "keep", *, threshold: float = 1.1, texture_
 def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dict) -> Scan:
     atlas = pack(charts, size, gutter)
     report["faces_apart"] = 0
-    positions, triangles = scan.welded_geometry()
     for attempt in range(MAX_REPACKS):
         # a chart folded onto itself (a merge, a flattening that passed its coarser overlap test) gives two
         # surfaces the same texels: its faces that share one on the atlas's own grid move to charts of their own,
@@ -172,7 +171,7 @@ def _packed_scan(scan: Scan, charts: Charts, size: int, gutter: int, report: dic
         shared = overlapped_faces(atlas.uvs[atlas.face_uvs] * size, size)
         if not shared.any():
             break
-        charts = (groups_apart(charts, shared, positions, triangles) if attempt == 0 else
+        charts = (groups_apart(charts, shared, *scan.welded_geometry()) if attempt == 0 else
                   faces_apart(charts, shared, scan.triangles))
         report["faces_apart"] += int(shared.sum())
         atlas = pack(charts, size, gutter)
