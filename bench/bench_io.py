@@ -48,7 +48,7 @@ def main() -> None:
 
     import scantex.io.trimesh_formats as tf
     from scantex.io import load_scan, save_scan
-    from scantex.io.images import png_bytes
+    from scantex.io.images import TextureEncoder
 
     rows = []
     for module in ("scantex", "scantex.cli", "scantex.pipeline.enhance", "torch"):
@@ -87,32 +87,33 @@ def main() -> None:
         plain = tf._embedded
 
         def before():
-            cache: dict = {}
-            save_scan(scan, out / "a.obj", png_cache=cache)
+            encoder = TextureEncoder()
+            save_scan(scan, out / "a.obj", encoder=encoder)
             tf._embedded = lambda image, data: Image.fromarray(image)  # trimesh encodes at level 6
             try:
-                save_scan(scan, out / "a.glb", png_cache=cache)
+                save_scan(scan, out / "a.glb", encoder=encoder)
             finally:
                 tf._embedded = plain
 
         def after():
-            cache: dict = {}
-            save_scan(scan, out / "b.obj", png_cache=cache)
-            save_scan(scan, out / "b.glb", png_cache=cache)
+            encoder = TextureEncoder()
+            save_scan(scan, out / "b.obj", encoder=encoder)
+            save_scan(scan, out / "b.glb", encoder=encoder)
 
         s_before, _ = timed(before)
         s_after, _ = timed(after)
         rows.append(("write OBJ (+PNG) and GLB, before: two encodings, the GLB's at level 6", s_before))
         rows.append(("write OBJ (+PNG) and GLB, now: one encoding at level 1, shared", s_after))
-        encoded = {id(image): (image, png_bytes(image))}
-        s_obj, _ = timed(lambda: save_scan(scan, out / "c.obj", png_cache=encoded))
+        encoded = TextureEncoder()
+        encoded.colour(image)
+        s_obj, _ = timed(lambda: save_scan(scan, out / "c.obj", encoder=encoded))
         rows.append(("of which: the OBJ + MTL text alone (PNG already encoded)", s_obj))
         for row in rows[-3:]:
             print(row, flush=True)
         from scantex.deps import has_module
 
         if has_module("pxr"):  # the usd extra: a USD input's outputs include a USDZ
-            s_usdz, _ = timed(lambda: save_scan(scan, out / "c.usdz", png_cache=encoded))
+            s_usdz, _ = timed(lambda: save_scan(scan, out / "c.usdz", encoder=encoded))
             rows.append(("write the USDZ (PNG already encoded)", s_usdz))
             s_read, _ = timed(lambda: load_scan(out / "c.usdz"))
             rows.append(("load that USDZ (its PNG decoded)", s_read))

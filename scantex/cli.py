@@ -212,7 +212,8 @@ def cmd_enhance(args) -> int:
                                       refine__diffusion=True if args.diffusion else None,
                                       tiling__tiles=None if args.tiles is None else 0 if args.tiles == "auto"
                                       else args.tiles, tiling__max_faces=args.tile_faces,
-                                      tiling__overlap=args.tile_overlap), "the options")
+                                      tiling__overlap=args.tile_overlap, output__texture_format=args.texture_format,
+                                      output__jpeg_quality=args.jpeg_quality), "the options")
     check_output_early(args.output, args.overwrite)
     check_output(work_dir_for(args.output), role="the work folder")
     _check_device(config.device)
@@ -283,7 +284,7 @@ def _enhance_capture(args, config, capture) -> int:
                              reporter=BarReporter(args.quiet))
         started = time.perf_counter()
         with atomic_dir(args.output, overwrite=args.overwrite, inputs=inputs, folders=folders) as tmp:
-            write_outputs(result, tmp)
+            written = write_outputs(result, tmp)
         around["writing the outputs"] = time.perf_counter() - started
     except BaseException as e:
         kept = remove_work_dir(work, keep_checkpoint=True)
@@ -292,9 +293,9 @@ def _enhance_capture(args, config, capture) -> int:
         raise
     remove_work_dir(work, keep_checkpoint=False)
     _echo(args, enhance_summary(result.metrics, around))
-    kept = shading_summary(result.input_scan, result.scan)
-    if kept:
-        _echo(args, kept)
+    for line in (shading_summary(result.input_scan, result.scan), jpeg_summary(written.get("output"))):
+        if line:
+            _echo(args, line)
     usdz = ", enhanced.usdz" if usd_input(result) else ""
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb{usdz}, "
                 f"metrics.json, config.json, report.html)")
@@ -348,7 +349,8 @@ def cmd_batch(args) -> int:
     config = load_config(args.config) if args.config else preset(args.preset)
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine,
-                                      refine__over_input=args.refine), "the options")
+                                      refine__over_input=args.refine, output__texture_format=args.texture_format,
+                                      output__jpeg_quality=args.jpeg_quality), "the options")
     _check_device(config.device)
     with progress_bar("enhancing scans", args.quiet) as update:
         result = batch(args.inputs, args.output, config, ray=args.ray, workers=args.workers,
@@ -378,6 +380,18 @@ def shading_summary(before, after) -> str | None:
         lines.append(f"shading: the input's {' and '.join(lost)} maps are left out (they are drawn in its UV layout, "
                      "not the new one)")
     return "\n".join(lines) or None
+
+
+def jpeg_summary(output: dict | None) -> str | None:
+    """A line on the JPEG atlases written (``metrics.json``'s ``output``): their codec's loss against the atlas
+    the run scored; ``None`` for PNG (lossless)."""
+    if not output:
+        return None
+    psnr = [v for v in output["atlas_psnr_db"].values()]
+    worst = min(psnr)
+    figure = "no loss" if worst == float("inf") else f"{worst:.1f} dB against the atlas scored above" + (
+        " (the worst of its materials)" if len(psnr) > 1 else "")
+    return f"atlas written as JPEG, quality {output['jpeg_quality']}: {figure}"
 
 
 def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
@@ -551,6 +565,15 @@ def tiles_arg(text: str):
     return n
 
 
+def add_texture_options(p) -> None:
+    """The options of how the enhanced atlases are written (``output`` in a config)."""
+    p.add_argument("--texture-format", choices=("png", "jpeg"), default=None,
+                   help="file format of the enhanced atlases: png, lossless (default), or jpeg: several times "
+                        "smaller files (OBJ and GLB alike), at a loss the summary measures")
+    p.add_argument("--jpeg-quality", type=whole(1, 100), metavar="Q",
+                   help="--texture-format jpeg: quality from 1 to 100 (default: 95)")
+
+
 def add_executor_options(p, job: str) -> None:
     p.add_argument("--ray", metavar="auto|ADDRESS",
                    help=f"run each {job} as a Ray task declaring its CPUs, GPUs and memory: auto (this machine's "
@@ -709,6 +732,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tile-overlap", type=real(0.0, 1.0), metavar="X",
                    help="overlap of neighbouring tiles on each side of a border, share of a tile (default: 0.15)")
     add_executor_options(p, "tile")
+    add_texture_options(p)
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it is an earlier output (scantex wrote it, or it is empty; never an "
                         "input: DIR may not be or hold the scan, its textures, the photos or the config)")
@@ -748,6 +772,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="torch device (default: auto)")
     p.add_argument("--seed", type=SEED, help="random seed (default: 0)")
     add_executor_options(p, "scan")
+    add_texture_options(p)
     p.add_argument("--overwrite", action="store_true",
                    help="redo the scans finished by an earlier run (and accept a config other than OUTDIR's first)")
     p.set_defaults(func=cmd_batch)

@@ -16,10 +16,14 @@ import dataclasses
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scantex.errors import ScanError
+
+if TYPE_CHECKING:
+    from scantex.io.images import TextureEncoder
 
 
 #: largest coordinate magnitude accepted: squares of differences of coordinates stay far inside float32
@@ -61,11 +65,12 @@ class TextureMap:
         pixels = np.asarray(image) if image.mode in ("L", "LA", "RGB", "RGBA") else rgb8(image)
         return cls(pixels, data if data is not None and image.format in ("JPEG", "PNG") else None)
 
-    def file_bytes(self, png_cache: dict | None = None) -> bytes:
-        """The bytes a file of it holds: its own, or a PNG of its pixels (see :func:`scantex.io.images.png_bytes`)."""
-        from scantex.io.images import png_bytes
+    def file_bytes(self, encoder: TextureEncoder | None = None) -> bytes:
+        """The bytes a file of it holds: its own, or a PNG of its pixels (``encoder``'s, which encodes each image
+        once: :class:`scantex.io.images.TextureEncoder`)."""
+        from scantex.io.images import TextureEncoder
 
-        return self.encoded if self.encoded is not None else png_bytes(self.image, png_cache)
+        return self.encoded if self.encoded is not None else (encoder or TextureEncoder()).png(self.image)
 
     @property
     def suffix(self) -> str:

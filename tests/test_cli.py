@@ -144,3 +144,42 @@ def test_refine_with_photos_says_photo_mode_skips_the_refiner(tmp_path, capsys, 
     with caplog.at_level("WARNING"):
         run_cli(capsys, "enhance", mesh, "--photos", photos, "-o", tmp_path / "out", "--config", config, "--refine")
     assert "--refine: photo mode does not run the refiner" in caplog.text
+
+
+def test_texture_format_jpeg_writes_smaller_atlases_and_says_their_loss(tmp_path, capsys):
+    """``--texture-format jpeg``: the OBJ's atlases are JPEGs its MTL names, metrics.json and the summary give
+    the codec's loss against the atlas scored, config.json records the choice (a rerun with --config writes
+    JPEG again), and a quality out of range is refused in one line. The geometry is identical, as always."""
+    from tests.io.hostile import TINY, assert_clean_error, run_cli, write_cube, write_tiny_config
+
+    mesh = write_cube(tmp_path / "scan")
+    config = write_tiny_config(tmp_path / "tiny.json", TINY)
+    capsys.readouterr()
+    from scantex.cli import main
+
+    assert main([str(a) for a in ("enhance", mesh, "-o", tmp_path / "out", "--config", config,
+                                  "--texture-format", "jpeg", "--jpeg-quality", "80")]) == 0
+    out = capsys.readouterr().out
+    folder = tmp_path / "out"
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["geometry"]["arrays_identical"]
+    assert metrics["output"]["texture_format"] == "jpeg" and metrics["output"]["jpeg_quality"] == 80
+    psnr = list(metrics["output"]["atlas_psnr_db"].values())
+    assert psnr and all(20 < p < 100 for p in psnr)
+    assert f"atlas written as JPEG, quality 80: {min(psnr):.1f} dB against the atlas scored above" in out
+    jpgs = sorted(p.name for p in folder.glob("enhanced_*.jpg"))
+    assert jpgs and not list(folder.glob("enhanced_*.png"))
+    assert all(f"map_Kd {name}" in (folder / "enhanced.mtl").read_text() for name in jpgs)
+    written = json.loads((folder / "config.json").read_text())["output"]
+    assert written == {"texture_format": "jpeg", "jpeg_quality": 80}
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "again", "--config", folder / "config.json", "-q")
+    assert rc == 0, err
+    assert list((tmp_path / "again").glob("enhanced_*.jpg"))
+    assert_clean_error(*run_cli(capsys, "enhance", mesh, "-o", tmp_path / "bad", "--jpeg-quality", "101", "-q"),
+                       "--jpeg-quality")
+    # PNG, the default: no such line, no output entry
+    assert main([str(a) for a in ("enhance", mesh, "-o", tmp_path / "png", "--config", config)]) == 0
+    out = capsys.readouterr().out
+    assert "enhanced scan written" in out and "JPEG" not in out
+    assert "output" not in json.loads((tmp_path / "png" / "metrics.json").read_text())
+    assert list((tmp_path / "png").glob("enhanced_*.png"))

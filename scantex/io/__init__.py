@@ -3,13 +3,14 @@
 ``load_scan`` reads OBJ (+MTL, several materials) itself, to keep OBJ's separate position/UV indexing,
 USD (``.usdz``, ...) with Pixar's library, and everything else (GLB/glTF, PLY, STL, OFF, ...) through
 trimesh with ``process=False``.
-``save_scan`` writes OBJ+MTL+PNG, GLB or USDZ, atomically.
+``save_scan`` writes OBJ+MTL+PNG (or JPEG), GLB or USDZ, atomically.
 """
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from scantex.arrays import unique_rows
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
 from scantex.scan import Scan
+
+if TYPE_CHECKING:
+    from scantex.io.images import TextureEncoder
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +66,9 @@ def load_scan(path: str | Path) -> Scan:
     return scan
 
 
-def _refuse_overwriting_input(scan: Scan, path: Path) -> None:
-    """Raise when writing ``path`` would replace one of the files ``scan`` was read from."""
+def _refuse_overwriting_input(scan: Scan, path: Path, encoder: TextureEncoder | None = None) -> None:
+    """Raise when writing ``path`` (its textures as ``encoder`` names them) would replace one of the files
+    ``scan`` was read from."""
     if scan.source is None:
         return
     src = Path(scan.source).resolve()
@@ -76,7 +81,7 @@ def _refuse_overwriting_input(scan: Scan, path: Path) -> None:
         from scantex.io.obj import map_names, texture_names
 
         outputs.add(path.with_suffix(".mtl").resolve())
-        outputs |= {path.parent.resolve() / n for n in texture_names(scan, path.stem) if n}
+        outputs |= {path.parent.resolve() / n for n in texture_names(scan, path.stem, encoder) if n}
         outputs |= {path.parent.resolve() / n for names in map_names(scan, path.stem) for n in names.values()}
     clash = sorted(str(p) for p in inputs & outputs)
     if clash:
@@ -97,12 +102,13 @@ def _warn_defects(scan: Scan) -> None:
                     scan.source, degenerate, non_manifold)
 
 
-def save_scan(scan: Scan, path: str | Path, *, png_cache: dict | None = None) -> list[Path]:
-    """Write ``scan`` to ``path`` (``.obj`` with MTL and PNG textures beside it, ``.glb``, or ``.usdz``).
+def save_scan(scan: Scan, path: str | Path, *, encoder: TextureEncoder | None = None) -> list[Path]:
+    """Write ``scan`` to ``path`` (``.obj`` with MTL and textures beside it, ``.glb``, or ``.usdz``).
 
     All files appear at once (written to temporary names, then renamed); the scan's own source files
-    are never overwritten. Passing the same ``png_cache`` (a dict) to several saves of one scan
-    encodes each texture once (see :func:`scantex.io.images.png_bytes`).
+    are never overwritten. ``encoder`` (:class:`scantex.io.images.TextureEncoder`) says how colour textures
+    are written (default: PNG, lossless; or JPEG); passing the same one to several saves of one scan encodes
+    each texture once.
 
     Returns:
         the files written.
@@ -111,19 +117,19 @@ def save_scan(scan: Scan, path: str | Path, *, png_cache: dict | None = None) ->
     suffix = path.suffix.lower()
     if suffix not in WRITE_FORMATS:
         raise ScanError(path, f"cannot write '{suffix}' (scantex writes {', '.join(WRITE_FORMATS)})")
-    _refuse_overwriting_input(scan, path)
+    _refuse_overwriting_input(scan, path, encoder)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
         if suffix == ".obj":
             from scantex.io.obj import write_obj
 
-            write_obj(scan, path, files, png_cache)
+            write_obj(scan, path, files, encoder)
         elif suffix == ".usdz":
             from scantex.io.usd import write_usdz
 
-            write_usdz(scan, path, files, png_cache)
+            write_usdz(scan, path, files, encoder)
         else:
             from scantex.io.trimesh_formats import write_glb
 
-            write_glb(scan, path, files, png_cache)
+            write_glb(scan, path, files, encoder)
     return [final for _, final in files._pending]

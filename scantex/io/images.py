@@ -151,26 +151,103 @@ def box_downscaled(image: np.ndarray, width: int, height: int) -> np.ndarray:
 #: files about 10 % larger (bench/bench_io.py)
 PNG_COMPRESS_LEVEL = 1
 
-#: ``id(image) -> (image, PNG bytes)``: lets the OBJ and the GLB of one output share one encoding (the
-#: image is held so that its id is not reused while the cache lives)
-PngCache = dict
+#: the formats a colour texture can be written in (:class:`TextureEncoder`)
+TEXTURE_FORMATS = ("png", "jpeg")
 
 
-def png_bytes(image: np.ndarray, cache: PngCache | None = None) -> bytes:
-    """``image (H, W, C) uint8`` as PNG file bytes; with ``cache``, each image is encoded once."""
+class TextureEncoder:
+    """How a scan's colour textures are written, and each image's bytes once encoded: the OBJ's texture and
+    the GLB's embedded one are the same bytes, encoded once.
+
+    ``png`` (the default) is lossless. ``jpeg`` at ``quality`` (1-100, chroma kept at full resolution) makes
+    a file several times smaller (the bathroom's 8192² atlas: see bench/RESULTS.md), at the cost of the
+    codec's loss, which :meth:`jpeg_psnr` measures; an image with transparency stays PNG (JPEG has no alpha).
+    A material's other maps without bytes of their own are always PNG (:meth:`png`): a normal map's
+    directions do not survive JPEG well.
+    """
+
+    def __init__(self, format: str = "png", quality: int = 95) -> None:  # noqa: A002 (Pillow's word)
+        if format not in TEXTURE_FORMATS:
+            raise ValueError(f"texture format {format!r} is none of {', '.join(TEXTURE_FORMATS)}")
+        if not 1 <= quality <= 100:
+            raise ValueError(f"JPEG quality {quality} is not from 1 to 100")
+        self.format, self.quality = format, quality
+        # (id(image), format) -> (image, bytes), id(image) -> (image, opaque): each image is held so that its
+        # id is not reused while it is remembered
+        self._encoded: dict[tuple[int, str], tuple[np.ndarray, bytes]] = {}
+        self._opaque: dict[int, tuple[np.ndarray, bool]] = {}
+
+    def colour(self, image: np.ndarray) -> bytes:
+        """``image (H, W, C) uint8``, a colour texture, as file bytes in this encoder's format."""
+        return self._bytes(image, "jpeg" if self.writes_jpeg(image) else "png")
+
+    def png(self, image: np.ndarray) -> bytes:
+        """``image`` as PNG file bytes, whatever the format (a material's other maps)."""
+        return self._bytes(image, "png")
+
+    def suffix(self, image: np.ndarray) -> str:
+        """The file suffix of :meth:`colour` of ``image``: ``jpg`` or ``png``."""
+        return "jpg" if self.writes_jpeg(image) else "png"
+
+    def writes_jpeg(self, image: np.ndarray) -> bool:
+        """Whether :meth:`colour` writes ``image`` as a JPEG: the format is ``jpeg`` and the image has no
+        transparency (grey, RGB, or an alpha channel that is all opaque)."""
+        if self.format != "jpeg":
+            return False
+        if image.ndim == 2 or image.shape[2] in (1, 3):
+            return True
+        if image.shape[2] != 4:
+            return False
+        if id(image) not in self._opaque:
+            self._opaque[id(image)] = (image, bool((image[..., 3] == 255).all()))
+        return self._opaque[id(image)][1]
+
+    def jpeg_psnr(self, image: np.ndarray) -> float | None:
+        """PSNR (dB) of :meth:`colour` of ``image`` decoded, against ``image``'s colour channels; ``None`` where
+        it is written as PNG (lossless)."""
+        if not self.writes_jpeg(image):
+            return None
+        decoded = _decode(self.colour(image))
+        colour = image if image.ndim == 2 else image[..., :min(image.shape[2], 3)]
+        decoded = decoded.reshape(colour.shape)
+        squares = 0
+        for y in range(0, len(colour), 256):  # in blocks of rows: an 8192² atlas as int32 whole would be 0.8 GB
+            diff = decoded[y:y + 256].astype(np.int32) - colour[y:y + 256]
+            squares += int(np.square(diff).sum(dtype=np.int64))
+        mse = squares / colour.size
+        return float("inf") if mse == 0 else float(10 * np.log10(255.0 ** 2 / mse))
+
+    def _bytes(self, image: np.ndarray, format: str) -> bytes:  # noqa: A002
+        import io
+
+        from PIL import Image
+
+        key = (id(image), format)
+        if key in self._encoded:
+            return self._encoded[key][1]
+        buffer = io.BytesIO()
+        pixels = np.ascontiguousarray(image)
+        if format == "png":
+            Image.fromarray(pixels).save(buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
+        else:
+            if pixels.ndim == 3 and pixels.shape[2] == 1:
+                pixels = pixels[..., 0]
+            elif pixels.ndim == 3 and pixels.shape[2] == 4:
+                pixels = np.ascontiguousarray(pixels[..., :3])
+            Image.fromarray(pixels).save(buffer, format="JPEG", quality=self.quality, subsampling=0)
+        data = buffer.getvalue()
+        self._encoded[key] = (image, data)
+        return data
+
+
+def _decode(data: bytes) -> np.ndarray:
     import io
 
     from PIL import Image
 
-    if cache is not None and id(image) in cache:
-        return cache[id(image)][1]
-    buffer = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
-    data = buffer.getvalue()
-    if cache is not None:
-        cache[id(image)] = (image, data)
-    return data
+    return np.asarray(Image.open(io.BytesIO(data)))
 
 
-def write_png(path: str | Path, image: np.ndarray, cache: PngCache | None = None) -> None:
-    Path(path).write_bytes(png_bytes(image, cache))
+def png_bytes(image: np.ndarray) -> bytes:
+    """``image (H, W, C) uint8`` as PNG file bytes (zlib at :data:`PNG_COMPRESS_LEVEL`)."""
+    return TextureEncoder().png(image)

@@ -20,7 +20,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.io.images import read_image, write_png
+from scantex.io.images import TextureEncoder, read_image
 from scantex.scan import Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
@@ -629,14 +629,15 @@ def _rows(prefix: str, values: np.ndarray) -> str:
     return (prefix + " ".join(["%r"] * width) + "\n") * rows % tuple(values.ravel().tolist())
 
 
-def texture_names(scan: Scan, stem: str) -> list[str | None]:
+def texture_names(scan: Scan, stem: str, encoder: TextureEncoder | None = None) -> list[str | None]:
     """File name of each material's texture: ``stem_material.png``, or where it has a name of its own,
     that name after ``stem_`` (kept as it is when it starts with ``stem``).
 
     ``stem`` keeps two meshes saved in one folder from sharing (and overwriting) a texture, and a copy saved
-    beside its input from being refused for the input's texture name. Names are made unique and always end
-    in .png (textures are written losslessly).
+    beside its input from being refused for the input's texture name. Names are made unique and end in
+    ``.png`` (lossless), or ``.jpg`` where ``encoder`` writes the image as a JPEG.
     """
+    encoder = encoder or TextureEncoder()
     names, used = [], set()
     for m in scan.materials:
         if m.image is None:
@@ -645,9 +646,10 @@ def texture_names(scan: Scan, stem: str) -> list[str | None]:
         own = Path(m.image_name).stem if m.image_name else None
         base = own if own and own.startswith(stem) else f"{stem}_{own or m.name}"
         base = re.sub(r"[^\w.-]+", "_", base)
-        name, k = f"{base}.png", 1
+        suffix = encoder.suffix(m.image)
+        name, k = f"{base}.{suffix}", 1
         while name in used:
-            name, k = f"{base}_{k}.png", k + 1
+            name, k = f"{base}_{k}.{suffix}", k + 1
         used.add(name)
         names.append(name)
     return names
@@ -666,16 +668,17 @@ def map_names(scan: Scan, stem: str) -> list[dict[str, str]]:
     return names
 
 
-def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) -> None:
-    """Write ``scan`` as OBJ + MTL + PNG textures next to ``obj_path``.
+def write_obj(scan: Scan, obj_path: Path, files, encoder: TextureEncoder | None = None) -> None:
+    """Write ``scan`` as OBJ + MTL + textures (PNG, or as ``encoder`` says) next to ``obj_path``.
 
     Args:
         files: an :class:`~scantex.io.atomic.AtomicFiles` that hands out temporary paths.
-        png_cache: see :func:`scantex.io.images.png_bytes`.
+        encoder: how the colour textures are written, and the bytes of each once encoded (default: PNG).
     """
+    encoder = encoder or TextureEncoder()
     stem = obj_path.stem
     mtl_path = obj_path.with_suffix(".mtl")
-    tex_names = texture_names(scan, stem)
+    tex_names = texture_names(scan, stem, encoder)
     mat_names = [re.sub(r"\s+", "_", m.name) or f"material_{i}" for i, m in enumerate(scan.materials)]
 
     mtl = ["# written by scantex\n"]
@@ -684,10 +687,10 @@ def write_obj(scan: Scan, obj_path: Path, files, png_cache: dict | None = None) 
         mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")
         if tex:
             mtl.append(f"map_Kd {tex}\n")
-            write_png(files.path(obj_path.parent / tex), m.image, png_cache)
+            files.path(obj_path.parent / tex).write_bytes(encoder.colour(m.image))
         for kind, file in others.items():  # the input's own bytes, or a PNG of them
             mtl.append(f"{MTL_STATEMENTS[kind]} {file}\n")
-            files.path(obj_path.parent / file).write_bytes(m.maps[kind].file_bytes(png_cache))
+            files.path(obj_path.parent / file).write_bytes(m.maps[kind].file_bytes(encoder))
         mtl.append("\n")
     mtl_tmp = files.path(mtl_path)
     mtl_tmp.write_text("".join(mtl), encoding="utf-8")

@@ -16,7 +16,7 @@ import numpy as np
 
 from scantex.arrays import unique_rows
 from scantex.errors import ScanError
-from scantex.io.images import check_image_size, image_from_pil
+from scantex.io.images import TextureEncoder, check_image_size, image_from_pil
 from scantex.scan import GLTF_PARAMETERS, Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
@@ -414,8 +414,8 @@ def _embedded(image: np.ndarray, data: bytes):
     return pil
 
 
-def _embedded_map(texture_map, png_cache: dict | None):
-    return _embedded(texture_map.image, texture_map.file_bytes(png_cache))
+def _embedded_map(texture_map, encoder):
+    return _embedded(texture_map.image, texture_map.file_bytes(encoder))
 
 
 #: float32 rounds a scan's coordinates by at most this share of its size before a GLB or USDZ holds them about a point
@@ -439,16 +439,17 @@ def float32_origin(positions: np.ndarray) -> np.ndarray:
     return np.round(0.5 * (lo + hi))
 
 
-def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:
+def write_glb(scan: Scan, path: Path, files, encoder: TextureEncoder | None = None) -> None:
     """Write ``scan`` as a binary glTF, one mesh per material, with the scan's shading normals; colour textures
-    embedded as PNG, a material's other maps as their file's own bytes (:class:`scantex.scan.TextureMap`).
+    embedded as PNG (or as ``encoder`` says), a material's other maps as their file's own bytes
+    (:class:`scantex.scan.TextureMap`).
 
     Args:
-        png_cache: see :func:`scantex.io.images.png_bytes`.
+        encoder: how the colour textures are written, and the bytes of each once encoded (default: PNG).
     """
     import trimesh
 
-    from scantex.io.images import png_bytes
+    encoder = encoder or TextureEncoder()
 
     shift = float32_origin(scan.positions)
     f32 = (scan.positions - shift).astype(np.float32)
@@ -473,9 +474,9 @@ def write_glb(scan: Scan, path: Path, files, png_cache: dict | None = None) -> N
             # not metallic, and seen from both sides (a scan's open surfaces)
             parameters = {"metallicFactor": 0.0, "roughnessFactor": 1.0, "doubleSided": True,
                           **{k: v for k, v in material.gltf.items() if k in GLTF_PARAMETERS}}
-            maps = {_MAP_ATTRIBUTES[kind]: _embedded_map(texture, png_cache) for kind, texture in material.maps.items()}
+            maps = {_MAP_ATTRIBUTES[kind]: _embedded_map(texture, encoder) for kind, texture in material.maps.items()}
             pbr = trimesh.visual.material.PBRMaterial(
-                name=material.name, baseColorTexture=_embedded(material.image, png_bytes(material.image, png_cache)),
+                name=material.name, baseColorTexture=_embedded(material.image, encoder.colour(material.image)),
                 baseColorFactor=[float(c) for c in material.diffuse], **parameters, **maps)
             visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr)
         elif colors is not None:

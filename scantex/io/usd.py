@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.io.images import decoded
+from scantex.io.images import TextureEncoder, decoded
 from scantex.scan import Material, Scan, TextureMap
 
 log = logging.getLogger(__name__)
@@ -323,14 +323,14 @@ def _assemble(path: Path, pieces: list[dict], reader: _Materials, up: str) -> Sc
                 face_normals_idx=face_normals, source=path, inputs=(path, *reader.inputs), up=up)
 
 
-def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> None:
+def write_usdz(scan: Scan, path: Path, files, encoder: TextureEncoder | None = None) -> None:
     """Write ``scan`` as a USDZ package (what iOS shows in AR Quick Look): one mesh with the scan's triangles,
     texture coordinates and normals on their own indices, a ``UsdPreviewSurface`` material per material
     (bound to its faces), its colour texture as PNG and its other maps as their own bytes.
 
     Args:
         files: an :class:`~scantex.io.atomic.AtomicFiles` that hands out the temporary path.
-        png_cache: see :func:`scantex.io.images.png_bytes`.
+        encoder: how the colour textures are written, and the bytes of each once encoded (default: PNG).
     """
     import re
     import shutil
@@ -381,7 +381,7 @@ def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> 
             names = [f"m{m}_{n}" for m, n in zip(used, names)]
         for m, name in zip(used, names):
             material = scan.materials[m]
-            shading = _preview_surface(stage, f"/Scan/materials/{name}", material, m, work, png_cache)
+            shading = _preview_surface(stage, f"/Scan/materials/{name}", material, m, work, encoder or TextureEncoder())
             if len(used) == 1:
                 binding.Bind(shading)
             else:
@@ -401,12 +401,10 @@ def write_usdz(scan: Scan, path: Path, files, png_cache: dict | None = None) -> 
         shutil.move(work / "scan.usdz", files.path(path))
 
 
-def _preview_surface(stage, where: str, material: Material, index: int, work: Path, png_cache: dict | None):
+def _preview_surface(stage, where: str, material: Material, index: int, work: Path, encoder: TextureEncoder):
     """A ``UsdPreviewSurface`` material of ``material``: its texture (written into ``work`` for the package)
     times its base colour, its other maps, its metallic, roughness and opacity."""
     from pxr import Gf, Sdf, UsdShade
-
-    from scantex.io.images import png_bytes
 
     made = UsdShade.Material.Define(stage, where)
     surface = UsdShade.Shader.Define(stage, f"{where}/surface")
@@ -434,7 +432,7 @@ def _preview_surface(stage, where: str, material: Material, index: int, work: Pa
         surface.CreateInput(input_name, kind).ConnectToSource(shader.ConnectableAPI(), output)
 
     if material.image is not None:
-        texture("colour", png_bytes(material.image, png_cache), "png", "rgb", Sdf.ValueTypeNames.Color3f,
+        texture("colour", encoder.colour(material.image), encoder.suffix(material.image), "rgb", Sdf.ValueTypeNames.Color3f,
                 "diffuseColor", scale=None if (r, g, b) == (1.0, 1.0, 1.0) else (r, g, b, 1.0))
     else:
         surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(r, g, b))
@@ -442,7 +440,7 @@ def _preview_surface(stage, where: str, material: Material, index: int, work: Pa
         found = material.maps.get(kind)
         if found is None:
             continue
-        data, suffix = found.file_bytes(png_cache), found.suffix
+        data, suffix = found.file_bytes(encoder), found.suffix
         if kind == "normal":  # a tangent-space normal map's bytes hold (n + 1) / 2
             texture(kind, data, suffix, "rgb", Sdf.ValueTypeNames.Normal3f, input_name, raw=True,
                     scale=(2.0, 2.0, 2.0, 1.0), bias=(-1.0, -1.0, -1.0, 0.0))

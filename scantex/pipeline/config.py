@@ -209,6 +209,23 @@ class TilingConfig:
 
 
 @dataclass(frozen=True)
+class OutputConfig:
+    """How the outputs are written (:func:`scantex.pipeline.outputs.write_outputs`)."""
+
+    texture_format: str = "png"
+    """file format of the enhanced colour atlases: png (lossless) or jpeg (several times smaller, at the loss
+    the run's summary measures; an atlas with transparency stays PNG)"""
+    jpeg_quality: int = 95
+    """JPEG quality from 1 to 100 (texture_format jpeg)"""
+
+    def encoder(self):
+        """A :class:`scantex.io.images.TextureEncoder` that writes as these settings say."""
+        from scantex.io.images import TextureEncoder
+
+        return TextureEncoder(self.texture_format, self.jpeg_quality)
+
+
+@dataclass(frozen=True)
 class EnhanceConfig:
     preset: str = "default"
     """the preset these settings started from"""
@@ -228,6 +245,8 @@ class EnhanceConfig:
     tiling: TilingConfig = default(default_factory=TilingConfig)
     """how a huge scan is cut into tiles (the CLI's --tiles, --tile-faces, --tile-overlap); :func:`enhance` itself
     enhances whatever it is given whole"""
+    output: OutputConfig = default(default_factory=OutputConfig)
+    """how the outputs are written (the CLI's --texture-format, --jpeg-quality)"""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -243,7 +262,7 @@ class EnhanceConfig:
         Raises:
             ScanError: an unknown key, or a value of the wrong type or out of its range.
         """
-        sections = {"views", "field", "train", "uv", "bake", "photos", "refine", "tiling"}
+        sections = {"views", "field", "train", "uv", "bake", "photos", "refine", "tiling", "output"}
         if not isinstance(d, dict):
             raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
         name = d.get("preset", "default")
@@ -360,6 +379,7 @@ RANGES: dict[str, tuple] = {
     "refine.view_scale": (1.0, 8.0), "refine.max_views": (1, 10_000), "refine.diffusion_strength": (0.0, 1.0),
     "refine.diffusion_steps": (1, BIG), "photos.temperature": (1e-3, 1e6), "bake.denoise": (0.0, 1e3),
     "tiling.tiles": (0, 100_000), "tiling.max_faces": (1, BIG), "tiling.overlap": (0.0, 1.0),
+    "output.texture_format": ("png", "jpeg"), "output.jpeg_quality": (1, 100),
 }
 
 

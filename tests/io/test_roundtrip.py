@@ -117,10 +117,12 @@ def test_obj_and_glb_of_one_output_share_one_png_encoding(tmp_path, cube):
     import json
     import struct
 
-    cache: dict = {}
-    save_scan(cube, tmp_path / "c.obj", png_cache=cache)
-    save_scan(cube, tmp_path / "c.glb", png_cache=cache)
-    assert len(cache) == 2
+    from scantex.io.images import TextureEncoder
+
+    encoder = TextureEncoder()
+    save_scan(cube, tmp_path / "c.obj", encoder=encoder)
+    save_scan(cube, tmp_path / "c.glb", encoder=encoder)
+    assert all(encoder.colour(m.image) is encoder.colour(m.image) for m in cube.materials)  # kept, not made again
     pngs = sorted((tmp_path / name).read_bytes() for name in ("c_tex0.png", "c_tex1.png"))
     blob = (tmp_path / "c.glb").read_bytes()
     json_len = struct.unpack("<I", blob[12:16])[0]
@@ -374,3 +376,75 @@ def test_obj_lines_end_and_split_where_the_line_reader_says(tmp_path, data, monk
     scan, line_by_line, bulk = read_both_ways(path, monkeypatch)
     assert not bulk
     assert_same_mesh(scan, line_by_line)
+
+
+def _glb_images(path) -> tuple[list[dict], list[bytes]]:
+    """A GLB's ``images`` entries and each one's embedded bytes."""
+    import json
+    import struct
+
+    blob = path.read_bytes()
+    json_len = struct.unpack("<I", blob[12:16])[0]
+    doc = json.loads(blob[20:20 + json_len])
+    binary = blob[20 + json_len + 8:]
+    views = [doc["bufferViews"][image["bufferView"]] for image in doc["images"]]
+    return doc["images"], [binary[v.get("byteOffset", 0):v.get("byteOffset", 0) + v["byteLength"]] for v in views]
+
+
+def test_jpeg_atlases_written_and_read_back_with_the_geometry_untouched(tmp_path):
+    """``TextureEncoder("jpeg")``: the OBJ's atlas is a .jpg its MTL names, the GLB embeds the same bytes as
+    image/jpeg, both read back to the atlas within the codec's loss (which ``jpeg_psnr`` measures), and the
+    geometry comes back bit for bit."""
+    from scantex.io.images import TextureEncoder
+
+    wall = grid_wall(24, 18)
+    y, x = np.mgrid[0:256, 0:256]
+    atlas = np.stack([x, y, (x + y) // 2], axis=-1).astype(np.uint8)  # smooth: JPEG keeps it closely
+    wall = wall.replace(materials=(dataclasses.replace(wall.materials[0], image=atlas),))
+    encoder = TextureEncoder("jpeg", 90)
+    save_scan(wall, tmp_path / "w.obj", encoder=encoder)
+    save_scan(wall, tmp_path / "w.glb", encoder=encoder)
+    assert "map_Kd w_" in (tmp_path / "w.mtl").read_text() and (tmp_path / "w.mtl").read_text().strip().endswith(".jpg")
+    jpg = next(tmp_path.glob("w_*.jpg"))
+    assert not list(tmp_path.glob("w_*.png")) and jpg.read_bytes()[:2] == b"\xff\xd8"
+    images, data = _glb_images(tmp_path / "w.glb")
+    assert [i["mimeType"] for i in images] == ["image/jpeg"] and data[0].rstrip(b"\0") == jpg.read_bytes()
+    measured = encoder.jpeg_psnr(atlas)
+    assert 35 < measured < 80
+    for name in ("w.obj", "w.glb"):
+        back = load_scan(tmp_path / name)
+        assert same_triangles(wall if name.endswith(".obj") else float32_scan(wall), back)  # GLB holds float32
+        err = back.materials[0].image.astype(float) - atlas
+        assert 10 * np.log10(255**2 / np.mean(err**2)) == pytest.approx(measured, abs=1e-6)
+    assert np.array_equal(load_scan(tmp_path / "w.obj").positions, wall.positions)
+
+
+def test_jpeg_keeps_transparent_atlases_and_other_maps_as_png(tmp_path):
+    """JPEG has no alpha: an atlas with transparent texels stays PNG (an all-opaque alpha is dropped into a
+    JPEG); a material's other maps without bytes of their own are PNG, whatever the colour's format."""
+    from scantex.io.images import TextureEncoder
+    from scantex.scan import TextureMap
+
+    wall = grid_wall(8, 6)
+    rng = np.random.default_rng(0)
+    rgba = rng.integers(0, 256, (32, 32, 4), dtype=np.uint8)
+    opaque = rgba.copy()
+    opaque[..., 3] = 255
+    encoder = TextureEncoder("jpeg")
+    assert not encoder.writes_jpeg(rgba) and encoder.suffix(rgba) == "png"
+    assert encoder.writes_jpeg(opaque) and encoder.suffix(opaque) == "jpg"
+    assert encoder.jpeg_psnr(rgba) is None
+    normal = TextureMap(rng.integers(0, 256, (32, 32, 3), dtype=np.uint8))
+    material = dataclasses.replace(wall.materials[0], image=rgba, maps={"normal": normal})
+    save_scan(wall.replace(materials=(material,)), tmp_path / "t.obj", encoder=encoder)
+    written = sorted(p.name for p in tmp_path.iterdir())
+    assert [n for n in written if n.endswith((".jpg", ".png"))] == sorted(
+        n for n in written if n.endswith(".png")), written
+    assert (tmp_path / load_scan(tmp_path / "t.obj").materials[0].image_name).read_bytes() == TextureEncoder().png(rgba)
+    save_scan(wall.replace(materials=(dataclasses.replace(material, image=opaque),)), tmp_path / "o.obj",
+              encoder=encoder)
+    assert {p.suffix for p in tmp_path.glob("o_*")} == {".jpg", ".png"}  # the colour as JPEG, the normal map PNG
+    with pytest.raises(ValueError, match="gif"):
+        TextureEncoder("gif")
+    with pytest.raises(ValueError, match="quality"):
+        TextureEncoder("jpeg", 0)

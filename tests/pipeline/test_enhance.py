@@ -168,6 +168,20 @@ def test_config_rejects_unknown_keys(tmp_path):
         load_config(tmp_path / "c.json")
 
 
+def test_config_checks_the_output_settings(tmp_path):
+    """``output``: the atlases' format and JPEG quality, checked like every other setting; a config written
+    before the section existed loads with PNG."""
+    from scantex.errors import ScanError
+
+    for bad, needle in (({"texture_format": "gif"}, "one of png, jpeg"), ({"jpeg_quality": 0}, "1 to 100"),
+                        ({"jpeg_quality": 90.5}, "a whole number")):
+        (tmp_path / "c.json").write_text(json.dumps({"output": bad}))
+        with pytest.raises(ScanError, match=needle):
+            load_config(tmp_path / "c.json")
+    (tmp_path / "c.json").write_text(json.dumps({"preset": "fast"}))
+    assert load_config(tmp_path / "c.json").output.texture_format == "png"
+
+
 def test_enhance_cli_writes_everything(tmp_path, toy_demo):
     save_scan(toy_demo.scan, tmp_path / "scan.obj")
     save_scan(toy_demo.ground_truth, tmp_path / "truth.obj")
