@@ -571,7 +571,7 @@ def add_texture_options(p) -> None:
                    help="file format of the enhanced atlases: png, lossless (default), or jpeg: several times "
                         "smaller files (OBJ and GLB alike), at a loss the summary measures")
     p.add_argument("--jpeg-quality", type=whole(1, 100), metavar="Q",
-                   help="--texture-format jpeg: quality from 1 to 100 (default: 95)")
+                   help="--texture-format jpeg: quality from 1 to 100 (default: 90)")
 
 
 def add_executor_options(p, job: str) -> None:

@@ -166,7 +166,7 @@ class TextureEncoder:
     directions do not survive JPEG well.
     """
 
-    def __init__(self, format: str = "png", quality: int = 95) -> None:  # noqa: A002 (Pillow's word)
+    def __init__(self, format: str = "png", quality: int = 90) -> None:  # noqa: A002 (Pillow's word)
         if format not in TEXTURE_FORMATS:
             raise ValueError(f"texture format {format!r} is none of {', '.join(TEXTURE_FORMATS)}")
         if not 1 <= quality <= 100:
