@@ -299,6 +299,9 @@ def _enhance_capture(args, config, capture) -> int:
     usdz = ", enhanced.usdz" if usd_input(result) else ""
     _echo(args, f"enhanced scan written to {args.output}/enhanced.obj (+ .mtl, textures, enhanced.glb{usdz}, "
                 f"metrics.json, config.json, report.html)")
+    hint = png_size_hint(result, args.output)
+    if hint:
+        _echo(args, hint)
     compiled = compiled_note()
     if compiled:
         _echo(args, compiled)
@@ -392,6 +395,29 @@ def jpeg_summary(output: dict | None) -> str | None:
     figure = "no loss" if worst == float("inf") else f"{worst:.1f} dB against the atlas scored above" + (
         " (the worst of its materials)" if len(psnr) > 1 else "")
     return f"atlas written as JPEG, quality {output['jpeg_quality']}: {figure}"
+
+
+def png_size_hint(result, folder: Path) -> str | None:
+    """A line when the lossless PNG atlases written in ``folder`` are over twice the size of the input's JPEG
+    textures (a capture app's heavily compressed atlas): ``--texture-format jpeg`` writes smaller files.
+    ``None`` otherwise, and for JPEG outputs or an input without JPEG texture files."""
+    from scantex.io.obj import texture_names
+
+    before = result.input_scan
+    if before is None or before.source is None or result.config.output.texture_format != "png":
+        return None
+    read = {Path(p).resolve() for p in before.inputs}
+    jpegs = {Path(before.source).parent.resolve() / m.image_name for m in before.materials if m.image_name}
+    jpegs = {p for p in jpegs if p in read and p.suffix.lower() in (".jpg", ".jpeg") and p.is_file()}
+    written = [Path(folder) / n for n in texture_names(result.scan, "enhanced") if n]
+    if not jpegs or not all(p.is_file() for p in written):
+        return None
+    size_in = sum(p.stat().st_size for p in jpegs)
+    size_out = sum(p.stat().st_size for p in written)
+    if size_out <= 2 * size_in:
+        return None
+    return (f"atlas written losslessly as PNG, {size_out / 1e6:.1f} MB (the input's JPEG: {size_in / 1e6:.1f} MB); "
+            f"--texture-format jpeg writes a smaller one")
 
 
 def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:

@@ -183,3 +183,33 @@ def test_texture_format_jpeg_writes_smaller_atlases_and_says_their_loss(tmp_path
     assert "enhanced scan written" in out and "JPEG" not in out
     assert "output" not in json.loads((tmp_path / "png" / "metrics.json").read_text())
     assert list((tmp_path / "png").glob("enhanced_*.png"))
+
+
+def test_a_png_atlas_far_larger_than_the_inputs_jpeg_says_how_to_write_a_smaller_one(tmp_path, capsys):
+    """A capture app's heavily compressed JPEG atlas comes back as a PNG several times its size: the summary
+    says so and names --texture-format jpeg; not for a PNG input, nor once JPEG is asked for."""
+    import dataclasses
+
+    from scantex.cli import main
+    from scantex.io.images import TextureEncoder
+    from tests.conftest import grid_wall
+    from tests.io.hostile import TINY, write_tiny_config
+
+    rng = np.random.default_rng(0)
+    noisy = rng.integers(0, 256, (32, 32, 3), dtype=np.uint8)  # PNG cannot shrink noise; JPEG at 20 can
+    wall = grid_wall(8, 6)
+    wall = wall.replace(materials=(dataclasses.replace(wall.materials[0], image=noisy),))
+    save_scan(wall, tmp_path / "app" / "scan.obj", encoder=TextureEncoder("jpeg", 20))
+    save_scan(wall, tmp_path / "png" / "scan.obj")
+    config = write_tiny_config(tmp_path / "tiny.json", TINY)
+
+    def summary(mesh, out, *extra):
+        capsys.readouterr()
+        assert main([str(a) for a in ("enhance", mesh, "-o", tmp_path / out, "--config", config, *extra)]) == 0
+        return capsys.readouterr().out
+
+    said = summary(tmp_path / "app" / "scan.obj", "a")
+    line = next(ln for ln in said.splitlines() if ln.startswith("atlas written losslessly as PNG"))
+    assert "the input's JPEG" in line and line.endswith("--texture-format jpeg writes a smaller one")
+    assert "losslessly" not in summary(tmp_path / "png" / "scan.obj", "b")
+    assert "losslessly" not in summary(tmp_path / "app" / "scan.obj", "c", "--texture-format", "jpeg")
