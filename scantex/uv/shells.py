@@ -58,11 +58,6 @@ def edge_lengths(scan: Scan, edges: SeamEdges) -> np.ndarray:
     return np.linalg.norm(p1 - p0, axis=1)
 
 
-def chart_distortion(scan: Scan, chart_of_face: np.ndarray, texture_size: int = 1024) -> list:
-    """:class:`~scantex.uv.param.Distortion` of every chart ``0..C-1`` of the scan's current UVs (in texels)."""
-    return distortions(scan.triangles, texel_uvs(scan, texture_size), chart_of_face)
-
-
 def texel_density(scan: Scan, chart_of_face: np.ndarray | None = None, texture_size: int = 1024) -> np.ndarray:
     """``(C,)`` texels per centimetre of every chart: ``sqrt(texel area / surface area in cm²)``."""
     if chart_of_face is None:
@@ -94,6 +89,9 @@ class LayoutSummary:
     stretch: dict
     stretch_area_weighted: float
     density_px_per_cm: dict
+    collapsed_faces: int = 0
+    """faces of some surface whose UV triangle is a line (corners in a row): their texels are stretched without
+    bound, so the stretch figures leave them out (the bathroom's 10 made its largest stretch 7.7e11)"""
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -105,7 +103,10 @@ def summarise(scan: Scan, texture_size: int = 1024) -> LayoutSummary | None:
         return None
     shells = uv_shells(scan)
     edges = seam_edges(scan)
-    dist = chart_distortion(scan, shells, texture_size)
+    uvs = texel_uvs(scan, texture_size)
+    collapsed = (_flatness(uvs) < COLLAPSED) & (_flatness(scan.triangles) >= FLAT)
+    keep = ~collapsed
+    dist = distortions(scan.triangles[keep], uvs[keep], shells[keep], int(shells.max()) + 1)
     stretch = np.array([d.stretch for d in dist])
     area = np.array([d.surface_area for d in dist])
     ok = np.isfinite(stretch)
@@ -120,4 +121,23 @@ def summarise(scan: Scan, texture_size: int = 1024) -> LayoutSummary | None:
         # over the charts of some surface: a chart of faces of no area has no density (the bathroom's 3,869 such
         # faces made the median 0)
         density_px_per_cm=stats(texel_density(scan, shells, texture_size)[area > 0]),
+        collapsed_faces=int(collapsed.sum()),
     )
+
+
+#: a UV triangle whose area is below this share of its longest edge squared is a line (:func:`summarise`)
+COLLAPSED = 1e-6
+#: ... where its 3D triangle's is at least this (a sliver in 3D may be a sliver in UV)
+FLAT = 1e-3
+
+
+def _flatness(corners: np.ndarray) -> np.ndarray:
+    """``(F,)`` each triangle's area over its longest edge squared, from ``(F, 3, D)`` corners (2-D or 3-D):
+    about 0.43 for an equilateral triangle, 0 for corners in a row."""
+    edges = corners[:, [1, 2, 0]] - corners
+    longest = (edges ** 2).sum(axis=2).max(axis=1)
+    if corners.shape[2] == 2:
+        area = uv_areas(corners)
+    else:
+        area = 0.5 * np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
+    return np.divide(area, longest, out=np.zeros_like(area), where=longest > 0)

@@ -80,6 +80,22 @@ def test_summary_counts(cube):
     assert summarise(flat).shells == 7 and density == s.density_px_per_cm and density["min"] > 0
 
 
+def test_summary_leaves_faces_collapsed_in_uv_out_of_the_stretch(cube):
+    """A face of some surface whose UV corners lie in a row (the bathroom has 10) stretches its texels without
+    bound: its chart's stretch read 7.7e11, the layout's area-weighted stretch 7.4e10. Such faces are counted
+    apart, and the stretch figures are the rest's."""
+    s = summarise(cube)
+    n = len(cube.uvs)
+    face = cube.faces[0]
+    line = dataclasses.replace(cube, faces=np.vstack([cube.faces, [face]]),  # a second face on the same corners
+                               uvs=np.vstack([cube.uvs, [[0.01, 0.01], [0.02, 0.01], [0.03, 0.01]]]),
+                               face_uvs=np.vstack([cube.face_uvs, [[n, n + 1, n + 2]]]),
+                               face_materials=np.append(cube.face_materials, 0))
+    t = summarise(line)
+    assert s.collapsed_faces == 0 and t.collapsed_faces == 1 and t.shells == 7
+    assert t.stretch == s.stretch and t.stretch_area_weighted == pytest.approx(s.stretch_area_weighted)
+
+
 # -- optimize -------------------------------------------------------------------------------------
 
 
