@@ -212,8 +212,7 @@ def cmd_enhance(args) -> int:
                                       refine__diffusion=True if args.diffusion else None,
                                       tiling__tiles=None if args.tiles is None else 0 if args.tiles == "auto"
                                       else args.tiles, tiling__max_faces=args.tile_faces,
-                                      tiling__overlap=args.tile_overlap, output__texture_format=args.texture_format,
-                                      output__jpeg_quality=args.jpeg_quality), "the options")
+                                      tiling__overlap=args.tile_overlap, **texture_settings(args)), "the options")
     check_output_early(args.output, args.overwrite)
     check_output(work_dir_for(args.output), role="the work folder")
     _check_device(config.device)
@@ -352,8 +351,7 @@ def cmd_batch(args) -> int:
     config = load_config(args.config) if args.config else preset(args.preset)
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, refine__enabled=args.refine,
-                                      refine__over_input=args.refine, output__texture_format=args.texture_format,
-                                      output__jpeg_quality=args.jpeg_quality), "the options")
+                                      refine__over_input=args.refine, **texture_settings(args)), "the options")
     _check_device(config.device)
     with progress_bar("enhancing scans", args.quiet) as update:
         result = batch(args.inputs, args.output, config, ray=args.ray, workers=args.workers,
@@ -597,7 +595,16 @@ def add_texture_options(p) -> None:
                    help="file format of the enhanced atlases: png, lossless (default), or jpeg: several times "
                         "smaller files (OBJ and GLB alike), at a loss the summary measures")
     p.add_argument("--jpeg-quality", type=whole(1, 100), metavar="Q",
-                   help="--texture-format jpeg: quality from 1 to 100 (default: 90)")
+                   help="quality of the JPEG atlases, from 1 to 100 (default: 90); alone, it asks for "
+                        "--texture-format jpeg")
+
+
+def texture_settings(args) -> dict:
+    """The config overrides of ``--texture-format`` and ``--jpeg-quality``: a quality alone asks for JPEG."""
+    if args.texture_format == "png" and args.jpeg_quality is not None:
+        raise ScanError(None, "--jpeg-quality is the JPEG atlases' quality: it goes with --texture-format jpeg, not png")
+    texture_format = args.texture_format or ("jpeg" if args.jpeg_quality is not None else None)
+    return {"output__texture_format": texture_format, "output__jpeg_quality": args.jpeg_quality}
 
 
 def add_executor_options(p, job: str) -> None:

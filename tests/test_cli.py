@@ -177,6 +177,13 @@ def test_texture_format_jpeg_writes_smaller_atlases_and_says_their_loss(tmp_path
     assert list((tmp_path / "again").glob("enhanced_*.jpg"))
     assert_clean_error(*run_cli(capsys, "enhance", mesh, "-o", tmp_path / "bad", "--jpeg-quality", "101", "-q"),
                        "--jpeg-quality")
+    assert_clean_error(*run_cli(capsys, "enhance", mesh, "-o", tmp_path / "bad", "--texture-format", "png",
+                                "--jpeg-quality", "70", "-q"), "--jpeg-quality", "not png")
+    assert not (tmp_path / "bad").exists()
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "q", "--config", config, "--jpeg-quality", "70", "-q")
+    assert rc == 0, err  # a quality alone asks for JPEG
+    assert json.loads((tmp_path / "q" / "config.json").read_text())["output"] == {"texture_format": "jpeg",
+                                                                                 "jpeg_quality": 70}
     # PNG, the default: no such line, no output entry
     assert main([str(a) for a in ("enhance", mesh, "-o", tmp_path / "png", "--config", config)]) == 0
     out = capsys.readouterr().out
