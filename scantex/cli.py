@@ -385,12 +385,12 @@ def shading_summary(before, after) -> str | None:
 
 def jpeg_summary(output: dict | None) -> str | None:
     """A line on the JPEG atlases written (``metrics.json``'s ``output``): their codec's loss against the atlas
-    the run scored; ``None`` for PNG (lossless)."""
+    the run made; ``None`` for PNG (lossless)."""
     if not output:
         return None
     psnr = [v for v in output["atlas_psnr_db"].values()]
     worst = min(psnr)
-    figure = "no loss" if worst == float("inf") else f"{worst:.1f} dB against the atlas scored above" + (
+    figure = "no loss" if worst == float("inf") else f"{worst:.1f} dB PSNR against the lossless atlas" + (
         " (the worst of its materials)" if len(psnr) > 1 else "")
     return f"atlas written as JPEG, quality {output['jpeg_quality']}: {figure}"
 
@@ -591,9 +591,9 @@ def tiles_arg(text: str):
 
 def add_texture_options(p) -> None:
     """The options of how the enhanced atlases are written (``output`` in a config)."""
-    p.add_argument("--texture-format", choices=("png", "jpeg"), default=None,
-                   help="file format of the enhanced atlases: png, lossless (default), or jpeg: several times "
-                        "smaller files (OBJ and GLB alike), at a loss the summary measures")
+    p.add_argument("--texture-format", choices=("png", "jpeg", "jpg"), default=None,
+                   help="file format of the enhanced atlases: png, lossless (default), or jpeg (or jpg): several "
+                        "times smaller files (OBJ, GLB and USDZ alike), at a loss the summary measures")
     p.add_argument("--jpeg-quality", type=whole(1, 100), metavar="Q",
                    help="quality of the JPEG atlases, from 1 to 100 (default: 90); alone, it asks for "
                         "--texture-format jpeg")
@@ -602,8 +602,10 @@ def add_texture_options(p) -> None:
 def texture_settings(args) -> dict:
     """The config overrides of ``--texture-format`` and ``--jpeg-quality``: a quality alone asks for JPEG."""
     if args.texture_format == "png" and args.jpeg_quality is not None:
-        raise ScanError(None, "--jpeg-quality is the JPEG atlases' quality: it goes with --texture-format jpeg, not png")
-    texture_format = args.texture_format or ("jpeg" if args.jpeg_quality is not None else None)
+        raise ScanError(None, "--jpeg-quality is the JPEG atlases' quality: it goes with --texture-format jpeg, "
+                              "not png")
+    texture_format = {"jpg": "jpeg"}.get(args.texture_format, args.texture_format)
+    texture_format = texture_format or ("jpeg" if args.jpeg_quality is not None else None)
     return {"output__texture_format": texture_format, "output__jpeg_quality": args.jpeg_quality}
 
 

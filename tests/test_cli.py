@@ -166,7 +166,7 @@ def test_texture_format_jpeg_writes_smaller_atlases_and_says_their_loss(tmp_path
     assert metrics["output"]["texture_format"] == "jpeg" and metrics["output"]["jpeg_quality"] == 80
     psnr = list(metrics["output"]["atlas_psnr_db"].values())
     assert psnr and all(20 < p < 100 for p in psnr)
-    assert f"atlas written as JPEG, quality 80: {min(psnr):.1f} dB against the atlas scored above" in out
+    assert f"atlas written as JPEG, quality 80: {min(psnr):.1f} dB PSNR against the lossless atlas" in out
     jpgs = sorted(p.name for p in folder.glob("enhanced_*.jpg"))
     assert jpgs and not list(folder.glob("enhanced_*.png"))
     assert all(f"map_Kd {name}" in (folder / "enhanced.mtl").read_text() for name in jpgs)
@@ -182,6 +182,9 @@ def test_texture_format_jpeg_writes_smaller_atlases_and_says_their_loss(tmp_path
     assert not (tmp_path / "bad").exists()
     rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "q", "--config", config, "--jpeg-quality", "70", "-q")
     assert rc == 0, err  # a quality alone asks for JPEG
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "jpg", "--config", config, "--texture-format", "jpg",
+                      "-q")
+    assert rc == 0 and list((tmp_path / "jpg").glob("enhanced_*.jpg")), err  # the files' own suffix is understood
     assert json.loads((tmp_path / "q" / "config.json").read_text())["output"] == {"texture_format": "jpeg",
                                                                                  "jpeg_quality": 70}
     # PNG, the default: no such line, no output entry

@@ -82,7 +82,7 @@ def _refuse_overwriting_input(scan: Scan, path: Path, encoder: TextureEncoder | 
 
         outputs.add(path.with_suffix(".mtl").resolve())
         outputs |= {path.parent.resolve() / n for n in texture_names(scan, path.stem, encoder) if n}
-        outputs |= {path.parent.resolve() / n for names in map_names(scan, path.stem) for n in names.values()}
+        outputs |= {path.parent.resolve() / n for names in map_names(scan, path.stem, encoder) for n in names.values()}
     clash = sorted(str(p) for p in inputs & outputs)
     if clash:
         raise ScanError(path, f"refusing to overwrite the input scan ({clash[0]})")

@@ -655,15 +655,23 @@ def texture_names(scan: Scan, stem: str, encoder: TextureEncoder | None = None) 
     return names
 
 
-def map_names(scan: Scan, stem: str) -> list[dict[str, str]]:
+def map_names(scan: Scan, stem: str, encoder: TextureEncoder | None = None) -> list[dict[str, str]]:
     """File name of each material's other maps that MTL can name (:data:`MTL_STATEMENTS`), by kind:
-    ``stem_material_kind.jpg`` (or ``.png``, as their bytes are)."""
+    ``stem_material_kind.jpg`` (or ``.png``, as their bytes are), made unique against each other and against
+    the colour textures' :func:`texture_names` (a material named ``m_normal`` has a colour texture of the name
+    material ``m``'s normal map would take)."""
+    taken = {name for name in texture_names(scan, stem, encoder) if name}
     names = []
     for m in scan.materials:
         own = {}
         for kind, texture in m.maps.items():
             if kind in MTL_STATEMENTS and m.image is not None:
-                own[kind] = re.sub(r"[^\w.-]+", "_", f"{stem}_{m.name}_{kind}") + f".{texture.suffix}"
+                base = re.sub(r"[^\w.-]+", "_", f"{stem}_{m.name}_{kind}")
+                name, k = f"{base}.{texture.suffix}", 1
+                while name in taken:
+                    name, k = f"{base}_{k}.{texture.suffix}", k + 1
+                taken.add(name)
+                own[kind] = name
         names.append(own)
     return names
 
@@ -682,7 +690,7 @@ def write_obj(scan: Scan, obj_path: Path, files, encoder: TextureEncoder | None 
     mat_names = [re.sub(r"\s+", "_", m.name) or f"material_{i}" for i, m in enumerate(scan.materials)]
 
     mtl = ["# written by scantex\n"]
-    for m, name, tex, others in zip(scan.materials, mat_names, tex_names, map_names(scan, stem)):
+    for m, name, tex, others in zip(scan.materials, mat_names, tex_names, map_names(scan, stem, encoder)):
         r, g, b, a = m.diffuse
         mtl.append(f"newmtl {name}\nKa 0 0 0\nKd {r!r} {g!r} {b!r}\nKs 0 0 0\nd {a!r}\nillum 1\n")
         if tex:

@@ -432,8 +432,9 @@ def _preview_surface(stage, where: str, material: Material, index: int, work: Pa
         surface.CreateInput(input_name, kind).ConnectToSource(shader.ConnectableAPI(), output)
 
     if material.image is not None:
-        texture("colour", encoder.colour(material.image), encoder.suffix(material.image), "rgb", Sdf.ValueTypeNames.Color3f,
-                "diffuseColor", scale=None if (r, g, b) == (1.0, 1.0, 1.0) else (r, g, b, 1.0))
+        tint = None if (r, g, b) == (1.0, 1.0, 1.0) else (r, g, b, 1.0)
+        texture("colour", encoder.colour(material.image), encoder.suffix(material.image), "rgb",
+                Sdf.ValueTypeNames.Color3f, "diffuseColor", scale=tint)
     else:
         surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(r, g, b))
     for kind, input_name in _MAP_INPUTS.items():

@@ -214,7 +214,7 @@ class OutputConfig:
 
     texture_format: str = "png"
     """file format of the enhanced colour atlases: png (lossless) or jpeg (several times smaller, at the loss
-    the run's summary measures; an atlas with transparency stays PNG)"""
+    the run's summary measures)"""
     jpeg_quality: int = 90
     """JPEG quality from 1 to 100 (texture_format jpeg)"""
 

@@ -565,7 +565,7 @@ def run_key(scan: Scan, config: EnhanceConfig, photos: PhotoSet | None) -> str:
             h.update(np.ascontiguousarray(array).tobytes())
     settings = config.to_dict()
     settings["train"] = {k: v for k, v in settings["train"].items() if k not in ("steps", "checkpoint_every")}
-    for key in ("device", "threads"):
+    for key in ("device", "threads", "output"):  # where and how it runs, how its outputs are written
         settings.pop(key, None)
     h.update(json.dumps(settings, sort_keys=True, default=str).encode())
     if photos is not None:

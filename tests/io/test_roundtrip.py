@@ -448,3 +448,32 @@ def test_jpeg_keeps_transparent_atlases_and_other_maps_as_png(tmp_path):
         TextureEncoder("gif")
     with pytest.raises(ValueError, match="quality"):
         TextureEncoder("jpeg", 0)
+
+
+def test_a_colour_texture_never_takes_a_maps_file_name(tmp_path):
+    """Material ``m_normal``'s colour texture and material ``m``'s normal map would both be ``x_m_normal.jpg``
+    (JPEG atlases; every Polycam map is a JPEG): one file, the normal map replaced by an atlas. Each gets a
+    file of its own, and the MTL names the right one."""
+    import io
+
+    from PIL import Image
+
+    from scantex.io.images import TextureEncoder
+    from scantex.scan import TextureMap
+
+    wall = grid_wall(8, 6)
+    rng = np.random.default_rng(1)
+    buffer = io.BytesIO()
+    Image.fromarray(rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)).save(buffer, format="JPEG")
+    normal = TextureMap.of(Image.open(io.BytesIO(buffer.getvalue())), buffer.getvalue())
+    atlas = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    first = dataclasses.replace(wall.materials[0], name="m", image=atlas, maps={"normal": normal})
+    second = dataclasses.replace(wall.materials[0], name="m_normal", image=atlas[::-1].copy())
+    half = np.arange(wall.n_faces) >= wall.n_faces // 2
+    scan = wall.replace(materials=(first, second), face_materials=half.astype(np.int32))
+    written = save_scan(scan, tmp_path / "x.obj", encoder=TextureEncoder("jpeg"))
+    assert len(written) == len(set(written)) == 5  # OBJ, MTL, two atlases, the normal map
+    mtl = (tmp_path / "x.mtl").read_text().split()
+    normal_file = mtl[mtl.index("norm") + 1]
+    assert (tmp_path / normal_file).read_bytes() == buffer.getvalue()
+    assert normal_file not in [mtl[i + 1] for i, word in enumerate(mtl) if word == "map_Kd"]

@@ -137,6 +137,10 @@ def test_resume_continues_from_checkpoint(tmp_path, toy_demo):
     from scantex.cli import enhance_summary  # and the summary says it resumed
 
     assert "field: resumed from its checkpoint: 40 of its 60 steps" in enhance_summary(resumed.metrics)
+    # how the outputs are written is none of the checkpoint's business: --texture-format jpeg resumes it too
+    jpeg = cfg.override(output__texture_format="jpeg", output__jpeg_quality=80)
+    again = enhance(toy_demo.scan, jpeg, work_dir=tmp_path, resume=True)
+    assert again.metrics["field"]["steps_run"] == 20
 
 
 def test_config_roundtrip(tmp_path):
