@@ -397,25 +397,30 @@ def jpeg_summary(output: dict | None) -> str | None:
 
 def png_size_hint(result, folder: Path) -> str | None:
     """A line when the lossless PNG atlases written in ``folder`` are over twice the size of the input's JPEG
-    textures (a capture app's heavily compressed atlas): ``--texture-format jpeg`` writes smaller files.
-    ``None`` otherwise, and for JPEG outputs or an input without JPEG texture files."""
+    textures (a capture app's heavily compressed atlas), or ``enhanced.glb`` over twice the input GLB's size:
+    ``--texture-format jpeg`` writes smaller files. ``None`` otherwise, and for JPEG outputs."""
     from scantex.io.obj import texture_names
 
     before = result.input_scan
     if before is None or before.source is None or result.config.output.texture_format != "png":
         return None
-    read = {Path(p).resolve() for p in before.inputs}
-    jpegs = {Path(before.source).parent.resolve() / m.image_name for m in before.materials if m.image_name}
-    jpegs = {p for p in jpegs if p in read and p.suffix.lower() in (".jpg", ".jpeg") and p.is_file()}
-    written = [Path(folder) / n for n in texture_names(result.scan, "enhanced") if n]
-    if not jpegs or not all(p.is_file() for p in written):
+    source = Path(before.source)
+    if source.suffix.lower() == ".glb":  # its textures are inside it: the files compared whole
+        what, size_in, written = "the input GLB", source.stat().st_size, [Path(folder) / "enhanced.glb"]
+    else:
+        read = {Path(p).resolve() for p in before.inputs}
+        jpegs = {source.parent.resolve() / m.image_name for m in before.materials if m.image_name}
+        jpegs = {p for p in jpegs if p in read and p.suffix.lower() in (".jpg", ".jpeg") and p.is_file()}
+        what, size_in = "the input's JPEG", sum(p.stat().st_size for p in jpegs)
+        written = [Path(folder) / n for n in texture_names(result.scan, "enhanced") if n]
+    if not size_in or not written or not all(p.is_file() for p in written):
         return None
-    size_in = sum(p.stat().st_size for p in jpegs)
     size_out = sum(p.stat().st_size for p in written)
     if size_out <= 2 * size_in:
         return None
-    return (f"atlas written losslessly as PNG, {size_out / 1e6:.1f} MB (the input's JPEG: {size_in / 1e6:.1f} MB); "
-            f"--texture-format jpeg writes a smaller one")
+    said = "enhanced.glb holds its atlas as a lossless PNG:" if what == "the input GLB" else \
+        "atlas written losslessly as PNG,"
+    return f"{said} {size_out / 1e6:.1f} MB ({what}: {size_in / 1e6:.1f} MB); --texture-format jpeg writes a smaller one"
 
 
 def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:

@@ -206,12 +206,12 @@ def test_a_png_atlas_far_larger_than_the_inputs_jpeg_says_how_to_write_a_smaller
     from tests.io.hostile import TINY, write_tiny_config
 
     rng = np.random.default_rng(0)
-    noisy = rng.integers(0, 256, (32, 32, 3), dtype=np.uint8)  # PNG cannot shrink noise; JPEG at 20 can
+    noisy = rng.integers(0, 256, (256, 256, 3), dtype=np.uint8)  # PNG cannot shrink noise; JPEG at 20 can
     wall = grid_wall(8, 6)
     wall = wall.replace(materials=(dataclasses.replace(wall.materials[0], image=noisy),))
     save_scan(wall, tmp_path / "app" / "scan.obj", encoder=TextureEncoder("jpeg", 20))
     save_scan(wall, tmp_path / "png" / "scan.obj")
-    config = write_tiny_config(tmp_path / "tiny.json", TINY)
+    config = write_tiny_config(tmp_path / "tiny.json", TINY.override(bake__texture_size=256))
 
     def summary(mesh, out, *extra):
         capsys.readouterr()
@@ -222,4 +222,9 @@ def test_a_png_atlas_far_larger_than_the_inputs_jpeg_says_how_to_write_a_smaller
     line = next(ln for ln in said.splitlines() if ln.startswith("atlas written losslessly as PNG"))
     assert "the input's JPEG" in line and line.endswith("--texture-format jpeg writes a smaller one")
     assert "losslessly" not in summary(tmp_path / "png" / "scan.obj", "b")
+    save_scan(wall, tmp_path / "glb" / "scan.glb", encoder=TextureEncoder("jpeg", 20))  # its atlas inside it
+    said = summary(tmp_path / "glb" / "scan.glb", "g")
+    line = next(ln for ln in said.splitlines() if ln.startswith("enhanced.glb holds its atlas as a lossless PNG"))
+    assert "the input GLB" in line and line.endswith("--texture-format jpeg writes a smaller one")
+    assert "lossless PNG" not in summary(tmp_path / "glb" / "scan.glb", "h", "--texture-format", "jpeg")
     assert "losslessly" not in summary(tmp_path / "app" / "scan.obj", "c", "--texture-format", "jpeg")
