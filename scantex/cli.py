@@ -388,7 +388,7 @@ def jpeg_summary(output: dict | None) -> str | None:
     the run made; ``None`` for PNG (lossless)."""
     if not output:
         return None
-    psnr = [v for v in output["atlas_psnr_db"].values()]
+    psnr = list(output["atlas_psnr_db"].values())
     worst = min(psnr)
     figure = "no loss" if worst == float("inf") else f"{worst:.1f} dB PSNR against the lossless atlas" + (
         " (the worst of its materials)" if len(psnr) > 1 else "")

@@ -52,8 +52,8 @@ def write_outputs(result, out_dir: str | Path) -> dict:
 
     Returns:
         the metrics written (``metrics.json``): ``result.metrics`` with what :func:`completed_metrics` adds and,
-        for JPEG atlases, ``output``: the format, the quality and each JPEG atlas's PSNR against the atlas the
-        run scored (``atlas_psnr_db``, by material).
+        for JPEG atlases, ``output``: the format, the quality and each JPEG atlas's PSNR against the lossless
+        atlas (``atlas_psnr_db``, by material).
     """
     from concurrent.futures import ThreadPoolExecutor
 
