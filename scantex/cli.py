@@ -420,7 +420,8 @@ def png_size_hint(result, folder: Path) -> str | None:
         return None
     said = "enhanced.glb holds its atlas as a lossless PNG:" if what == "the input GLB" else \
         "atlas written losslessly as PNG,"
-    return f"{said} {size_out / 1e6:.1f} MB ({what}: {size_in / 1e6:.1f} MB); --texture-format jpeg writes a smaller one"
+    return (f"{said} {size_out / 1e6:.1f} MB ({what}: {size_in / 1e6:.1f} MB); "
+            "--texture-format jpeg writes a smaller one")
 
 
 def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
