@@ -176,11 +176,13 @@ def _check_folder_config(out_dir: Path, config: EnhanceConfig, overwrite: bool) 
     path = out_dir / BATCH_CONFIG
     wanted = config.to_dict()
     if path.exists() and not overwrite:
+        # read as a config, not compared as text: a folder made by an earlier scantex lacks the settings added
+        # since (the output section), which are their defaults
         try:
-            before = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
+            before = EnhanceConfig.from_dict(json.loads(path.read_text()), path)
+        except (OSError, json.JSONDecodeError, RecursionError, ScanError):
             before = None
-        if before != wanted:
+        if before != config:
             raise ScanError(out_dir, "was made with another config (see its batch_config.json): pass "
                                      "--overwrite to redo its scans with this one, or choose another folder")
         return

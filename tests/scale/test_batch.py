@@ -63,6 +63,16 @@ def test_local_pool_batch_then_rerun(tmp_path, three_scans):
 
     with pytest.raises(ScanError, match="another config"):
         batch([three_scans], out, TINY.override(seed=5))
+    # a folder made by an earlier scantex, whose config lacks a section added since (written as its defaults):
+    # the same config, its finished scans reused
+    stored = json.loads((out / "batch_config.json").read_text())
+    del stored["output"]
+    (out / "batch_config.json").write_text(json.dumps(stored))
+    older = batch([three_scans], out, TINY, workers=2)
+    assert {r["name"]: bool(r.get("reused")) for r in older.records} == {
+        "wall0__scan": True, "wall1__scan": True, "corrupt__scan": False}
+    with pytest.raises(ScanError, match="another config"):
+        batch([three_scans], out, TINY.override(output__texture_format="jpeg"))
 
 
 def test_cli_batch_reports_failures(tmp_path, three_scans):
