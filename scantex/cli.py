@@ -406,20 +406,20 @@ def png_size_hint(result, folder: Path) -> str | None:
         return None
     source = Path(before.source)
     if source.suffix.lower() == ".glb":  # its textures are inside it: the files compared whole
-        what, size_in, written = "the input GLB", source.stat().st_size, [Path(folder) / "enhanced.glb"]
+        said, what = "enhanced.glb holds its atlas as a lossless PNG:", "the input GLB"
+        size_in, written = source.stat().st_size, [Path(folder) / "enhanced.glb"]
     else:
         read = {Path(p).resolve() for p in before.inputs}
         jpegs = {source.parent.resolve() / m.image_name for m in before.materials if m.image_name}
         jpegs = {p for p in jpegs if p in read and p.suffix.lower() in (".jpg", ".jpeg") and p.is_file()}
-        what, size_in = "the input's JPEG", sum(p.stat().st_size for p in jpegs)
+        said, what = "atlas written losslessly as PNG,", "the input's JPEG"
+        size_in = sum(p.stat().st_size for p in jpegs)
         written = [Path(folder) / n for n in texture_names(result.scan, "enhanced") if n]
     if not size_in or not written or not all(p.is_file() for p in written):
         return None
     size_out = sum(p.stat().st_size for p in written)
     if size_out <= 2 * size_in:
         return None
-    said = "enhanced.glb holds its atlas as a lossless PNG:" if what == "the input GLB" else \
-        "atlas written losslessly as PNG,"
     return (f"{said} {size_out / 1e6:.1f} MB ({what}: {size_in / 1e6:.1f} MB); "
             "--texture-format jpeg writes a smaller one")
 

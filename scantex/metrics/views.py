@@ -103,12 +103,15 @@ def score_views(reference: Callable[[Camera], tuple[np.ndarray, np.ndarray]] | S
         r = {k: float(np.mean(v)) for k, v in out[name].items() if v}
         if pooled and "mse" in r:
             r["psnr_mean_of_views"] = r["psnr"]
-            r["psnr"] = float(min(10 * np.log10(1 / r["mse"]), PSNR_CAP_DB)) if r["mse"] > 0 else PSNR_CAP_DB
+            r["psnr"] = _capped_psnr(r["mse"])
         r["per_view"] = {k: [float(x) for x in out[name][k]] for k in ("psnr", "ssim", "patches")}
         if hole_pixels[name]:
-            e = float(np.concatenate(hole_pixels[name]).mean())
-            r["hole_psnr"] = float(min(10 * np.log10(1 / e), PSNR_CAP_DB)) if e > 0 else PSNR_CAP_DB
-            e = outside[name][0] / max(outside[name][1], 1)
-            r["psnr_outside_holes"] = float(min(10 * np.log10(1 / e), PSNR_CAP_DB)) if e > 0 else PSNR_CAP_DB
+            r["hole_psnr"] = _capped_psnr(float(np.concatenate(hole_pixels[name]).mean()))
+            r["psnr_outside_holes"] = _capped_psnr(outside[name][0] / max(outside[name][1], 1))
         result[name] = r
     return result
+
+
+def _capped_psnr(mse: float) -> float:
+    """PSNR (dB, peak 1) of a mean squared error, at most :data:`PSNR_CAP_DB` (identical images)."""
+    return float(min(10 * np.log10(1 / mse), PSNR_CAP_DB)) if mse > 0 else PSNR_CAP_DB

@@ -262,11 +262,11 @@ class EnhanceConfig:
         Raises:
             ScanError: an unknown key, or a value of the wrong type or out of its range.
         """
-        sections = {"views", "field", "train", "uv", "bake", "photos", "refine", "tiling", "output"}
         if not isinstance(d, dict):
             raise ScanError(where, f"a config is a JSON object of settings, not a {type(d).__name__}")
         name = d.get("preset", "default")
         base = PRESETS.get(name, PRESETS["default"]) if isinstance(name, str) else PRESETS["default"]
+        sections = {f.name for f in dataclasses.fields(cls) if dataclasses.is_dataclass(getattr(base, f.name))}
         kwargs = {}
         for key, value in d.items():
             if key in sections:

@@ -21,7 +21,7 @@ from scantex.arrays import uv_areas
 from scantex.atlas.bake import SurfaceColour, bake, output_size, with_base_colours_of
 from scantex.atlas.holes import untextured_faces, visible_holes
 from scantex.atlas.inpaint import grow_faces
-from scantex.atlas.levelling import chart_gains
+from scantex.atlas.levelling import MAX_CREASE_DEG, chart_gains
 from scantex.atlas.seams import seam_edges, seam_visibility, uv_shells, with_seams_of
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.views import score_views
@@ -1085,8 +1085,6 @@ def levelled_seams(scan: Scan, baked: Scan) -> tuple[float, float]:
     :data:`~scantex.atlas.levelling.MAX_CREASE_DEG`. A crease's seam joins two surfaces whose colours differ for
     real: counted, it kept a synthetic room's levelling, which removed 58 % of the steps it is for, at 30 % of all
     of them, under :data:`SEAM_GAIN`."""
-    from scantex.atlas.levelling import MAX_CREASE_DEG
-
     edges = seam_edges(scan).smooth(scan.face_normals, MAX_CREASE_DEG)
     return seam_visibility(scan, edges), seam_visibility(baked, edges)
 

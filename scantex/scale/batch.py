@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scantex.errors import ScanError
-from scantex.pipeline.config import EnhanceConfig
+from scantex.pipeline.config import EnhanceConfig, load_config
 from scantex.scale.executors import Job, LocalPool, WorkerLost, check_not_bootstrapping, executor as make_executor
 from scantex.scale.inputs import ScanInput, collect_inputs
 from scantex.scale.resources import GiB, footprint, machine, peak_memory
@@ -174,13 +174,12 @@ def _check_folder_config(out_dir: Path, config: EnhanceConfig, overwrite: bool) 
     from scantex.io.atomic import atomic_files
 
     path = out_dir / BATCH_CONFIG
-    wanted = config.to_dict()
     if path.exists() and not overwrite:
         # read as a config, not compared as text: a folder made by an earlier scantex lacks the settings added
         # since (the output section), which are their defaults
         try:
-            before = EnhanceConfig.from_dict(json.loads(path.read_text()), path)
-        except (OSError, json.JSONDecodeError, RecursionError, ScanError):
+            before = load_config(path)
+        except ScanError:
             before = None
         if before != config:
             raise ScanError(out_dir, "was made with another config (see its batch_config.json): pass "
@@ -188,7 +187,7 @@ def _check_folder_config(out_dir: Path, config: EnhanceConfig, overwrite: bool) 
         return
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
-        files.path(path).write_text(json.dumps(wanted, indent=2))
+        files.path(path).write_text(json.dumps(config.to_dict(), indent=2))
 
 
 def enhance_one(scan: ScanInput, config: dict, out_root: str, threads: int, overwrite: bool) -> dict:

@@ -104,7 +104,7 @@ def summarise(scan: Scan, texture_size: int = 1024) -> LayoutSummary | None:
     shells = uv_shells(scan)
     edges = seam_edges(scan)
     uvs = texel_uvs(scan, texture_size)
-    collapsed = (_flatness(uvs) < COLLAPSED) & (_flatness(scan.triangles) >= FLAT)
+    collapsed = (_flatness(uvs, uv_areas(uvs)) < COLLAPSED) & (_flatness(scan.triangles, scan.face_areas) >= FLAT)
     keep = ~collapsed
     dist = distortions(scan.triangles[keep], uvs[keep], shells[keep], int(shells.max()) + 1)
     stretch = np.array([d.stretch for d in dist])
@@ -131,13 +131,8 @@ COLLAPSED = 1e-6
 FLAT = 1e-3
 
 
-def _flatness(corners: np.ndarray) -> np.ndarray:
-    """``(F,)`` each triangle's area over its longest edge squared, from ``(F, 3, D)`` corners (2-D or 3-D):
-    about 0.43 for an equilateral triangle, 0 for corners in a row."""
-    edges = corners[:, [1, 2, 0]] - corners
-    longest = (edges ** 2).sum(axis=2).max(axis=1)
-    if corners.shape[2] == 2:
-        area = uv_areas(corners)
-    else:
-        area = 0.5 * np.linalg.norm(np.cross(edges[:, 0], -edges[:, 2]), axis=1)
-    return np.divide(area, longest, out=np.zeros_like(area), where=longest > 0)
+def _flatness(corners: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """``(F,)`` each triangle's ``area (F,)`` over its longest edge squared, from its ``(F, 3, D)`` corners (2-D or
+    3-D): about 0.43 for an equilateral triangle, 0 for corners in a row."""
+    longest = ((corners[:, [1, 2, 0]] - corners) ** 2).sum(axis=2).max(axis=1)
+    return np.divide(area, longest, out=np.zeros_like(area, dtype=np.float64), where=longest > 0)
