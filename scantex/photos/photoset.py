@@ -38,8 +38,10 @@ IMAGE_CACHE_MB = 256
 
 class ImageCache:
     """The most recently decoded photos, up to ``budget_mb`` of pixels, shared by a :class:`PhotoSet` and
-    the sets made from it (:meth:`PhotoSet.subset`, refined cameras): keyed by file, its size and its time
-    of change (a file written again is read again), safe across threads. Its images are read-only."""
+    the sets made from it (:meth:`PhotoSet.subset`, refined cameras): keyed by what the file is read as (a
+    photo, a depth map: a frame whose depth map names a photo's file gets that file's pixels checked as a
+    depth map, not the photo), the file, its size and its time of change (a file written again is read
+    again), safe across threads. Its images are read-only."""
 
     def __init__(self, budget_mb: float = IMAGE_CACHE_MB):
         from collections import OrderedDict
@@ -50,12 +52,12 @@ class ImageCache:
         self._lock = threading.Lock()
 
     @staticmethod
-    def _key(path: Path) -> tuple | None:
+    def _key(path: Path, kind: str) -> tuple | None:
         try:
             stat = path.stat()
         except OSError:
             return None
-        return path, stat.st_size, stat.st_mtime_ns
+        return kind, path, stat.st_size, stat.st_mtime_ns
 
     def __getstate__(self) -> dict:
         # pickled (a photo set sent to another process) as an empty cache of the same budget: a lock does not
@@ -72,16 +74,16 @@ class ImageCache:
             self._images.move_to_end(key)
         return image
 
-    def get(self, path: Path) -> np.ndarray | None:
-        key = self._key(path)
+    def get(self, path: Path, kind: str = "photo") -> np.ndarray | None:
+        key = self._key(path, kind)
         with self._lock:
             return self._used(key)
 
-    def get_or_decode(self, path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
-        """The image of ``path``: the cache's, or ``decode()``'s, kept. A thread asking for a file another
-        thread is decoding waits for that decode instead of repeating it (:meth:`PhotoSet.prefetch` decodes
-        ahead of the stages)."""
-        key = self._key(path)
+    def get_or_decode(self, path: Path, decode: Callable[[], np.ndarray], kind: str = "photo") -> np.ndarray:
+        """The image of ``path`` read as ``kind``: the cache's, or ``decode()``'s, kept. A thread asking for a
+        file another thread is decoding waits for that decode instead of repeating it (:meth:`PhotoSet.prefetch`
+        decodes ahead of the stages)."""
+        key = self._key(path, kind)
         with self._lock:
             image = self._used(key)
             if image is not None:
@@ -92,13 +94,13 @@ class ImageCache:
                 pending = self._decoding[key] = threading.Event()
         if not mine and pending is not None:
             pending.wait()
-            image = self.get(path)
+            image = self.get(path, kind)
             if image is not None:
                 return image
             # the other decode failed: this one raises its error again, where the stage asked
         try:
             image = decode()  # also where the file cannot be keyed (missing): decode says so
-            self.put(path, image)
+            self.put(path, image, kind)
             return image
         finally:
             if mine:
@@ -106,8 +108,8 @@ class ImageCache:
                     del self._decoding[key]
                 pending.set()
 
-    def put(self, path: Path, image: np.ndarray) -> None:
-        key = self._key(path)
+    def put(self, path: Path, image: np.ndarray, kind: str = "photo") -> None:
+        key = self._key(path, kind)
         if key is None or image.nbytes > self.budget:
             return
         image.flags.writeable = False
@@ -329,7 +331,7 @@ class PhotoSet:
                                       f"({raw.dtype} of shape {raw.shape})")
             return raw
 
-        return self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
+        return self.image_cache.get_or_decode(path, decode, "depth") if self.all_cached else decode()
 
 
 def _load_npy(path: Path) -> np.ndarray:

@@ -456,7 +456,7 @@ def test_prefetched_photos_and_depth_maps_are_decoded_once(tmp_path):
     thread.join(timeout=30)
     assert not thread.is_alive()
     cached = [photos.image_cache.get(tmp_path / f"{k}.png") for k in range(3)]
-    depths = [photos.image_cache.get(tmp_path / f"d{k}.png") for k in range(3)]
+    depths = [photos.image_cache.get(tmp_path / f"d{k}.png", "depth") for k in range(3)]
     for k in range(3):
         assert photos.load_image(k) is cached[k] and cached[k][0, 0, 0] == 40 * k
         # the cache keeps the map's integers; each read is in metres, at the set's own scale
@@ -526,6 +526,12 @@ def test_float_depth_maps_are_read_in_metres(tmp_path):
     broken = dataclasses.replace(bad, depths=(tmp_path / "broken.npy",))
     with pytest.raises(ScanError, match="cannot read the depth map"):
         broken.load_depth(0)
+    # a depth map naming the photo's own file, read after the photo (which the cache then holds): the file is
+    # checked as a depth map, not handed over as the photo's pixels (a stage crashed on them)
+    mixed = dataclasses.replace(bad, depths=(tmp_path / "p.png",))
+    mixed.load_image(0)
+    with pytest.raises(ScanError, match=r"p\.png.*not a single-channel"):
+        mixed.load_depth(0)
 
 
 def test_integer_depth_in_other_units_is_written_in_millimetres(tmp_path):
