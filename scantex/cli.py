@@ -874,6 +874,29 @@ def build_parser() -> argparse.ArgumentParser:
 GC_THRESHOLDS = (700, 10, 100)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a job scheduler stopping the run): unwound as Ctrl-C is, so that the run's work folder
+    ``OUT.partial`` goes (a run killed by SIGTERM left an empty one behind)."""
+
+
+def stop_on_sigterm() -> None:
+    """From now on SIGTERM raises :class:`Terminated` in this process. A worker process forked from it (the
+    batch's local pool) ends on SIGTERM as it would have: its pool stops it so."""
+    import os
+    import signal
+
+    pid = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise Terminated
+
+    signal.signal(signal.SIGTERM, handler)
+
+
 def run() -> None:
     """The command's entry point (``scantex``, ``python -m scantex``): :func:`main`, then the process's exit.
 
@@ -886,13 +909,18 @@ def run() -> None:
     import gc
 
     gc.set_threshold(*GC_THRESHOLDS)
-    code = main()
+    code = main(catch_sigterm=True)
     gc.freeze()
     raise SystemExit(code)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, catch_sigterm: bool = False) -> int:
+    """Run the command ``argv`` names; its exit status. With ``catch_sigterm`` (the command line's own process),
+    SIGTERM unwinds the command as Ctrl-C does (:func:`stop_on_sigterm`), except ``batch``'s: its local pool
+    would wait for the scans its workers are running, and killed outright, its workers end with it."""
     args = build_parser().parse_args(argv)
+    if catch_sigterm and args.func is not cmd_batch:
+        stop_on_sigterm()
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.ERROR if args.quiet else logging.WARNING,
                         format="%(levelname)s: %(message)s")
     try:
@@ -902,6 +930,9 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"scantex: error: {e}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("scantex: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("scantex: interrupted", file=sys.stderr)
         return 130

@@ -587,3 +587,36 @@ def test_a_texture_between_pillows_guards_is_the_one_error_line_not_a_warning_to
         warnings.simplefilter("error")  # a warning fails the test
         with pytest.raises(ScanError, match="claims 20000x20000 pixels"):
             load_scan(mesh)
+
+
+def test_sigterm_leaves_no_work_folder(tmp_path, capsys, monkeypatch):
+    """SIGTERM (``kill``, a job scheduler stopping the run) unwinds the run as Ctrl-C does: exit status 143, one
+    line, and no ``OUT.partial`` left (an empty one was); an earlier output at ``-o`` stays as it was."""
+    import signal
+    import time
+
+    import scantex.pipeline.enhance
+    from scantex.cli import stop_on_sigterm
+
+    monkeypatch.chdir(tmp_path)
+    mesh = write_cube(tmp_path / "scan")
+    config = write_tiny_config(tmp_path / "tiny.json")
+    rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "-q")
+    assert rc == 0, err
+    before = fingerprint(tmp_path / "out")
+
+    def killed(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(30)  # the signal's handler raises here
+        raise AssertionError("SIGTERM did not stop the run")
+
+    monkeypatch.setattr(scantex.pipeline.enhance, "enhance", killed)
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        stop_on_sigterm()
+        rc, err = run_cli(capsys, "enhance", mesh, "-o", tmp_path / "out", "--config", config, "--overwrite", "-q")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert rc == 143 and err.strip() == "scantex: terminated", err
+    assert not (tmp_path / "out.partial").exists()
+    assert fingerprint(tmp_path / "out") == before
