@@ -93,6 +93,11 @@ def pixel_count(value, key: str, where: Path, what: str) -> int:
 #: a few per cent of it, and intrinsics for an image twice the photo's size put it at the photo's edge
 MAX_PRINCIPAL_OFFSET = 0.4
 
+#: a principal point this near the centre of the image turned by 90 degrees (a share of its sides), and farther
+#: than :data:`TURNED_OFFSET` from the centre of the image as it is, says the photo was turned after capture (a
+#: phone's portrait photo saved upright, its intrinsics for the sensor's landscape grid)
+TURNED_NEAR, TURNED_OFFSET = 0.05, 0.15
+
 
 def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tuple[int, int]:
     """Check a pinhole camera's ``K`` and image size; returns ``(width, height)`` as ints."""
@@ -107,6 +112,11 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tu
         raise ScanError(where, f"{what}: intrinsics {K.tolist()} are not of the form "
                                "[[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
     off = np.abs(K[:2, 2] - [(width - 1) / 2, (height - 1) / 2]) / [width, height]
+    turned = np.abs(K[:2, 2] - [(height - 1) / 2, (width - 1) / 2]) / [height, width]
+    if width != height and (off > TURNED_OFFSET).any() and (turned < TURNED_NEAR).all():
+        raise ScanError(where, f"{what}: the intrinsics are for a {height}x{width} image, the photo is "
+                               f"{width}x{height}: it was turned by 90 degrees after capture (a portrait photo "
+                               "saved upright?); give the photo as the camera recorded it")
     if (off > MAX_PRINCIPAL_OFFSET).any():
         raise ScanError(where, f"{what}: the principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies at or past the "
                                f"edge of the {width}x{height} image: the intrinsics are for another image size "

@@ -397,8 +397,20 @@ def bad_intrinsics_of_another_size(tmp_path):
     return tmp_path / "app", "the intrinsics are for another image size"
 
 
+def bad_photo_turned(tmp_path):
+    """A photo turned upright after capture (a phone's portrait photo), its size read from the file, its
+    intrinsics the sensor's: it had been textured from, 90 degrees off (the principal point's offset, 39 % of
+    the width, passed the check for intrinsics of another size)."""
+    cam = reference_camera()
+    blank_png(tmp_path / "a.png", w=H, h=W)
+    frame = {"image": "a.png", "K": cam.K.tolist(), "world_to_camera": cam.world_to_camera.tolist()}
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [frame]}))
+    return tmp_path, f"the intrinsics are for a {W}x{H} image, the photo is {H}x{W}: it was turned by 90 degrees"
+
+
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
-       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size]
+       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
+       bad_photo_turned]
 
 
 @pytest.mark.parametrize("case", BAD, ids=[c.__name__ for c in BAD])
