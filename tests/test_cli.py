@@ -92,13 +92,13 @@ def test_the_entry_point_exits_with_mains_code_after_freezing_the_heap(monkeypat
     from scantex import cli
 
     calls = []
-    monkeypatch.setattr(cli, "main", lambda: calls.append("main") or 3)
+    monkeypatch.setattr(cli, "main", lambda catch_sigterm: calls.append(("main", catch_sigterm)) or 3)
     monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
     monkeypatch.setattr(gc, "set_threshold", lambda *t: calls.append(t))
     with pytest.raises(SystemExit) as exit_:
         cli.run()
     # full collections made rarer for the run (Python's thresholds: 700, 10, 10)
-    assert exit_.value.code == 3 and calls == [cli.GC_THRESHOLDS, "main", "freeze"]
+    assert exit_.value.code == 3 and calls == [cli.GC_THRESHOLDS, ("main", True), "freeze"]
     assert cli.GC_THRESHOLDS[2] > gc.get_threshold()[2]
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.startswith("scantex ")
