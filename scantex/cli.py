@@ -742,7 +742,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "photos, else training")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
-                        "a mesh moved or turned out of the cameras' frame)")
+                        "a mesh moved or turned out of the cameras' frame) and the check that each photo shows "
+                        "what its camera sees (it leaves out a photo stored upside down or cropped)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "

@@ -256,6 +256,9 @@ class PhotoData:
     training photos' frame too, their G-buffers there, and their corrections (they are scored as recorded)"""
     pose_mode: str = "off"
     """``photos.refine_poses`` as applied (:func:`pose_refinement_mode`): off, input or consensus"""
+    left_out: list = field(default_factory=list)
+    """the photos left out as not showing what their cameras see
+    (:func:`scantex.photos.matching.leave_out_mismatched`)"""
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -266,6 +269,11 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
 
     report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None  # logs its summary
     train, held = split_photos(len(photos), pc.holdout, seed)
+    left_out = []
+    if pc.check_alignment:
+        from scantex.photos.matching import leave_out_mismatched
+
+        train, held, left_out = leave_out_mismatched(scan, photos, train, held, caster)
     corrections = []
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
@@ -318,7 +326,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
                                                 pc.temperature)
         final = aligned, prepare_photos(scan, judged(aligned, held_views), held, caster, pc.max_side, settings), moved
-    return PhotoData(photos, train_views, held_views, report, corrections, final, mode)
+    return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out)
 
 
 def judged(photos: PhotoSet, views) -> PhotoSet:
@@ -988,6 +996,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "pose_refinement": photo.pose_mode,
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": alignment_metrics(photo.alignment),
+        "left_out": photo.left_out,
     }}
     if photo.held_out:
         # where the training photos' poses were refined, each held-out photo's pose is aligned too, to each texture

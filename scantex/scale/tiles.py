@@ -39,7 +39,7 @@ import math
 import socket
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -202,6 +202,8 @@ class TilePhotos:
         alignment: the alignment check's report (``None`` when it was skipped).
         px_per_cm: how finely the training photos resolve the surface (:func:`scantex.pipeline.enhance.photo_density`'s
             measure, from the ray casts of :func:`tiles_seen`).
+        left_out: the photos left out as not showing what their cameras see
+            (:func:`scantex.photos.matching.leave_out_mismatched`).
     """
 
     photos: PhotoSet
@@ -214,6 +216,7 @@ class TilePhotos:
     corrections: list
     alignment: object | None
     px_per_cm: float = 0.0
+    left_out: list = field(default_factory=list)
 
     def for_tile(self, tile: int) -> PhotoSet | None:
         """Tile ``tile``'s training photos, their pixels that other tiles hide masked (``None``: no photo sees
@@ -253,6 +256,11 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
     pc = config.photos
     report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
     train, held = split_photos(len(photos), pc.holdout, config.seed)
+    left_out = []
+    if pc.check_alignment:
+        from scantex.photos.matching import leave_out_mismatched
+
+        train, held, left_out = leave_out_mismatched(scan, photos, train, held, caster)
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
     corrections: list = []
     # the stage's progress counts the training photos refined (input mode), then each one cast
@@ -265,7 +273,7 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
                                                     pc.depth_tolerance,
                                                     update and (lambda done, total: update(first + done, steps)))
     log.info("photos per tile: %s", [len(p) for p in per_tile])
-    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report, density)
+    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report, density, left_out)
 
 
 def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, max_side: int,
@@ -708,7 +716,7 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
         "train": photos.train.tolist(), "held_out": photos.held_out.tolist(),
         "per_tile": [len(p) for p in photos.per_tile],
         "pose_refinement": photos.pose_mode, "pose_corrections": [c.to_dict() for c in photos.corrections],
-        "alignment": alignment_metrics(photos.alignment),
+        "alignment": alignment_metrics(photos.alignment), "left_out": photos.left_out,
         "final_texture": {"photos": len(photos.train), "mode": "training", "setting": pc.final,
                           "note": "tiles write the texture the held-out photos score: the training photos'"},
     }}

@@ -229,6 +229,26 @@ def test_photos_of_another_place_are_refused(toy_demo, toy_photos):
         enhance(away, TOY, photos=toy_photos)
 
 
+def test_a_photo_stored_upside_down_is_left_out(tmp_path, toy_demo, toy_photos, monkeypatch):
+    """It passes every check of its file and camera, and was blended into the texture turned; now it is left out
+    of the texture and of the score, and metrics.json names it."""
+    from PIL import Image
+
+    import scantex.photos.alignment
+
+    turned = tmp_path / "turned.png"
+    Image.open(toy_photos.images[3]).rotate(180).save(turned)
+    photos = dataclasses.replace(toy_photos, images=(*toy_photos.images[:3], turned, *toy_photos.images[4:]))
+    # the alignment check misjudges this toy capture (see photo_result); the photos' own check runs with it
+    monkeypatch.setattr(scantex.photos.alignment, "require_alignment", lambda *args, **kwargs: None)
+    result = enhance(toy_demo.scan, TOY, photos=photos)
+    m = result.metrics
+    assert [d["photo"] for d in m["photos"]["left_out"]] == [3] and "upside down" in m["photos"]["left_out"][0]["why"]
+    assert 3 not in m["photos"]["train"] + m["photos"]["held_out"]
+    assert len(m["photos"]["train"]) + len(m["photos"]["held_out"]) == 9
+    assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
+
+
 def test_cli_photos(tmp_path, toy_demo, toy_photos):
     save_scan(toy_demo.scan, tmp_path / "scan.obj")
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))

@@ -1,0 +1,151 @@
+"""Does each photo show what its camera sees? Checked against the scan's own texture.
+
+A photo stored upside down, cropped after capture, or another frame's image under this frame's camera passes
+every check of its file and its camera (the size agrees, the intrinsics are plausible), and the texture then
+blends it in as a ghost of the scene turned or shifted: on the bolster, one photo of 12 turned by 180 degrees
+changed 92,000 of its atlas's texels by more than 20 levels, and the held-out score did not show it. A textured
+scan was most likely made from these very photos, so its texture seen through each camera is what the photo
+shows, up to exposure (fitted away: a correlation) and a pose a few pixels off (both images blurred by more).
+
+Each photo's agreement is the correlation of the photo's grey with the texture's grey rendered through its
+camera, at a small working size, over the pixels where the mesh covers the view (not its contours, not the
+texture's black holes). A photo is left out, with a warning, when it agrees much less than the others do
+(under :data:`MISMATCH_SHARE` of their median, where that is at least :data:`OTHERS_AGREE`), or when turned by
+180 degrees it agrees far better than as stored. A view with too little of the texture's contrast in it (a blank
+wall) gets no verdict. Where the texture is not the photos' (a texture painted by hand, a capture's
+photos of a scene since changed) no photo agrees and none is left out: the check judges a photo against the
+others, not against a fixed bar alone. An untextured scan has nothing to check the photos against here.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.photoset import PhotoSet
+from scantex.scan import Scan
+from scantex.views.raycast import RayCaster
+
+log = logging.getLogger(__name__)
+
+#: the check's working size (the longer side, pixels): it compares the scene's layout, not its detail
+MATCH_SIDE = 320
+#: the blur (sigma, working pixels) of both images: a pose a few full-resolution pixels off still agrees
+MATCH_BLUR = 2.0
+#: fewest pixels the mesh covers in a view, and the least contrast (standard deviation of the texture's blurred
+#: grey there: the bolster's views 0.10-0.12, the façade's 0.16-0.19), for a verdict on it: a view of a blank
+#: wall agrees by its shading alone, and is kept whatever it shows
+MIN_PIXELS, MIN_CONTRAST = 2000, 0.04
+#: a photo agreeing less than MISMATCH_SHARE of the other photos' median agreement, where that is at least
+#: OTHERS_AGREE, does not show what its camera sees (measured: the bolster's 14 photos agree 0.90-0.97 at their
+#: recorded poses, the façade's 10 0.85-0.89; one turned by 180 degrees 0.08, one cropped to 3/4 of its width 0.30)
+MISMATCH_SHARE, OTHERS_AGREE = 0.5, 0.6
+#: a photo that, turned by 180 degrees, agrees at least FLIPPED_AGREES and FLIPPED_MARGIN more than as stored
+#: is upside down (the bolster's photos turned: -0.16 to 0.49; the one stored upside down, turned back: 0.96)
+FLIPPED_AGREES, FLIPPED_MARGIN = 0.5, 0.3
+
+
+@dataclass(frozen=True)
+class PhotoMatch:
+    """How well photo ``photo`` agrees with the scan's texture seen through its camera."""
+
+    photo: int
+    pixels: int
+    """pixels of the working-size view the comparison used"""
+    agreement: float | None
+    """correlation of the photo's grey with the texture's, in [-1, 1]; ``None``: no verdict (under
+    :data:`MIN_PIXELS`, or :data:`MIN_CONTRAST`)"""
+    turned: float | None
+    """the same with the photo turned by 180 degrees"""
+
+    def to_dict(self) -> dict:
+        return {"photo": self.photo, "pixels": self.pixels,
+                "agreement": None if self.agreement is None else round(self.agreement, 3),
+                "turned_180": None if self.turned is None else round(self.turned, 3)}
+
+
+def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> PhotoMatch:
+    """Photo ``i``'s agreement with ``scan``'s texture seen through its camera (see the module docstring)."""
+    from scipy import ndimage
+
+    from scantex.io.images import box_downscaled
+    from scantex.photos.training import working_camera
+    from scantex.views.render import render
+
+    camera = working_camera(photos.cameras[i], MATCH_SIDE)
+    texture, alpha = render(scan, camera, caster)
+    # whole pixels of the surface, away from its contours (where a pose a little off sees the background)
+    usable = ndimage.binary_erosion(alpha >= 0.999, iterations=2) & (texture.max(axis=-1) > 0.02)
+    pixels = int(usable.sum())
+    reference = _grey(texture)[usable]
+    if pixels < MIN_PIXELS or reference.std() < MIN_CONTRAST:
+        return PhotoMatch(i, pixels, None, None)
+    image = photos.load_image(i)
+    if image.shape[1::-1] != (camera.width, camera.height):
+        image = box_downscaled(image, camera.width, camera.height)
+    grey = _grey(image.astype(np.float32) / 255.0)
+    turned = grey[::-1, ::-1]
+    return PhotoMatch(i, pixels, _correlation(grey[usable], reference), _correlation(turned[usable], reference))
+
+
+def mismatched(matches: Sequence[PhotoMatch]) -> dict[int, str]:
+    """``{photo: why}`` for the photos of ``matches`` that do not show what their cameras see."""
+    found = {}
+    judged = [m for m in matches if m.agreement is not None]
+    for m in judged:
+        others = np.median([o.agreement for o in judged if o.photo != m.photo]) if len(judged) >= 3 else -1.0
+        if m.turned >= FLIPPED_AGREES and m.turned >= m.agreement + FLIPPED_MARGIN:
+            found[m.photo] = (f"turned by 180 degrees it agrees with the scan's texture {m.turned:.2f}, as stored "
+                              f"{m.agreement:.2f}: stored upside down?")
+        elif others >= OTHERS_AGREE and m.agreement < MISMATCH_SHARE * others:
+            found[m.photo] = (f"it agrees with the scan's texture {m.agreement:.2f}, the other photos {others:.2f} "
+                              "(median): another frame's photo, or cropped or turned after capture?")
+    return found
+
+
+def leave_out_mismatched(scan: Scan, photos: PhotoSet, train: np.ndarray, held: np.ndarray,
+                         caster: RayCaster) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """``(train, held, left_out)``: the training and held-out photo indices without the photos that do not show
+    what their cameras see (each named in a warning), and those, as ``PhotoMatch.to_dict`` with ``why``, for
+    metrics.json. Every photo of a textured scan is checked; an untextured scan's are kept as they are.
+
+    Raises:
+        ScanError: no training photo is left.
+    """
+    if not scan.is_textured:
+        return train, held, []
+    from scantex.threads import side_by_side
+
+    indices = [int(i) for i in (*train, *held)]
+    matches = list(side_by_side(lambda i: photo_match(scan, photos, i, caster), indices))
+    found = mismatched(matches)
+    for i, why in found.items():
+        log.warning("%s: photo %d does not show what its camera sees (%s): left out", photos.images[i], i, why)
+    if not found:
+        return train, held, []
+    kept_train = np.array([i for i in train if int(i) not in found], dtype=np.asarray(train).dtype)
+    if not len(kept_train):
+        raise ScanError(photos.source, "no training photo shows what its camera sees (each disagrees with the "
+                                       "scan's texture): are these the capture's photos and poses?")
+    kept_held = np.array([i for i in held if int(i) not in found], dtype=np.asarray(held).dtype)
+    left_out = [{**m.to_dict(), "image": str(photos.images[m.photo]), "why": found[m.photo]}
+                for m in matches if m.photo in found]
+    return kept_train, kept_held, left_out
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    """``(H, W) float32``: the blurred luma of an ``(H, W, 3)`` image in [0, 1]."""
+    from scipy import ndimage
+
+    luma = image @ np.array([0.299, 0.587, 0.114], np.float32)
+    return ndimage.gaussian_filter(luma, MATCH_BLUR)
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    norm = float(np.sqrt((a * a).sum() * (b * b).sum()))
+    return float((a * b).sum() / norm) if norm > 0 else 0.0

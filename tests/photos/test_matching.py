@@ -1,0 +1,93 @@
+"""Each photo shows what its camera sees: a photo stored upside down, or another frame's, is left out."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scantex.errors import ScanError
+from scantex.photos.matching import leave_out_mismatched, mismatched, photo_match
+from scantex.scan import Scan
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from tests.conftest import shared_scan
+from tests.photos.test_alignment import partial_wall_scan
+
+
+def wall_and_photos(tmp_path):
+    part, photos = partial_wall_scan(tmp_path)
+    return part, photos, RayCaster(part.positions, part.faces)
+
+
+def test_photos_that_show_their_cameras_views_are_kept(tmp_path):
+    part, photos, caster = wall_and_photos(tmp_path)
+    matches = [photo_match(part, photos, i, caster) for i in range(len(photos))]
+    assert all(m.agreement > 0.9 and m.turned < 0.5 and m.pixels >= 2000 for m in matches), matches
+    assert mismatched(matches) == {}
+    train, held, left_out = leave_out_mismatched(part, photos, np.array([0, 1, 2]), np.array([3]), caster)
+    assert train.tolist() == [0, 1, 2] and held.tolist() == [3] and left_out == []
+
+
+def test_a_photo_upside_down_or_cropped_is_left_out(tmp_path, caplog):
+    """Photo 1 stored turned by 180 degrees; photo 3 cropped to its middle 3/4 after capture, its intrinsics as
+    recorded (its size read from the file): each passes every check of file and camera."""
+    part, photos, caster = wall_and_photos(tmp_path)
+    turned, cropped = tmp_path / "turned.png", tmp_path / "cropped.png"
+    Image.open(photos.images[1]).rotate(180).save(turned)
+    Image.open(photos.images[3]).crop((20, 0, 140, 120)).save(cropped)
+    camera = photos.cameras[3]
+    bad = dataclasses.replace(photos, images=(photos.images[0], turned, photos.images[2], cropped),
+                              cameras=(*photos.cameras[:3], Camera(camera.K, camera.world_to_camera, 120, 120)))
+    with caplog.at_level(logging.WARNING):
+        train, held, left_out = leave_out_mismatched(part, bad, np.array([0, 1, 2]), np.array([3]), caster)
+    assert train.tolist() == [0, 2] and held.tolist() == []
+    assert [d["photo"] for d in left_out] == [1, 3]
+    assert "upside down" in left_out[0]["why"] and left_out[0]["turned_180"] > 0.9
+    assert "cropped or turned after capture" in left_out[1]["why"] and left_out[1]["agreement"] < 0.3
+    assert "turned.png: photo 1 does not show what its camera sees" in caplog.text
+    assert "cropped.png: photo 3 does not show" in caplog.text
+
+
+def test_no_verdict_without_the_textures_contrast_or_a_texture(tmp_path):
+    """A view of a blank wall agrees by its shading alone: kept whatever it shows. An untextured scan has no
+    texture to check the photos against: all kept."""
+    part, photos, caster = wall_and_photos(tmp_path)
+    material = part.materials[0]
+    blank = dataclasses.replace(part, materials=(dataclasses.replace(material, image=np.full_like(material.image, 128)),))
+    assert all(photo_match(blank, photos, i, caster).agreement is None for i in range(len(photos)))
+    bare = Scan(positions=part.positions, faces=part.faces)
+    assert not bare.is_textured
+    train, held, left_out = leave_out_mismatched(bare, photos, np.array([0, 1]), np.array([2, 3]), caster)
+    assert train.tolist() == [0, 1] and held.tolist() == [2, 3] and left_out == []
+
+
+def test_no_training_photo_left_is_one_clear_line(tmp_path):
+    part, photos, caster = wall_and_photos(tmp_path)
+    turned = []
+    for i in range(2):
+        turned.append(tmp_path / f"turned{i}.png")
+        Image.open(photos.images[i]).rotate(180).save(turned[-1])
+    bad = dataclasses.replace(photos, images=(*turned, *photos.images[2:]))
+    with pytest.raises(ScanError, match="no training photo shows what its camera sees"):
+        leave_out_mismatched(part, bad, np.array([0, 1]), np.array([2, 3]), caster)
+
+
+def test_bolster_photos_match_and_one_turned_is_found(tmp_path):
+    """The real Kinect capture and its app-style texture: every photo agrees at its recorded pose (0.90-0.97);
+    one stored upside down is found."""
+    from scantex.io import load_scan
+    from scantex.photos import load_photos
+
+    folder = shared_scan("bolster_rgbd_posed")
+    scan = load_scan(folder / "app_style_input" / "bolster_app_style.obj")
+    photos = load_photos(folder)
+    caster = RayCaster(scan.positions, scan.faces)
+    matches = [photo_match(scan, photos, i, caster) for i in range(len(photos))]
+    assert min(m.agreement for m in matches) > 0.8 and mismatched(matches) == {}
+    Image.open(photos.images[5]).rotate(180).save(tmp_path / "turned.jpg")
+    bad = dataclasses.replace(photos, images=(*photos.images[:5], tmp_path / "turned.jpg", *photos.images[6:]))
+    assert list(mismatched([*matches[:5], photo_match(scan, bad, 5, caster), *matches[6:]])) == [5]
