@@ -359,8 +359,12 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
         distance = report.edge_distance_px
         detail = (f"median edge distance {distance:.1f} px at {max(report.photos[0].size)} px"
                   if np.isfinite(distance) else "median edge distance: no mesh edges in the photos")
-        raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; "
-                                       "--no-alignment-check to go on anyway)")
+        # the same misfit comes of cameras described wrongly: intrinsics for another image size, camera-to-world
+        # poses given as world-to-camera (an audit's K scaled by 2/3 read "39 cm and 44 degrees away")
+        raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; if the "
+                                       "mesh is where the capture left it, check the cameras: intrinsics for the "
+                                       "photos' own size, poses world-to-camera; --no-alignment-check to go on "
+                                       "anyway)")
     return report
 
 

@@ -67,6 +67,8 @@ def test_mesh_far_away_fails(tmp_path):
     message = str(err.value)
     assert message.startswith(f"{photos.source}: the mesh is not in the cameras' frame")
     assert "projects outside 4 of the 4 photos" in message and "median edge distance" in message
+    # cameras described wrongly misfit the same way: the message names them too
+    assert "check the cameras: intrinsics for the photos' own size, poses world-to-camera" in message
     assert "\n" not in message
 
 
