@@ -15,12 +15,17 @@ Conventions: scantex's own, so no conversion at all.
   image's size.
 - ``distortion`` (optional, written by :func:`write_cameras_json` when a photo has one): ``{"model",
   "radial", "tangential", "radial_denominator"}`` as in :class:`~scantex.photos.photoset.Distortion`.
-- Other keys (``split``, the bolster's ``R`` and ``C``, ...) are ignored.
+- A frame without ``world_to_camera`` may give the pose as ``R`` (3x3, world to camera) and ``C`` (the camera's
+  centre in the world: ``t = -R C``) or ``t``, as the bolster's file also does beside ``world_to_camera``.
+  Where a frame gives both, ``world_to_camera`` is used, with a warning when ``R`` and ``C`` are another pose
+  (beyond a millimetre and a thousandth of a radian).
+- Other keys (``split``, ...) are ignored.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -37,15 +42,43 @@ from scantex.photos.files import check_sizes, copy_into, load_frames_file, need,
 from scantex.photos.photoset import DEPTH_SCALE_MM, Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
+log = logging.getLogger(__name__)
+
 FORMAT = "cameras.json"
 CONVENTION = ("OpenCV: x_cam = R X + t, +x right, +y down, +z forward; pixel = K x_cam / z with (0, 0) "
               "the centre of the top-left pixel; depth PNG uint16 millimetres (a float map: metres)")
 
 
 def is_cameras_json(doc) -> bool:
+    """A document of frames with a pose or intrinsics in this layout (a frame missing the rest is then refused
+    naming what it misses, not as a file of no known layout)."""
     frames = doc.get("frames") if isinstance(doc, dict) else None
     return isinstance(frames, list) and bool(frames) and isinstance(frames[0], dict) \
-        and "world_to_camera" in frames[0]
+        and any(key in frames[0] for key in ("world_to_camera", "R", "K"))
+
+
+def frame_pose(frame: dict, where: Path, what: str) -> tuple[np.ndarray, bool]:
+    """``((4, 4) world-to-camera, disagrees)`` of a frame: its ``world_to_camera``, else its ``R`` and ``C`` (or
+    ``t``); ``disagrees``: the frame gives both, and its ``R`` and ``C`` are another pose (or no pose at all)."""
+    if "R" not in frame or ("C" not in frame and "t" not in frame):
+        return check_pose(need(frame, "world_to_camera", where, what), where, what), False
+    try:
+        R = np.asarray(frame["R"], dtype=np.float64)
+        t = np.asarray(frame["t"], dtype=np.float64) if "t" in frame else -R @ np.asarray(frame["C"], dtype=np.float64)
+        other = np.eye(4)
+        other[:3, :3], other[:3, 3] = R, t
+    except (TypeError, ValueError):
+        other = None
+    if "world_to_camera" not in frame:
+        if other is None:
+            raise ScanError(where, f"{what}: R and {'t' if 't' in frame else 'C'} are not a 3x3 matrix and a "
+                                   "3-vector of numbers")
+        return check_pose(other, where, what), False
+    w2c = check_pose(frame["world_to_camera"], where, what)
+    scale = max(1.0, float(np.abs(w2c[:3, 3]).max()))
+    agree = (other is not None and np.isfinite(other).all() and np.abs(other[:3, :3] - w2c[:3, :3]).max() <= 1e-3
+             and np.abs(other[:3, 3] - w2c[:3, 3]).max() <= 1e-3 * scale)
+    return w2c, not agree
 
 
 def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
@@ -57,10 +90,12 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
     path, doc, frames = load_frames_file(path, "cameras.json", "")
     base = path.parent
     cameras, images, depths, distortions = [], [], [], []
+    disagreeing = 0
     for i, frame in enumerate(frames):
         what = f"frame {i}"
         image = resolve_file(base, str(need(frame, "image", path, what)), path, f"{what}'s image")
-        w2c = check_pose(need(frame, "world_to_camera", path, what), path, what)
+        w2c, disagrees = frame_pose(frame, path, what)
+        disagreeing += disagrees
         try:
             K = np.asarray(need(frame, "K", path, what), dtype=np.float64)
         except (TypeError, ValueError):
@@ -80,6 +115,9 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
         depth = frame.get("depth")
         depths.append(None if depth is None else resolve_file(base, str(depth), path, f"{what}'s depth"))
     check_sizes(cameras, images, path)
+    if disagreeing:
+        log.warning("%s: %d of %d frames give R and C (or t) of another pose than their world_to_camera: "
+                    "world_to_camera is used", path, disagreeing, len(frames))
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=path,
                     format=FORMAT, distortions=tuple(distortions))
 

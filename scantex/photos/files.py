@@ -14,8 +14,12 @@ from scantex.views.camera import Camera
 
 def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
     """``name`` relative to ``base`` (absolute names kept); a ScanError when there is no such file."""
+    if not name.strip():
+        raise ScanError(where, f"{what}: no file named (an empty path)")
     path = Path(name)
     path = path if path.is_absolute() else base / path
+    if path.is_dir():
+        raise ScanError(where, f"{what}: {path} is a folder, not a file")
     if not path.is_file():
         raise ScanError(where, f"{what}: {path} does not exist")
     return path
@@ -42,7 +46,7 @@ def load_json(path: Path):
     import json
 
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return json.loads(path.read_text(encoding="utf-8-sig"))  # -sig: a byte-order mark (Windows' editors) read too
     except json.JSONDecodeError as e:
         raise ScanError(path, f"not valid JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
     except UnicodeDecodeError:

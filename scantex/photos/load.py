@@ -42,11 +42,16 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         if cameras_json.is_cameras_json(doc):
             return cameras_json.FORMAT, path
         frames = doc.get("frames") if isinstance(doc, dict) else None
+        if frames == []:
+            raise ScanError(path, "its 'frames' list is empty: no photos")
         if name == "transforms.json" or (isinstance(frames, list) and frames
                                          and isinstance(frames[0], dict) and "transform_matrix" in frames[0]):
             return nerfstudio.FORMAT, path
         raise ScanError(path, f"a JSON file of no known camera layout: expected {LAYOUTS}")
     if (path / "transforms.json").is_file():
+        if (path / "cameras.json").is_file():
+            log.warning("%s holds transforms.json and cameras.json: reading transforms.json (name the file to "
+                        "read the other)", path)
         return nerfstudio.FORMAT, path / "transforms.json"
     if (path / "cameras.json").is_file():
         return cameras_json.FORMAT, path / "cameras.json"

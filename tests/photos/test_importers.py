@@ -227,6 +227,7 @@ def test_polycam_convention(tmp_path):
 
 
 def test_cameras_json_convention_is_scantex_own(tmp_path):
+    """world_to_camera is the pose; R and C of no pose beside it are not read as one."""
     blank_png(tmp_path / "a.png")
     ref = reference_camera()
     frame = {"image": "a.png", **ref.to_dict(), "R": "ignored", "C": [0, 0, 0]}
@@ -408,9 +409,66 @@ def bad_photo_turned(tmp_path):
     return tmp_path, f"the intrinsics are for a {W}x{H} image, the photo is {H}x{W}: it was turned by 90 degrees"
 
 
+def cameras_file(tmp_path, **changes):
+    """A one-frame cameras.json of the reference camera, its frame's keys changed (``None``: removed)."""
+    blank_png(tmp_path / "a.png")
+    frame = {"image": "a.png", **reference_camera().to_dict()}
+    frame.update(changes)
+    frame = {k: v for k, v in frame.items() if v is not None}
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [frame]}))
+    return tmp_path / "cameras.json"
+
+
+def bad_empty_frames(tmp_path):
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": []}))
+    return tmp_path / "cameras.json", "its 'frames' list is empty"
+
+
+def bad_frame_without_pose(tmp_path):
+    """Was "a JSON file of no known camera layout": the file's layout is known, a frame misses its pose."""
+    return cameras_file(tmp_path, world_to_camera=None), "frame 0: missing 'world_to_camera'"
+
+
+def bad_empty_image_path(tmp_path):
+    return cameras_file(tmp_path, image=""), "frame 0's image: no file named"
+
+
+def bad_image_path_a_folder(tmp_path):
+    (tmp_path / "sub").mkdir()
+    return cameras_file(tmp_path, image="sub"), "sub is a folder, not a file"
+
+
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
        bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
-       bad_photo_turned]
+       bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
+       bad_image_path_a_folder]
+
+
+def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
+    """A frame may give its pose as R and C (the camera's centre; or t) alone, as the bolster's file does beside
+    world_to_camera; a file saved with a byte-order mark (Windows' editors) is read; a folder holding both a
+    transforms.json and a cameras.json says which it reads."""
+    import logging
+
+    cam = reference_camera()
+    path = cameras_file(tmp_path, world_to_camera=None, R=cam.R.tolist(), C=[0.0, -4.0, 0.0])
+    assert_reference(load_photos(path))
+    path.write_text(json.dumps({"frames": [{"image": "a.png", **cam.to_dict(), "R": cam.R.tolist(),
+                                            "t": cam.t.tolist()}]}), encoding="utf-8-sig")
+    assert path.read_bytes().startswith(b"\xef\xbb\xbf")
+    assert_reference(load_photos(path))
+    # both, of two poses: world_to_camera is used, and the warning says so (it had been taken silently)
+    cameras_file(tmp_path, R=cam.R.tolist(), C=[0.0, -4.0, 0.5])
+    with caplog.at_level(logging.WARNING):
+        assert_reference(load_photos(path))
+    assert "1 of 1 frames give R and C (or t) of another pose than their world_to_camera" in caplog.text
+    caplog.clear()
+    nerfstudio = {"fl_x": 50, "fl_y": 40, "cx": 24, "cy": 18, "w": W, "h": H,
+                  "frames": [{"file_path": "a.png", "transform_matrix": GL_C2W}]}
+    (tmp_path / "transforms.json").write_text(json.dumps(nerfstudio))
+    with caplog.at_level(logging.WARNING):
+        assert load_photos(tmp_path).format == "nerfstudio"
+    assert "holds transforms.json and cameras.json: reading transforms.json" in caplog.text
 
 
 @pytest.mark.parametrize("case", BAD, ids=[c.__name__ for c in BAD])
