@@ -924,6 +924,58 @@ def main(argv: list[str] | None = None, *, catch_sigterm: bool = False) -> int:
         stop_on_sigterm()
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.ERROR if args.quiet else logging.WARNING,
                         format="%(levelname)s: %(message)s")
+    repeated = None if args.debug else RepeatedWarnings.attach()
+    try:
+        return run_command(args)
+    finally:
+        if repeated is not None:
+            repeated.detach()
+
+
+class RepeatedWarnings(logging.Filter):
+    """Shows the first :attr:`SHOWN` log records of each kind (a module's message, whatever its values) and
+    counts the rest, said in one line at the end: a capture's hundred depth maps in centimetres gave a hundred
+    lines of the same warning, each photo's. ``--debug`` shows every one."""
+
+    SHOWN = 3
+
+    def __init__(self):
+        super().__init__()
+        from collections import Counter
+
+        self.counts: Counter = Counter()
+        self.first: dict = {}
+
+    @classmethod
+    def attach(cls) -> RepeatedWarnings:
+        repeated = cls()
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(repeated)
+        return repeated
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        shown = getattr(record, "scantex_shown", None)  # decided by another handler already: counted once
+        if shown is None:
+            key = (record.name, str(record.msg))
+            self.counts[key] += 1
+            self.first.setdefault(key, record)
+            shown = record.scantex_shown = self.counts[key] <= self.SHOWN
+        return shown
+
+    def detach(self) -> None:
+        for handler in logging.getLogger().handlers:
+            handler.removeFilter(self)
+        for key, n in self.counts.items():
+            if n > self.SHOWN:
+                first = self.first[key]
+                words = first.getMessage().split()
+                gist = " ".join(words[1:12] if words and words[0].endswith(":") else words[:11])
+                print(f"{first.levelname}: {n - self.SHOWN} more like \"{gist} ...\" (--debug shows each)",
+                      file=sys.stderr)
+
+
+def run_command(args) -> int:
+    """The parsed command, its errors turned into one line each and an exit status."""
     try:
         return args.func(args)
     except ScanError as e:

@@ -228,3 +228,34 @@ def test_a_png_atlas_far_larger_than_the_inputs_jpeg_says_how_to_write_a_smaller
     assert "the input GLB" in line and line.endswith("--texture-format jpeg writes a smaller one")
     assert "lossless PNG" not in summary(tmp_path / "glb" / "scan.glb", "h", "--texture-format", "jpeg")
     assert "losslessly" not in summary(tmp_path / "app" / "scan.obj", "c", "--texture-format", "jpeg")
+
+
+def test_repeated_warnings_are_counted_not_each_shown(capsys):
+    """A warning of one kind (one module's message, whatever its values) is shown 3 times, the rest counted in
+    one line at the end: a capture's hundred depth maps in centimetres gave a hundred lines of one warning."""
+    import io
+    import logging
+
+    from scantex.cli import RepeatedWarnings
+
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    log = logging.getLogger("scantex.photos.training")
+    try:
+        repeated = RepeatedWarnings.attach()
+        for k in range(7):
+            log.warning("%s: the depth map is %.4g times the mesh's depth", f"d{k}.png", 0.1 + k / 1000)
+        log.warning("another warning")
+        repeated.detach()
+        log.warning("%s: the depth map is %.4g times the mesh's depth", "after.png", 0.1)  # detached: shown
+    finally:
+        root.removeHandler(handler)
+    shown = stream.getvalue().splitlines()
+    first = [f"WARNING: d{k}.png: the depth map is {0.1 + k / 1000:.4g} times the mesh's depth" for k in range(3)]
+    after = "WARNING: after.png: the depth map is 0.1 times the mesh's depth"
+    assert shown == [*first, "WARNING: another warning", after]
+    assert capsys.readouterr().err.strip() == \
+        'WARNING: 4 more like "the depth map is 0.1 times the mesh\'s depth ..." (--debug shows each)'
