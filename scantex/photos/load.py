@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from scantex.errors import ScanError
 from scantex.photos import cameras_json, colmap, nerfstudio, polycam, scannerapp
 from scantex.photos.conventions import MAX_DISTORTION_PX
@@ -101,6 +103,12 @@ def without_repeats(photos: PhotoSet) -> PhotoSet:
     if len(keep) == len(photos):
         return photos
     repeated = sorted(set(range(len(photos))) - set(keep))
-    log.warning("%s: %d frames name a photo an earlier frame names (e.g. %s): each photo is used once",
-                photos.source, len(repeated), photos.images[repeated[0]].name)
+    # a copy at another pose is no copy: the file list or the poses are wrong, and the first frame's pose may be
+    # the wrong one (the photos' own check leaves the photo out if so)
+    moved = [i for i in repeated if not np.allclose(photos.cameras[i].world_to_camera,
+                                                    photos.cameras[first[photos.images[i].resolve()]].world_to_camera,
+                                                    atol=1e-6)]
+    log.warning("%s: %d frames name a photo an earlier frame names (e.g. %s)%s: each photo is used once, at its "
+                "first frame's pose", photos.source, len(repeated), photos.images[repeated[0]].name,
+                f", {len(moved)} of them at another pose" if moved else "")
     return photos.subset(keep)

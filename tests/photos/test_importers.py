@@ -267,7 +267,17 @@ def test_a_frame_listed_twice_is_used_once(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         photos = load_photos(cams)
     assert [p.name for p in photos.images] == ["p0.png", "p1.png", "p2.png"]
-    assert "2 frames name a photo an earlier frame names" in caplog.text
+    assert "2 frames name a photo an earlier frame names (e.g. p1.png): each photo" in caplog.text
+    # a copy at another pose: said so (the file list or the poses are wrong), the first frame's pose kept
+    moved = dict(doc["frames"][0])
+    moved["world_to_camera"] = [row[:3] + [row[3] + 0.1] for row in moved["world_to_camera"][:3]] + [[0, 0, 0, 1]]
+    doc["frames"] = doc["frames"][:3] + [moved]
+    cams.write_text(json.dumps(doc))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(cams)
+    assert "1 frames name a photo an earlier frame names (e.g. p0.png), 1 of them at another pose" in caplog.text
+    assert np.array_equal(photos.cameras[0].world_to_camera, np.asarray(doc["frames"][0]["world_to_camera"]))
 
 
 def test_strong_distortion_is_refused(tmp_path):
