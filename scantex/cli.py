@@ -237,8 +237,7 @@ def _enhance_capture(args, config, capture) -> int:
     if photos_path:
         from scantex.photos import load_photos
 
-        photos = load_photos(photos_path, **({} if args.max_distortion is None
-                                             else {"max_distortion_px": args.max_distortion}))
+        photos = load_photos(photos_path, **distortion_setting(args))
         if capture.extracted is not None:  # named inside the zip in messages and metrics, not where it was unpacked
             photos = dataclasses.replace(photos, source=capture.shown(photos.source))
         _echo(args, f"{capture.shown(photos_path)}: {len(photos)} photos ({photos.format})")
@@ -615,6 +614,19 @@ def texture_settings(args) -> dict:
     return {"output__texture_format": texture_format, "output__jpeg_quality": args.jpeg_quality}
 
 
+def add_distortion_option(p, photos_option: str) -> None:
+    """``--max-distortion``: enhance and compare read the photos alike."""
+    p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
+                   help=f"with {photos_option}: the largest lens distortion of the photos' camera model scantex "
+                        "ignores, in pixels it moves a pixel by (with a warning: it treats the photos as pinhole "
+                        "images); stronger distortion is refused: undistort the photos first (default: 1)")
+
+
+def distortion_setting(args) -> dict:
+    """:func:`scantex.photos.load_photos`' ``max_distortion_px`` where ``--max-distortion`` is given."""
+    return {} if args.max_distortion is None else {"max_distortion_px": args.max_distortion}
+
+
 def add_executor_options(p, job: str) -> None:
     p.add_argument("--ray", metavar="auto|ADDRESS",
                    help=f"run each {job} as a Ray task declaring its CPUs, GPUs and memory: auto (this machine's "
@@ -729,10 +741,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
-    p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
-                   help="with --photos: the largest lens distortion of the photos' camera model scantex ignores, in "
-                        "pixels it moves a pixel by (with a warning: it treats the photos as pinhole images); "
-                        "stronger distortion is refused: undistort the photos first (default: 1)")
+    add_distortion_option(p, "--photos")
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--final-texture", choices=("auto", "training", "all"), default=None,
