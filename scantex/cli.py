@@ -512,15 +512,20 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
 
 def cmd_compare(args) -> int:
     from scantex.io import load_scan
-    from scantex.metrics.compare import compare, photo_files, read_photos, summary_lines
+    from scantex.metrics.compare import compare, photo_files, summary_lines
 
     a, b = load_scan(args.a), load_scan(args.b)
+    photos = None
+    if args.cameras:
+        from scantex.photos import load_photos
+
+        photos = load_photos(args.cameras, **distortion_setting(args))
+        _echo(args, f"{args.cameras}: {len(photos)} photos ({photos.format})")
     if args.json:
         from scantex.io.atomic import check_output
 
-        cameras = [args.cameras, *photo_files(args.cameras)] if args.cameras else []
+        cameras = [args.cameras, *photo_files(photos)] if photos is not None else []
         check_output(args.json, [*a.inputs, *b.inputs, *cameras])
-    photos = read_photos(args.cameras) if args.cameras else None
     result = compare(a, b, photos=photos, n_views=args.views, samples=args.samples, seed=args.seed)
     if args.json:
         from scantex.io.atomic import atomic_files
@@ -846,9 +851,12 @@ def build_parser() -> argparse.ArgumentParser:
                                    "enhance's held-out score also fits each photo's exposure, so it differs).")
     p.add_argument("a", type=Path, help="the reference mesh (e.g. the input scan, or a ground truth)")
     p.add_argument("b", type=Path, help="the mesh measured against it (e.g. enhanced.obj)")
-    p.add_argument("--cameras", type=Path, metavar="JSON",
-                   help="cameras.json with photos (frames of image, width, height, K, world_to_camera): "
-                        "both meshes' renders are scored against the photos")
+    p.add_argument("--cameras", type=Path, metavar="PATH",
+                   help="the posed photos, read as 'enhance --photos' reads them: a nerfstudio transforms.json, a "
+                        "COLMAP model (text or binary), a 3D Scanner App or Polycam export, a cameras.json, or a "
+                        "folder holding one: both meshes' renders are scored against the photos, on the pixels A "
+                        "covers")
+    add_distortion_option(p, "--cameras")
     p.add_argument("--views", type=whole(1, 10_000), default=8,
                    help="views planned on A when there are no photos (default: 8)")
     p.add_argument("--samples", type=whole(1, 100_000_000), default=100_000,

@@ -4,16 +4,22 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from scantex.errors import ScanError
 from scantex.io import save_scan
-from scantex.metrics.compare import compare, read_photos, summary_lines
+from scantex.metrics.compare import compare, summary_lines
+from scantex.photos import load_photos
 from scantex.synth import make_wall
+from scantex.views.planning import plan_views
+from scantex.views.viewset import render_views, write_views
+from tests.io.hostile import assert_clean_error, run_cli
 
 
 @pytest.fixture(scope="module")
@@ -40,12 +46,15 @@ def test_compare_moved_vertex_and_other_layout(demo):
     assert "skipped" in r["atlas"]
 
 
-def test_read_photos_errors(tmp_path):
-    with pytest.raises(ScanError, match="cameras file not found"):
-        read_photos(tmp_path / "nope.json")
+def test_cli_compare_refuses_missing_cameras(tmp_path, capsys, demo):
+    save_scan(demo.scan, tmp_path / "scan.obj")
+    rc, err = run_cli(capsys, "compare", tmp_path / "scan.obj", tmp_path / "scan.obj", "--cameras",
+                      tmp_path / "nope.json")
+    assert_clean_error(rc, err, "nope.json", "no such file or folder")
     (tmp_path / "bad.json").write_text('{"frames": [{"image": "a.png"}]}')
-    with pytest.raises(ScanError, match="not a cameras file"):
-        read_photos(tmp_path / "bad.json")
+    rc, err = run_cli(capsys, "compare", tmp_path / "scan.obj", tmp_path / "scan.obj", "--cameras",
+                      tmp_path / "bad.json")
+    assert_clean_error(rc, err, "bad.json", "a JSON file of no known camera layout")
 
 
 def test_cli_compare_against_photos(tmp_path, demo):
@@ -69,5 +78,78 @@ def test_cli_compare_against_photos(tmp_path, demo):
     from PIL import Image
 
     Image.new("RGB", (10, 10)).save(tmp_path / "photos" / "view_000.png")
-    with pytest.raises(ScanError, match="its camera says 64x48"):
-        read_photos(tmp_path / "photos" / "cameras.json")
+    with pytest.raises(ScanError, match="frame 0: view_000.png is 10x10 but its camera is 64x48"):
+        load_photos(tmp_path / "photos" / "cameras.json")
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory, demo):
+    """The demo scan and its ground truth on disk, with 'photos': unlit renders of the truth from 4 cameras
+    (``photos/cameras.json``)."""
+    folder = tmp_path_factory.mktemp("capture")
+    save_scan(demo.scan, folder / "scan.obj")
+    save_scan(demo.ground_truth, folder / "truth.obj")
+    cameras = plan_views(demo.ground_truth, 4, width=64, height=48, fov_deg=60.0, seed=0)
+    write_views(render_views(demo.ground_truth, cameras, supersample=2), folder / "photos")
+    return folder
+
+
+def edited_capture(capture, tmp_path, edit) -> Path:
+    """A copy of ``capture`` whose ``photos/cameras.json`` frames are ``edit(frames)``; returns the copy."""
+    shutil.copytree(capture, tmp_path / "capture")
+    cameras = tmp_path / "capture" / "photos" / "cameras.json"
+    doc = json.loads(cameras.read_text())
+    doc["frames"] = edit(doc["frames"])
+    cameras.write_text(json.dumps(doc))
+    return tmp_path / "capture"
+
+
+def compare_cli(capsys, folder: Path, cameras: Path, *options) -> tuple[int, str, dict | None]:
+    """``(exit status, stderr, metrics.json)`` of ``scantex compare scan.obj truth.obj --cameras CAMERAS``."""
+    rc, err = run_cli(capsys, "compare", folder / "scan.obj", folder / "truth.obj", "--cameras", cameras,
+                      "--samples", "2000", "--json", folder / "m.json", *options)
+    return rc, err, json.loads((folder / "m.json").read_text()) if rc == 0 else None
+
+
+@pytest.mark.parametrize("how", ["without width and height", "a folder"])
+def test_cli_compare_reads_photos_as_enhance_does(tmp_path, capsys, capture, how):
+    """A cameras.json without width/height (the images' sizes) and a folder holding one are read, as
+    ``enhance --photos`` reads them."""
+    if how == "without width and height":
+        folder = edited_capture(capture, tmp_path, lambda frames: [
+            {k: v for k, v in f.items() if k not in ("width", "height")} for f in frames])
+        cameras = folder / "photos" / "cameras.json"
+    else:
+        folder = edited_capture(capture, tmp_path, lambda frames: frames)
+        cameras = folder / "photos"
+    rc, err, m = compare_cli(capsys, folder, cameras)
+    assert rc == 0, err
+    r = m["renders"]
+    assert r["reference"] == "photos" and r["a"]["views"] == r["b"]["views"] == 4
+    assert r["b"]["psnr"] > r["a"]["psnr"] + 10  # the truth's renders match the photos made from it
+
+
+def test_cli_compare_scores_a_repeated_photo_once(tmp_path, capsys, caplog, capture):
+    folder = edited_capture(capture, tmp_path, lambda frames: frames + [frames[1]])
+    with caplog.at_level("WARNING"):
+        rc, err, m = compare_cli(capsys, folder, folder / "photos" / "cameras.json")
+    assert rc == 0, err
+    assert m["renders"]["a"]["views"] == m["renders"]["b"]["views"] == 4
+    assert "1 frames name a photo an earlier frame names (e.g. view_001.png)" in caplog.text
+
+
+def test_cli_compare_takes_max_distortion(tmp_path, capsys, caplog):
+    """Lens distortion as enhance reads it: refused beyond --max-distortion (1 px by default), within it ignored
+    with a warning (the photos are taken for pinhole images)."""
+    from tests.io.hostile import write_cube
+    from tests.photos.test_importers import write_opencv_colmap
+
+    write_opencv_colmap(tmp_path, k1=0.2)
+    mesh = write_cube(tmp_path / "scan")
+    rc, err = run_cli(capsys, "compare", mesh, mesh, "--cameras", tmp_path, "--samples", "100")
+    assert_clean_error(rc, err, "undistorted photos", "--max-distortion 3")
+    with caplog.at_level("WARNING"):
+        rc, err = run_cli(capsys, "compare", mesh, mesh, "--cameras", tmp_path, "--samples", "100",
+                          "--max-distortion", "3")
+    assert rc == 0, err
+    assert "ignoring a small lens distortion" in caplog.text
