@@ -855,7 +855,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the posed photos, read as 'enhance --photos' reads them: a nerfstudio transforms.json, a "
                         "COLMAP model (text or binary), a 3D Scanner App or Polycam export, a cameras.json, or a "
                         "folder holding one: both meshes' renders are scored against the photos, on the pixels A "
-                        "covers")
+                        "covers (photos that see none of A are left out with a warning; none seeing it is an "
+                        "error: A is not in the cameras' frame)")
     add_distortion_option(p, "--cameras")
     p.add_argument("--views", type=whole(1, 10_000), default=8,
                    help="views planned on A when there are no photos (default: 8)")

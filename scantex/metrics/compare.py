@@ -8,12 +8,14 @@ renders against ``A``'s at views planned on ``A``.
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scantex.errors import ScanError
 from scantex.metrics.geometry import geometry_metrics
 from scantex.metrics.texture import atlas_scores, kept_faces, render_reference, render_scores, \
     texture_summary
@@ -25,6 +27,8 @@ from scantex.views.render import render
 if TYPE_CHECKING:
     from scantex.photos.photoset import PhotoSet
 
+log = logging.getLogger(__name__)
+
 
 def photo_files(photos: PhotoSet) -> list[Path]:
     """The files ``photos`` was read from (the inputs an output may not replace): its camera file or folder, its
@@ -34,19 +38,43 @@ def photo_files(photos: PhotoSet) -> list[Path]:
 
 def photo_scores(photos: PhotoSet, a: Scan, b: Scan, supersample: int = 2) -> dict:
     """:func:`render_scores` of ``a``'s and ``b``'s renders against ``photos``, on the pixels ``a`` covers fully (not
-    the background): ``{"a", "b"}``."""
+    the background): ``{"a", "b", "photos_left_out"}``. Photos that see none of ``a`` are left out, with a warning
+    naming them.
+
+    Raises:
+        ScanError: naming ``photos.source``: none of the photos sees ``a``.
+    """
+    from scantex.photos.cameras_json import FORMAT as CAMERAS_JSON
+
     caster = RayCaster(a.positions, a.faces)
     index = {id(cam): i for i, cam in enumerate(photos.cameras)}
+    blind: list[int] = []
 
     def reference(camera: Camera):
         i = index[id(camera)]
         _, alpha = render(a, camera, caster, supersample=supersample)
         mask = alpha >= 0.999
         if not mask.any():  # render_scores skips the view: its photo need not be read
+            blind.append(i)
             return None, mask
         return photos.load_image(i).astype(np.float32) / 255.0, mask
 
-    return render_scores(reference, {"a": a, "b": b}, photos.cameras, supersample=supersample)
+    scores = render_scores(reference, {"a": a, "b": b}, photos.cameras, supersample=supersample)
+    mesh = f"the mesh {Path(a.source).name}" if a.source is not None else "the mesh"
+    hint = ("are its poses world-to-camera, not camera-to-world?" if photos.format == CAMERAS_JSON
+            else "was the mesh moved or turned after the capture?")
+    if len(blind) == len(photos):
+        raise ScanError(photos.source, f"none of its {len(photos)} photos sees {mesh}: the mesh is not in the "
+                                       f"cameras' frame ({hint})")
+    if blind:
+        names = [photos.images[i].name for i in blind]
+        # camera-to-world poses read as world-to-camera still let a photo or two see the mesh (the bolster's: 1
+        # of 14): most photos blind is worth the same hint as all of them
+        log.warning("%s: %d of its %d photos see none of %s, left out of the scores: %s%s", photos.source,
+                    len(blind), len(photos), mesh,
+                    ", ".join(names[:10]) + (f" and {len(names) - 10} more" if len(names) > 10 else ""),
+                    f" (most of them: {hint})" if 2 * len(blind) > len(photos) else "")
+    return scores | {"photos_left_out": len(blind)}
 
 
 def compare(a: Scan, b: Scan, *, photos: PhotoSet | None = None, n_views: int = 8, width: int = 320,
@@ -65,8 +93,11 @@ def compare(a: Scan, b: Scan, *, photos: PhotoSet | None = None, n_views: int = 
 
     Returns:
         ``{"geometry", "texture": {"a", "b"}, "atlas", "renders"}``.
+
+    Raises:
+        ScanError: none of the photos sees ``a``.
     """
-    if photos is not None:
+    if photos is not None:  # first: a mesh out of the cameras' frame is refused before the distances are taken
         renders = {"reference": "photos", **photo_scores(photos, a, b)}
     else:
         from scantex.scan import up_axis
@@ -112,9 +143,11 @@ def summary_lines(result: dict) -> str:
                         f"some area" if some else "") + f"): PSNR {_db(atlas['psnr'])}, SSIM {atlas['ssim']:.3f}")
     r = result["renders"]
     if r["reference"] == "photos":
+        left = r.get("photos_left_out", 0)
+        unseen = f"; {left} photo{'s' if left > 1 else ''} seeing none of a left out" if left else ""
         for side in "ab":
-            lines.append(f"renders of {side} vs photos ({r[side]['views']} views): PSNR {_db(r[side]['psnr'])}, "
-                         f"SSIM {r[side]['ssim']:.3f}")
+            lines.append(f"renders of {side} vs photos ({r[side]['views']} views{unseen}): PSNR "
+                         f"{_db(r[side]['psnr'])}, SSIM {r[side]['ssim']:.3f}")
     else:
         lines.append(f"renders of b vs renders of a ({r['b']['views']} views): PSNR {_db(r['b']['psnr'])}, "
                      f"SSIM {r['b']['ssim']:.3f}")

@@ -104,6 +104,12 @@ def edited_capture(capture, tmp_path, edit) -> Path:
     return tmp_path / "capture"
 
 
+def turned_away(frame: dict) -> dict:
+    """``frame`` with its camera turned half a turn about its own y axis: it looks away from the wall."""
+    flip = np.diag([-1.0, 1.0, -1.0, 1.0])
+    return frame | {"world_to_camera": (flip @ np.asarray(frame["world_to_camera"])).tolist()}
+
+
 def compare_cli(capsys, folder: Path, cameras: Path, *options) -> tuple[int, str, dict | None]:
     """``(exit status, stderr, metrics.json)`` of ``scantex compare scan.obj truth.obj --cameras CAMERAS``."""
     rc, err = run_cli(capsys, "compare", folder / "scan.obj", folder / "truth.obj", "--cameras", cameras,
@@ -125,7 +131,7 @@ def test_cli_compare_reads_photos_as_enhance_does(tmp_path, capsys, capture, how
     rc, err, m = compare_cli(capsys, folder, cameras)
     assert rc == 0, err
     r = m["renders"]
-    assert r["reference"] == "photos" and r["a"]["views"] == r["b"]["views"] == 4
+    assert r["reference"] == "photos" and r["a"]["views"] == r["b"]["views"] == 4 and r["photos_left_out"] == 0
     assert r["b"]["psnr"] > r["a"]["psnr"] + 10  # the truth's renders match the photos made from it
 
 
@@ -153,3 +159,31 @@ def test_cli_compare_takes_max_distortion(tmp_path, capsys, caplog):
                           "--max-distortion", "3")
     assert rc == 0, err
     assert "ignoring a small lens distortion" in caplog.text
+
+
+@pytest.mark.parametrize("blind", [[2], [0, 1, 3]])
+def test_cli_compare_leaves_out_photos_that_see_no_mesh(tmp_path, capsys, caplog, capture, blind):
+    """Photos that see none of A are left out with one warning naming them; when most are, it says what may be
+    wrong with the poses (the bolster's camera-to-world poses read as world-to-camera: 13 of its 14)."""
+    folder = edited_capture(capture, tmp_path, lambda frames: [turned_away(f) if i in blind else f
+                                                               for i, f in enumerate(frames)])
+    with caplog.at_level("WARNING"):
+        rc, err, m = compare_cli(capsys, folder, folder / "photos" / "cameras.json")
+    assert rc == 0, err
+    r = m["renders"]
+    assert r["a"]["views"] == r["b"]["views"] == 4 - len(blind) and r["photos_left_out"] == len(blind)
+    (warning,) = [rec.getMessage() for rec in caplog.records if "see none of" in rec.getMessage()]
+    names = ", ".join(f"view_{i:03d}.png" for i in blind)
+    assert f"{len(blind)} of its 4 photos see none of the mesh scan.obj, left out of the scores: {names}" in warning
+    assert ("world-to-camera" in warning) == (len(blind) > 2) and "\n" not in warning
+    assert f"({4 - len(blind)} views; {len(blind)} photo" in summary_lines(m)
+
+
+def test_cli_compare_refuses_photos_that_see_no_mesh(tmp_path, capsys, capture):
+    """Camera-to-world poses given for world-to-camera (or a mesh out of the cameras' frame): no photo sees the
+    mesh, and nothing is scored on no pixels."""
+    folder = edited_capture(capture, tmp_path, lambda frames: [turned_away(f) for f in frames])
+    rc, err, _ = compare_cli(capsys, folder, folder / "photos" / "cameras.json")
+    assert_clean_error(rc, err, "cameras.json", "none of its 4 photos sees the mesh scan.obj",
+                       "not in the cameras' frame", "world-to-camera")
+    assert not (folder / "m.json").exists()
