@@ -521,6 +521,16 @@ def cmd_compare(args) -> int:
 
         photos = load_photos(args.cameras, **distortion_setting(args))
         _echo(args, f"{args.cameras}: {len(photos)} photos ({photos.format})")
+        if not args.no_alignment_check:
+            from scantex.photos.alignment import check_alignment
+
+            # scores through cameras described wrongly (intrinsics for another size) mean nothing: said, not
+            # refused, since comparing is measuring
+            report = check_alignment(a, photos)
+            if not report.ok:
+                log.warning("%s: %s does not look aligned with these photos (%s): the scores against them may mean "
+                            "little; check the cameras (intrinsics for the photos' own size, poses world-to-camera)",
+                            args.cameras, args.a, report.problem)
     if args.json:
         from scantex.io.atomic import check_output
 
@@ -858,6 +868,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "covers (photos that see none of A are left out with a warning; none seeing it is an "
                         "error: A is not in the cameras' frame)")
     add_distortion_option(p, "--cameras")
+    p.add_argument("--no-alignment-check", action="store_true",
+                   help="with --cameras: skip the check that A sits where the photos see it (a misfit is warned "
+                        "about, not refused)")
     p.add_argument("--views", type=whole(1, 10_000), default=8,
                    help="views planned on A when there are no photos (default: 8)")
     p.add_argument("--samples", type=whole(1, 100_000_000), default=100_000,

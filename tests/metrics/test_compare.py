@@ -187,3 +187,33 @@ def test_cli_compare_refuses_photos_that_see_no_mesh(tmp_path, capsys, capture):
     assert_clean_error(rc, err, "cameras.json", "none of its 4 photos sees the mesh scan.obj",
                        "not in the cameras' frame", "world-to-camera")
     assert not (folder / "m.json").exists()
+
+
+def test_cli_compare_warns_when_the_photos_do_not_fit_the_mesh(tmp_path, capsys, caplog):
+    """Intrinsics for another image size pass the photos' reading and every photo sees the mesh: the scores meant
+    nothing, silently. The alignment check (enhance's, which refuses) says so; --no-alignment-check skips it."""
+    from scantex.photos.cameras_json import write_cameras_json
+    from tests.photos.test_alignment import partial_wall_scan
+
+    part, photos = partial_wall_scan(tmp_path)
+    save_scan(part, tmp_path / "wall.obj")
+    aligned = write_cameras_json(photos, tmp_path / "aligned")
+    shrunk = json.loads(aligned.read_text())
+    for f in shrunk["frames"]:
+        f["K"] = (np.diag([2 / 3, 2 / 3, 1.0]) @ np.asarray(f["K"])).tolist()
+    (tmp_path / "shrunk").mkdir()
+    for f in shrunk["frames"]:
+        shutil.copy(tmp_path / "aligned" / f["image"], tmp_path / "shrunk" / f["image"])
+    (tmp_path / "shrunk" / "cameras.json").write_text(json.dumps(shrunk))
+
+    def warned(cameras, *options) -> bool:
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            rc, err = run_cli(capsys, "compare", tmp_path / "wall.obj", tmp_path / "wall.obj", "--cameras", cameras,
+                              "--samples", "1000", *options)
+        assert rc == 0, err
+        return "does not look aligned with these photos" in caplog.text
+
+    assert not warned(aligned)
+    assert warned(tmp_path / "shrunk") and "intrinsics for the photos' own size" in caplog.text
+    assert not warned(tmp_path / "shrunk", "--no-alignment-check")
