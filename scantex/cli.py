@@ -490,6 +490,11 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         lines.append(f"poses: {poses}")
+    left_out = m.get("photos", {}).get("left_out") or []
+    if left_out:
+        lines.append(f"photos left out: {len(left_out)} (" + ", ".join(str(d["photo"]) for d in left_out)
+                     + f"), not showing what {'its camera sees' if len(left_out) == 1 else 'their cameras see'}: "
+                       "upside down, cropped or another frame's (each in metrics.json photos.left_out)")
     clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
     if clipped.get("gave_way"):
         lines.append(f"over-exposed photos: {100 * clipped['clipped'] / max(clipped['samples'], 1):.1f} % of the "

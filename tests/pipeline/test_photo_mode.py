@@ -247,6 +247,9 @@ def test_a_photo_stored_upside_down_is_left_out(tmp_path, toy_demo, toy_photos, 
     assert 3 not in m["photos"]["train"] + m["photos"]["held_out"]
     assert len(m["photos"]["train"]) + len(m["photos"]["held_out"]) == 9
     assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
+    from scantex.cli import enhance_summary  # said where a user reads, not only in the warning before it
+
+    assert "photos left out: 1 (3), not showing what its camera sees" in enhance_summary(m)
 
 
 def test_cli_photos(tmp_path, toy_demo, toy_photos):
