@@ -1,4 +1,4 @@
-"""Does each photo show what its camera sees? Checked against the scan's own texture.
+"""Does each photo show what its camera sees? Checked against the scan's own texture, or the other photos.
 
 A photo stored upside down, cropped after capture, or another frame's image under this frame's camera passes
 every check of its file and its camera (the size agrees, the intrinsics are plausible), and the texture then
@@ -14,7 +14,9 @@ texture's black holes). A photo is left out, with a warning, when it agrees much
 180 degrees it agrees far better than as stored. A view with too little of the texture's contrast in it (a blank
 wall) gets no verdict. Where the texture is not the photos' (a texture painted by hand, a capture's
 photos of a scene since changed) no photo agrees and none is left out: the check judges a photo against the
-others, not against a fixed bar alone. An untextured scan has nothing to check the photos against here.
+others, not against a fixed bar alone. An untextured scan has no texture: each photo is compared with the other
+photos instead, their grey (each brought to zero mean and unit spread: exposure) at the surface points the photo
+sees and they see too, averaged over up to :data:`CONSENSUS_PHOTOS` of those that share the most of its surface.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 from scantex.errors import ScanError
 from scantex.photos.photoset import PhotoSet
 from scantex.scan import Scan
+from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
 
 log = logging.getLogger(__name__)
@@ -47,6 +50,14 @@ MISMATCH_SHARE, OTHERS_AGREE = 0.5, 0.6
 #: a photo that, turned by 180 degrees, agrees at least FLIPPED_AGREES and FLIPPED_MARGIN more than as stored
 #: is upside down (the bolster's photos turned: -0.16 to 0.49; the one stored upside down, turned back: 0.96)
 FLIPPED_AGREES, FLIPPED_MARGIN = 0.5, 0.3
+
+
+#: an untextured scan's photo is compared with the mean of at most this many other photos (those sharing most of
+#: its surface): enough that one photo's fault does not decide another's verdict, and a room's hundred photos
+#: cost a few pairs each
+CONSENSUS_PHOTOS = 8
+#: a point another photo sees: its depth there within this share of the point's depth
+DEPTH_AGREES = 0.02
 
 
 @dataclass(frozen=True)
@@ -92,17 +103,97 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
     return PhotoMatch(i, pixels, _correlation(grey[usable], reference), _correlation(turned[usable], reference))
 
 
-def mismatched(matches: Sequence[PhotoMatch]) -> dict[int, str]:
-    """``{photo: why}`` for the photos of ``matches`` that do not show what their cameras see."""
+@dataclass(frozen=True)
+class _SmallView:
+    """A photo at the check's working size, for the consensus of an untextured scan's photos."""
+
+    camera: Camera
+    grey: np.ndarray
+    """``(H, W) float32`` the photo's blurred luma"""
+    depth: np.ndarray
+    """``(H, W) float32`` the mesh's depth at each pixel, infinite where it sees none"""
+    usable: np.ndarray
+    """``(H, W) bool`` whole pixels of the surface, away from its contours"""
+    points: np.ndarray
+    """``(n, 3) float32`` the surface points of the usable pixels, row-major"""
+    faces: np.ndarray
+    """the faces the usable pixels see, sorted"""
+
+
+def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
+    from scipy import ndimage
+
+    from scantex.io.images import box_downscaled
+    from scantex.photos.training import working_camera
+    from scantex.views.raycast import cast_gbuffer
+
+    camera = working_camera(photos.cameras[i], MATCH_SIDE)
+    g = cast_gbuffer(caster, camera)
+    hit = g.face_id >= 0
+    usable = ndimage.binary_erosion(hit, iterations=2)
+    origin, directions = camera.pixel_rays()
+    rows = usable.reshape(-1)
+    points = origin.astype(np.float32) + directions[rows] * g.depth.reshape(-1)[rows, None]
+    image = photos.load_image(i)
+    if image.shape[1::-1] != (camera.width, camera.height):
+        image = box_downscaled(image, camera.width, camera.height)
+    return _SmallView(camera, _grey(image.astype(np.float32) / 255.0), np.where(hit, g.depth, np.inf), usable,
+                      points, np.unique(g.face_id[usable]))
+
+
+def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaster) -> list[PhotoMatch]:
+    """Each photo of ``indices`` compared with the other photos' consensus (an untextured scan; see the module
+    docstring): a :class:`PhotoMatch` each, its agreement ``None`` where under :data:`MIN_PIXELS` pixels have a
+    consensus or the photo's own contrast is under :data:`MIN_CONTRAST`."""
+    from scantex.threads import side_by_side
+
+    views = list(side_by_side(lambda i: _small_view(photos, i, caster), indices))
+    # each photo's grey brought to zero mean and unit spread over its surface: its exposure out of the mean
+    normalised = []
+    for v in views:
+        values = v.grey[v.usable]
+        centre, spread = (float(values.mean()), float(values.std())) if values.size else (0.0, 0.0)
+        normalised.append((v.grey - centre) / max(spread, 1e-6))
+    matches = []
+    for k, (i, v) in enumerate(zip(indices, views)):
+        shared = sorted(((len(np.intersect1d(v.faces, o.faces, assume_unique=True)), m)
+                         for m, o in enumerate(views) if m != k), reverse=True)
+        total, count = np.zeros(len(v.points), np.float32), np.zeros(len(v.points), np.int32)
+        for n, m in shared[:CONSENSUS_PHOTOS]:
+            if n == 0:
+                break
+            o = views[m]
+            pix, z = o.camera.project(v.points)
+            x, y = np.rint(pix[:, 0]), np.rint(pix[:, 1])
+            inside = np.flatnonzero((x >= 0) & (x < o.camera.width) & (y >= 0) & (y < o.camera.height) & (z > 0))
+            x, y = x[inside].astype(np.intp), y[inside].astype(np.intp)
+            seen = np.abs(o.depth[y, x] - z[inside]) <= DEPTH_AGREES * z[inside]  # not hidden from the other photo
+            total[inside[seen]] += normalised[m][y[seen], x[seen]]
+            count[inside[seen]] += 1
+        agreed = count > 0
+        own = v.grey[v.usable]
+        if agreed.sum() < MIN_PIXELS or own.std() < MIN_CONTRAST:
+            matches.append(PhotoMatch(int(i), int(agreed.sum()), None, None))
+            continue
+        consensus = total[agreed] / count[agreed]
+        turned = v.grey[::-1, ::-1][v.usable]
+        matches.append(PhotoMatch(int(i), int(agreed.sum()), _correlation(own[agreed], consensus),
+                                  _correlation(turned[agreed], consensus)))
+    return matches
+
+
+def mismatched(matches: Sequence[PhotoMatch], against: str = "the scan's texture") -> dict[int, str]:
+    """``{photo: why}`` for the photos of ``matches`` that do not show what their cameras see; ``against``: what
+    they were compared with, for the reasons."""
     found = {}
     judged = [m for m in matches if m.agreement is not None]
     for m in judged:
         others = np.median([o.agreement for o in judged if o.photo != m.photo]) if len(judged) >= 3 else -1.0
         if m.turned >= FLIPPED_AGREES and m.turned >= m.agreement + FLIPPED_MARGIN:
-            found[m.photo] = (f"turned by 180 degrees it agrees with the scan's texture {m.turned:.2f}, as stored "
+            found[m.photo] = (f"turned by 180 degrees it agrees with {against} {m.turned:.2f}, as stored "
                               f"{m.agreement:.2f}: stored upside down?")
         elif others >= OTHERS_AGREE and m.agreement < MISMATCH_SHARE * others:
-            found[m.photo] = (f"it agrees with the scan's texture {m.agreement:.2f}, the other photos {others:.2f} "
+            found[m.photo] = (f"it agrees with {against} {m.agreement:.2f}, the other photos {others:.2f} "
                               "(median): another frame's photo, or cropped or turned after capture?")
     return found
 
@@ -111,18 +202,21 @@ def leave_out_mismatched(scan: Scan, photos: PhotoSet, train: np.ndarray, held: 
                          caster: RayCaster) -> tuple[np.ndarray, np.ndarray, list[dict]]:
     """``(train, held, left_out)``: the training and held-out photo indices without the photos that do not show
     what their cameras see (each named in a warning), and those, as ``PhotoMatch.to_dict`` with ``why``, for
-    metrics.json. Every photo of a textured scan is checked; an untextured scan's are kept as they are.
+    metrics.json. A textured scan's photos are checked against its texture, an untextured scan's against one
+    another.
 
     Raises:
         ScanError: no training photo is left.
     """
-    if not scan.is_textured:
-        return train, held, []
     from scantex.threads import side_by_side
 
     indices = [int(i) for i in (*train, *held)]
-    matches = list(side_by_side(lambda i: photo_match(scan, photos, i, caster), indices))
-    found = mismatched(matches)
+    if scan.is_textured:
+        matches = list(side_by_side(lambda i: photo_match(scan, photos, i, caster), indices))
+        found = mismatched(matches)
+    else:
+        matches = consensus_matches(photos, indices, caster)
+        found = mismatched(matches, "the other photos' consensus")
     for i, why in found.items():
         log.warning("%s: photo %d does not show what its camera sees (%s): left out", photos.images[i], i, why)
     if not found:
@@ -130,7 +224,8 @@ def leave_out_mismatched(scan: Scan, photos: PhotoSet, train: np.ndarray, held: 
     kept_train = np.array([i for i in train if int(i) not in found], dtype=np.asarray(train).dtype)
     if not len(kept_train):
         raise ScanError(photos.source, "no training photo shows what its camera sees (each disagrees with the "
-                                       "scan's texture): are these the capture's photos and poses?")
+                                       "scan's texture or the other photos): are these the capture's photos and "
+                                       "poses?")
     kept_held = np.array([i for i in held if int(i) not in found], dtype=np.asarray(held).dtype)
     left_out = [{**m.to_dict(), "image": str(photos.images[m.photo]), "why": found[m.photo]}
                 for m in matches if m.photo in found]

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from scantex.errors import ScanError
-from scantex.photos.matching import leave_out_mismatched, mismatched, photo_match
+from scantex.photos.matching import consensus_matches, leave_out_mismatched, mismatched, photo_match
 from scantex.scan import Scan
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
@@ -52,17 +52,30 @@ def test_a_photo_upside_down_or_cropped_is_left_out(tmp_path, caplog):
     assert "cropped.png: photo 3 does not show" in caplog.text
 
 
-def test_no_verdict_without_the_textures_contrast_or_a_texture(tmp_path):
-    """A view of a blank wall agrees by its shading alone: kept whatever it shows. An untextured scan has no
-    texture to check the photos against: all kept."""
+def test_no_verdict_without_the_textures_contrast(tmp_path):
+    """A view of a blank wall agrees by its shading alone: kept whatever it shows."""
     part, photos, caster = wall_and_photos(tmp_path)
     material = part.materials[0]
-    blank = dataclasses.replace(part, materials=(dataclasses.replace(material, image=np.full_like(material.image, 128)),))
+    grey = dataclasses.replace(material, image=np.full_like(material.image, 128))
+    blank = dataclasses.replace(part, materials=(grey,))
     assert all(photo_match(blank, photos, i, caster).agreement is None for i in range(len(photos)))
+
+
+def test_an_untextured_scans_photos_are_checked_against_one_another(tmp_path, caplog):
+    """No texture to check against: each photo against the others' consensus where they see its surface too."""
+    part, photos, caster = wall_and_photos(tmp_path)
     bare = Scan(positions=part.positions, faces=part.faces)
     assert not bare.is_textured
+    matches = consensus_matches(photos, range(4), caster)
+    assert all(m.agreement > 0.9 for m in matches) and mismatched(matches) == {}
     train, held, left_out = leave_out_mismatched(bare, photos, np.array([0, 1]), np.array([2, 3]), caster)
     assert train.tolist() == [0, 1] and held.tolist() == [2, 3] and left_out == []
+    Image.open(photos.images[2]).rotate(180).save(tmp_path / "turned.png")
+    bad = dataclasses.replace(photos, images=(*photos.images[:2], tmp_path / "turned.png", photos.images[3]))
+    with caplog.at_level(logging.WARNING):
+        train, held, left_out = leave_out_mismatched(bare, bad, np.array([0, 1]), np.array([2, 3]), caster)
+    assert train.tolist() == [0, 1] and held.tolist() == [3] and [d["photo"] for d in left_out] == [2]
+    assert "turned by 180 degrees it agrees with the other photos' consensus" in caplog.text
 
 
 def test_no_training_photo_left_is_one_clear_line(tmp_path):
@@ -78,7 +91,7 @@ def test_no_training_photo_left_is_one_clear_line(tmp_path):
 
 def test_bolster_photos_match_and_one_turned_is_found(tmp_path):
     """The real Kinect capture and its app-style texture: every photo agrees at its recorded pose (0.90-0.97);
-    one stored upside down is found."""
+    one stored upside down is found, against the texture and, on the bare mesh, against the other photos."""
     from scantex.io import load_scan
     from scantex.photos import load_photos
 
@@ -91,3 +104,9 @@ def test_bolster_photos_match_and_one_turned_is_found(tmp_path):
     Image.open(photos.images[5]).rotate(180).save(tmp_path / "turned.jpg")
     bad = dataclasses.replace(photos, images=(*photos.images[:5], tmp_path / "turned.jpg", *photos.images[6:]))
     assert list(mismatched([*matches[:5], photo_match(scan, bad, 5, caster), *matches[6:]])) == [5]
+    # the bare Kinect mesh: against one another (0.87-0.97; the one turned 0.10, turned back 0.96)
+    bare = load_scan(folder / "bloster.ply")
+    caster = RayCaster(bare.positions, bare.faces)
+    matches = consensus_matches(photos, range(len(photos)), caster)
+    assert min(m.agreement for m in matches) > 0.8 and mismatched(matches) == {}
+    assert list(mismatched(consensus_matches(bad, range(len(photos)), caster))) == [5]
