@@ -104,9 +104,9 @@ def test_bolster_photos_match_and_one_turned_is_found(tmp_path):
     Image.open(photos.images[5]).rotate(180).save(tmp_path / "turned.jpg")
     bad = dataclasses.replace(photos, images=(*photos.images[:5], tmp_path / "turned.jpg", *photos.images[6:]))
     assert list(mismatched([*matches[:5], photo_match(scan, bad, 5, caster), *matches[6:]])) == [5]
-    # the bare Kinect mesh: against one another (0.87-0.97; the one turned 0.10, turned back 0.96)
+    # the bare Kinect mesh: against one another (0.83-0.95; the one turned -0.13, turned back 0.92)
     bare = load_scan(folder / "bloster.ply")
     caster = RayCaster(bare.positions, bare.faces)
     matches = consensus_matches(photos, range(len(photos)), caster)
-    assert min(m.agreement for m in matches) > 0.8 and mismatched(matches) == {}
+    assert min(m.agreement for m in matches) > 0.7 and mismatched(matches) == {}
     assert list(mismatched(consensus_matches(bad, range(len(photos)), caster))) == [5]
