@@ -110,3 +110,21 @@ def test_bolster_photos_match_and_one_turned_is_found(tmp_path):
     matches = consensus_matches(photos, range(len(photos)), caster)
     assert min(m.agreement for m in matches) > 0.7 and mismatched(matches) == {}
     assert list(mismatched(consensus_matches(bad, range(len(photos)), caster))) == [5]
+
+
+def test_a_degraded_capture_keeps_every_photo(tmp_path):
+    """Photos with a capture's faults (exposure and white balance per photo, blur, noise, JPEG, poses 1-5 px off)
+    of a scan whose atlas an app degraded (seams, holes, blur): every photo agrees where there is a verdict, and
+    none is left out (a coarser check left out six good photos of a synthetic room's 110)."""
+    from scantex.synth import make_wall
+    from scantex.synth.photos import PhotoCapture, capture_photos
+
+    # the demo wall's atlas (1024²), coarser geometry and truth: detail enough for verdicts, made in seconds
+    demo = make_wall(grid=(24, 18), gt_texture_size=2048, scan_texture_size=1024, seed=0)
+    photos = capture_photos(demo, tmp_path, PhotoCapture(n_photos=12), seed=1)
+    caster = RayCaster(demo.scan.positions, demo.scan.faces)
+    matches = [photo_match(demo.scan, photos, i, caster) for i in range(len(photos))]
+    judged = [m for m in matches if m.agreement is not None]
+    assert len(judged) >= 2 and min(m.agreement for m in judged) > 0.3 and mismatched(matches) == {}
+    train, held, left_out = leave_out_mismatched(demo.scan, photos, np.arange(10), np.array([10, 11]), caster)
+    assert len(train) == 10 and len(held) == 2 and left_out == []
