@@ -43,12 +43,14 @@ MATCH_SIDE = 320
 #: at different exposures, a photo's vignetting and the lighting's gradients decide the correlation, not the
 #: scene (a synthetic room's app-style atlas: its photos agreed 0.28-0.52 wherever they saw bare walls, -0.22 one)
 MATCH_BLUR, MATCH_BAND = 2.0, 8.0
-#: fewest pixels the mesh covers in a view, and the least detail (standard deviation of the band, in [0, 1] grey,
-#: the texture's there and the photo's), for a verdict on it: where the texture holds little detail (a blank wall,
-#: an app's atlas smoothed where it saw the surface obliquely) or a photo is blurred by motion, a photo agrees by
-#: noise alone (measured, the texture's band: the bolster's views 0.07-0.08, the façade's 0.06-0.08, a synthetic
-#: room's 0.011-0.067, median 0.031, where a photo of a smoothed ceiling agreed 0.03)
-MIN_PIXELS, MIN_CONTRAST = 2000, 0.04
+#: fewest pixels the mesh covers in a view, and the least detail (standard deviation of the band, in [0, 1] grey)
+#: of the texture there and of the photo, for a verdict on it: where the texture holds little detail (a blank wall,
+#: an app's atlas smoothed where it saw the surface obliquely), a photo agrees by noise alone (the texture's band,
+#: measured: the bolster's views 0.07-0.08, the façade's 0.06-0.08, a synthetic room's 0.011-0.067, median 0.031,
+#: where a photo of a smoothed ceiling agreed 0.03). The photo's own bar is lower: a real room's washed-out Kinect
+#: photos (the G2LTex apartment's) hold 0.02-0.04 and agree 0.37 or more, and at 0.04 another photo's image given
+#: for a frame went unjudged; under 0.02 a photo is blank or blurred through
+MIN_PIXELS, MIN_CONTRAST, MIN_PHOTO_CONTRAST = 2000, 0.04, 0.02
 #: a photo agreeing less than MISMATCH, where the other photos' median agrees at least OTHERS_AGREE, does not show
 #: what its camera sees (measured at the recorded poses: the bolster's 14 photos agree 0.90-0.97, the façade's 10
 #: 0.77-0.86, a synthetic wall's 24 (noise, blur, exposure, 1-5 px pose errors) 0.35-0.98; a photo cropped to 3/4
@@ -77,7 +79,7 @@ class PhotoMatch:
     """pixels of the working-size view the comparison used"""
     agreement: float | None
     """correlation of the photo's grey with the texture's, in [-1, 1]; ``None``: no verdict (under
-    :data:`MIN_PIXELS`, or :data:`MIN_CONTRAST`)"""
+    :data:`MIN_PIXELS`, :data:`MIN_CONTRAST` or :data:`MIN_PHOTO_CONTRAST`)"""
     turned: float | None
     """the same with the photo turned by 180 degrees"""
 
@@ -109,7 +111,7 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
         image = box_downscaled(image, camera.width, camera.height)
     luma = _luma(image.astype(np.float32) / 255.0)
     band = _band(luma, covered)[usable]
-    if band.std() < MIN_CONTRAST:
+    if band.std() < MIN_PHOTO_CONTRAST:
         return PhotoMatch(i, pixels, None, None)
     turned = _band(luma[::-1, ::-1], covered)[usable]
     return PhotoMatch(i, pixels, _correlation(band, reference), _correlation(turned, reference))
@@ -159,7 +161,8 @@ def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
 def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaster) -> list[PhotoMatch]:
     """Each photo of ``indices`` compared with the other photos' consensus (an untextured scan; see the module
     docstring): a :class:`PhotoMatch` each, its agreement ``None`` where under :data:`MIN_PIXELS` pixels have a
-    consensus or the photo's own detail is under :data:`MIN_CONTRAST`."""
+    consensus, the others' mean band there varies under :data:`MIN_CONTRAST` (as a texture's must for a verdict)
+    or the photo's own under :data:`MIN_PHOTO_CONTRAST`."""
     from scantex.threads import side_by_side
 
     views = list(side_by_side(lambda i: _small_view(photos, i, caster), indices))
@@ -174,6 +177,7 @@ def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaste
         shared = sorted(((len(np.intersect1d(v.faces, o.faces, assume_unique=True)), m)
                          for m, o in enumerate(views) if m != k), reverse=True)
         total, count = np.zeros(len(v.points), np.float32), np.zeros(len(v.points), np.int32)
+        detail = np.zeros(len(v.points), np.float32)  # the others' bands as they are: how much detail they see
         for n, m in shared[:CONSENSUS_PHOTOS]:
             if n == 0:
                 break
@@ -184,10 +188,12 @@ def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaste
             x, y = x[inside].astype(np.intp), y[inside].astype(np.intp)
             seen = np.abs(o.depth[y, x] - z[inside]) <= DEPTH_AGREES * z[inside]  # not hidden from the other photo
             total[inside[seen]] += normalised[m][y[seen], x[seen]]
+            detail[inside[seen]] += o.band[y[seen], x[seen]]
             count[inside[seen]] += 1
         agreed = count > 0
         own = v.band[v.usable]
-        if agreed.sum() < MIN_PIXELS or own.std() < MIN_CONTRAST:
+        if (agreed.sum() < MIN_PIXELS or own.std() < MIN_PHOTO_CONTRAST
+                or (detail[agreed] / count[agreed]).std() < MIN_CONTRAST):
             matches.append(PhotoMatch(int(i), int(agreed.sum()), None, None))
             continue
         consensus = total[agreed] / count[agreed]

@@ -245,6 +245,7 @@ def test_a_photo_stored_upside_down_is_left_out(tmp_path, toy_demo, toy_photos, 
     # tests the verdicts themselves)
     monkeypatch.setattr(scantex.photos.alignment, "require_alignment", lambda *args, **kwargs: None)
     monkeypatch.setattr(scantex.photos.matching, "MIN_CONTRAST", 0.0)
+    monkeypatch.setattr(scantex.photos.matching, "MIN_PHOTO_CONTRAST", 0.0)
     result = enhance(toy_demo.scan, TOY, photos=photos)
     m = result.metrics
     assert [d["photo"] for d in m["photos"]["left_out"]] == [3] and "upside down" in m["photos"]["left_out"][0]["why"]
