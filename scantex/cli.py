@@ -917,8 +917,8 @@ class Terminated(KeyboardInterrupt):
 
 
 def stop_on_sigterm() -> None:
-    """From now on SIGTERM raises :class:`Terminated` in this process. A worker process forked from it (the
-    batch's local pool) ends on SIGTERM as it would have: its pool stops it so."""
+    """From now on SIGTERM raises :class:`Terminated` in this process (a tiled run's local pool then stops its
+    workers). A process forked from this one ends on SIGTERM as it would have."""
     import os
     import signal
 

@@ -15,9 +15,9 @@ with a warning, when it agrees hardly at all (under :data:`MISMATCH`) where the 
 least :data:`OTHERS_AGREE`), or when turned by 180 degrees it agrees far better than as stored. A view with too
 little detail in it (a blank wall, a photo blurred by motion) gets no verdict. Where the texture is not the
 photos' (a texture painted by hand, a capture's photos of a scene since changed) no photo agrees and none is
-left out. An untextured scan has no texture: each photo is compared with the other
-photos instead, their band (each brought to zero mean and unit spread: exposure) at the surface points the photo
-sees and they see too, averaged over up to :data:`CONSENSUS_PHOTOS` of those that share the most of its surface.
+left out. An untextured scan has no texture: each photo is compared with the other photos instead, their band
+(each brought to zero mean and unit spread: exposure) at the surface points the photo sees and they see too,
+averaged over up to :data:`CONSENSUS_PHOTOS` of those that share the most of its surface.
 """
 
 from __future__ import annotations
@@ -72,14 +72,15 @@ DEPTH_AGREES = 0.02
 
 @dataclass(frozen=True)
 class PhotoMatch:
-    """How well photo ``photo`` agrees with the scan's texture seen through its camera."""
+    """How well photo ``photo`` agrees with the scan's texture seen through its camera (or, for an untextured
+    scan, with the other photos' consensus)."""
 
     photo: int
     pixels: int
     """pixels of the working-size view the comparison used"""
     agreement: float | None
-    """correlation of the photo's grey with the texture's, in [-1, 1]; ``None``: no verdict (under
-    :data:`MIN_PIXELS`, :data:`MIN_CONTRAST` or :data:`MIN_PHOTO_CONTRAST`)"""
+    """correlation of the photo's band of detail with the texture's (the consensus'), in [-1, 1]; ``None``: no
+    verdict (under :data:`MIN_PIXELS`, :data:`MIN_CONTRAST` or :data:`MIN_PHOTO_CONTRAST`)"""
     turned: float | None
     """the same with the photo turned by 180 degrees"""
 

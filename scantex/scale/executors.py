@@ -94,38 +94,45 @@ class LocalPool:
             with cf.ProcessPoolExecutor(max_workers=max(1, min(workers, len(pending))), mp_context=ctx,
                                         max_tasks_per_child=1, initializer=exit_with_parent,
                                         initargs=(os.getpid(),)) as pool:
-                while (pending or running) and not broken:
-                    while pending and not broken:
-                        job = self._next(pending, running, workers, budget, alone)
-                        if job is None:
-                            break
-                        pending.remove(job)
-                        running[pool.submit(job.fn, *job.args)] = job
-                    done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-                    lost = []
-                    for future in done:
-                        job = running.pop(future)
-                        try:
-                            result = future.result()
-                        except cf.process.BrokenProcessPool:
-                            lost.append(job)
-                            continue
-                        except Exception as e:  # the job's own errors are its data; this is a bug or pickling
-                            result = WorkerLost(f"{type(e).__name__}: {first_line(str(e))}")
-                        yield job, result
-                    if lost:
-                        # the pool is broken: every job in flight died with it; which one killed it is known
-                        # only when it ran alone, so each of the others runs again, alone
-                        broken = True
-                        lost += list(running.values())
-                        running.clear()
-                        for job in lost:
-                            if job.key in alone or len(lost) == 1:
-                                yield job, WorkerLost(f"the worker process died (out of memory? see the system "
-                                                      f"log{_unguarded_hint()})")
-                            else:
-                                alone.add(job.key)
-                                pending.insert(0, job)
+                try:
+                    while (pending or running) and not broken:
+                        while pending and not broken:
+                            job = self._next(pending, running, workers, budget, alone)
+                            if job is None:
+                                break
+                            pending.remove(job)
+                            running[pool.submit(job.fn, *job.args)] = job
+                        done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+                        lost = []
+                        for future in done:
+                            job = running.pop(future)
+                            try:
+                                result = future.result()
+                            except cf.process.BrokenProcessPool:
+                                lost.append(job)
+                                continue
+                            except Exception as e:  # the job's own errors are its data; this is a bug or pickling
+                                result = WorkerLost(f"{type(e).__name__}: {first_line(str(e))}")
+                            yield job, result
+                        if lost:
+                            # the pool is broken: every job in flight died with it; which one killed it is known
+                            # only when it ran alone, so each of the others runs again, alone
+                            broken = True
+                            lost += list(running.values())
+                            running.clear()
+                            for job in lost:
+                                if job.key in alone or len(lost) == 1:
+                                    yield job, WorkerLost(f"the worker process died (out of memory? see the system "
+                                                          f"log{_unguarded_hint()})")
+                                else:
+                                    alone.add(job.key)
+                                    pending.insert(0, job)
+                except BaseException:
+                    # stopped (Ctrl-C; SIGTERM, which the command turns into an exception) or failing: the
+                    # workers' jobs stop too, rather than the pool's exit waiting for each to finish
+                    for process in list((getattr(pool, "_processes", None) or {}).values()):
+                        process.terminate()
+                    raise
 
     @staticmethod
     def _next(pending: list[Job], running: dict, workers: int, budget: int, alone: set) -> Job | None:

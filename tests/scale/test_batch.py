@@ -206,6 +206,35 @@ def test_workers_end_when_their_parent_is_killed(tmp_path):
     raise AssertionError("the worker outlived its parent by 15 s")
 
 
+def test_a_stopped_pool_stops_its_workers(tmp_path):
+    """Ctrl-C, or SIGTERM (which ``scantex enhance`` turns into an exception), while a job runs: the pool's exit
+    had waited for the running jobs to finish (a tiled run's tiles: minutes); its workers are stopped now."""
+    import time
+
+    pid_file = tmp_path / "worker.pid"
+    runs = LocalPool(workers=2).run([Job("quick", square, (3,)), Job("long", write_pid_and_wait, (str(pid_file),))])
+    job, result = next(runs)
+    assert job.key == "quick" and result == 9
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    worker = int(pid_file.read_text())
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        runs.throw(KeyboardInterrupt)
+    assert time.monotonic() - started < 30  # the long job sleeps 120 s
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.2)
+    os.kill(worker, 9)  # no orphan left by the test itself
+    raise AssertionError("the worker outlived its stopped pool by 15 s")
+
+
 def test_a_scan_refused_after_its_work_folder_was_made_leaves_none(tmp_path):
     """A scan that loads but is refused by ``enhance`` (here: no colour and no photos) fails with its one-line
     error, and its empty work folder ``<name>.partial`` is not left beside the other scans' outputs."""
