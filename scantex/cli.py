@@ -954,8 +954,7 @@ def run() -> None:
 def main(argv: list[str] | None = None, *, catch_sigterm: bool = False) -> int:
     """Run the command ``argv`` names; its exit status. With ``catch_sigterm`` (the command line's own process),
     SIGTERM unwinds the command as Ctrl-C does (:func:`stop_on_sigterm`), except ``batch``'s, which ends outright
-    as before: its scans' workers end with it (:func:`scantex.scale.executors.exit_with_parent`) and each scan's
-    work folder is cleared by the next run."""
+    as before: its scans' workers end with it (:func:`scantex.scale.executors.exit_with_parent`)."""
     args = build_parser().parse_args(argv)
     if catch_sigterm and args.func is not cmd_batch:
         stop_on_sigterm()
