@@ -120,21 +120,29 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
 
 @dataclass(frozen=True)
 class _SmallView:
-    """A photo at the check's working size, for the consensus of an untextured scan's photos."""
+    """A photo at the check's working size, for the consensus of an untextured scan's photos (what the others look
+    up in it, and what it is judged by: about 1 MB a photo, a room's hundreds held at once)."""
 
     camera: Camera
     band: np.ndarray
     """``(H, W) float32`` the band of the photo's luma the check compares (:func:`_band`, over the surface)"""
+    centre: float
+    spread: float
+    """the band's mean and standard deviation over the usable pixels (the photo's exposure, taken out)"""
     turned: np.ndarray
-    """the same of the photo turned by 180 degrees"""
+    """``(n,) float32`` the band of the photo turned by 180 degrees, at the usable pixels"""
     depth: np.ndarray
     """``(H, W) float32`` the mesh's depth at each pixel, infinite where it sees none"""
     usable: np.ndarray
     """``(H, W) bool`` whole pixels of the surface, away from its contours"""
-    points: np.ndarray
-    """``(n, 3) float32`` the surface points of the usable pixels, row-major"""
     faces: np.ndarray
     """the faces the usable pixels see, sorted"""
+
+    def points(self) -> np.ndarray:
+        """``(n, 3) float32`` the surface points of the usable pixels, row-major."""
+        origin, directions = self.camera.pixel_rays()
+        rows = self.usable.reshape(-1)
+        return origin.astype(np.float32) + directions[rows] * self.depth.reshape(-1)[rows, None]
 
 
 def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
@@ -148,15 +156,15 @@ def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
     g = cast_gbuffer(caster, camera)
     hit = g.face_id >= 0
     usable = ndimage.binary_erosion(hit, iterations=2)
-    origin, directions = camera.pixel_rays()
-    rows = usable.reshape(-1)
-    points = origin.astype(np.float32) + directions[rows] * g.depth.reshape(-1)[rows, None]
     image = photos.load_image(i)
     if image.shape[1::-1] != (camera.width, camera.height):
         image = box_downscaled(image, camera.width, camera.height)
     luma = _luma(image.astype(np.float32) / 255.0)
-    return _SmallView(camera, _band(luma, hit), _band(luma[::-1, ::-1], hit), np.where(hit, g.depth, np.inf), usable,
-                      points, np.unique(g.face_id[usable]))
+    band = _band(luma, hit)
+    values = band[usable]
+    centre, spread = (float(values.mean()), float(values.std())) if values.size else (0.0, 0.0)
+    return _SmallView(camera, band, centre, spread, _band(luma[::-1, ::-1], hit)[usable],
+                      np.where(hit, g.depth, np.inf).astype(np.float32), usable, np.unique(g.face_id[usable]))
 
 
 def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaster) -> list[PhotoMatch]:
@@ -167,29 +175,26 @@ def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaste
     from scantex.threads import side_by_side
 
     views = list(side_by_side(lambda i: _small_view(photos, i, caster), indices))
-    # each photo's band brought to zero mean and unit spread over its surface: its exposure out of the mean
-    normalised = []
-    for v in views:
-        values = v.band[v.usable]
-        centre, spread = (float(values.mean()), float(values.std())) if values.size else (0.0, 0.0)
-        normalised.append((v.band - centre) / max(spread, 1e-6))
     matches = []
     for k, (i, v) in enumerate(zip(indices, views)):
         shared = sorted(((len(np.intersect1d(v.faces, o.faces, assume_unique=True)), m)
                          for m, o in enumerate(views) if m != k), reverse=True)
-        total, count = np.zeros(len(v.points), np.float32), np.zeros(len(v.points), np.int32)
-        detail = np.zeros(len(v.points), np.float32)  # the others' bands as they are: how much detail they see
+        points = v.points()
+        total, count = np.zeros(len(points), np.float32), np.zeros(len(points), np.int32)
+        detail = np.zeros(len(points), np.float32)  # the others' bands as they are: how much detail they see
         for n, m in shared[:CONSENSUS_PHOTOS]:
             if n == 0:
                 break
             o = views[m]
-            pix, z = o.camera.project(v.points)
+            pix, z = o.camera.project(points)
             x, y = np.rint(pix[:, 0]), np.rint(pix[:, 1])
             inside = np.flatnonzero((x >= 0) & (x < o.camera.width) & (y >= 0) & (y < o.camera.height) & (z > 0))
             x, y = x[inside].astype(np.intp), y[inside].astype(np.intp)
             seen = np.abs(o.depth[y, x] - z[inside]) <= DEPTH_AGREES * z[inside]  # not hidden from the other photo
-            total[inside[seen]] += normalised[m][y[seen], x[seen]]
-            detail[inside[seen]] += o.band[y[seen], x[seen]]
+            values = o.band[y[seen], x[seen]]
+            # each other photo's band brought to zero mean and unit spread: its exposure out of the mean
+            total[inside[seen]] += (values - o.centre) / max(o.spread, 1e-6)
+            detail[inside[seen]] += values
             count[inside[seen]] += 1
         agreed = count > 0
         own = v.band[v.usable]
@@ -198,9 +203,8 @@ def consensus_matches(photos: PhotoSet, indices: Sequence[int], caster: RayCaste
             matches.append(PhotoMatch(int(i), int(agreed.sum()), None, None))
             continue
         consensus = total[agreed] / count[agreed]
-        turned = v.turned[v.usable]
         matches.append(PhotoMatch(int(i), int(agreed.sum()), _correlation(own[agreed], consensus),
-                                  _correlation(turned[agreed], consensus)))
+                                  _correlation(v.turned[agreed], consensus)))
     return matches
 
 
@@ -216,7 +220,8 @@ def mismatched(matches: Sequence[PhotoMatch], against: str = "the scan's texture
                               f"{m.agreement:.2f}: stored upside down?")
         elif others >= OTHERS_AGREE and m.agreement < MISMATCH:
             found[m.photo] = (f"it agrees with {against} {m.agreement:.2f}, the other photos {others:.2f} "
-                              "(median): another frame's photo, or cropped or turned after capture?")
+                              "(median): another frame's photo, cropped or turned after capture, or the mesh "
+                              "wrong just before its camera?")
     return found
 
 

@@ -47,7 +47,7 @@ def test_a_photo_upside_down_or_cropped_is_left_out(tmp_path, caplog):
     assert train.tolist() == [0, 2] and held.tolist() == []
     assert [d["photo"] for d in left_out] == [1, 3]
     assert "upside down" in left_out[0]["why"] and left_out[0]["turned_180"] > 0.9
-    assert "cropped or turned after capture" in left_out[1]["why"] and left_out[1]["agreement"] < 0.3
+    assert "cropped or turned after capture, or the mesh wrong" in left_out[1]["why"] and left_out[1]["agreement"] < 0.3
     assert "turned.png: photo 1 does not show what its camera sees" in caplog.text
     assert "cropped.png: photo 3 does not show" in caplog.text
 
