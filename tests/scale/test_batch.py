@@ -177,33 +177,47 @@ def write_pid_and_wait(path):
     time.sleep(120)
 
 
+def worker_pid(pid_file, alive=lambda: True) -> int:
+    """The pid :func:`write_pid_and_wait` wrote, once it has (``alive``: whether to keep waiting)."""
+    import time
+
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline and alive()
+        time.sleep(0.2)
+    return int(pid_file.read_text())
+
+
+def assert_ends(pid: int, after: str, seconds: float = 15) -> None:
+    """Process ``pid`` ends within ``seconds`` (else it is killed, no orphan left by the test, and the test fails)."""
+    import signal
+    import time
+
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.2)
+    os.kill(pid, signal.SIGKILL)
+    raise AssertionError(f"the worker outlived {after} by {seconds:.0f} s")
+
+
 def test_workers_end_when_their_parent_is_killed(tmp_path):
     """``kill -9`` of a tiled run (or the out-of-memory killer) left its pool's workers running, adopted by
     init, each computing a tile nobody would fuse and holding its memory. They end within seconds now."""
     import signal
-    import time
 
     pid_file = tmp_path / "worker.pid"
     script = ("from scantex.scale.executors import Job, LocalPool\n"
               "from tests.scale.test_batch import write_pid_and_wait\n"
               f"list(LocalPool(workers=1).run([Job('w', write_pid_and_wait, ({str(pid_file)!r},))]))\n")
     parent = subprocess.Popen([sys.executable, "-c", script], cwd=os.getcwd())
-    deadline = time.monotonic() + 60
-    while not pid_file.exists() or not pid_file.read_text():
-        assert time.monotonic() < deadline and parent.poll() is None
-        time.sleep(0.2)
-    worker = int(pid_file.read_text())
+    worker = worker_pid(pid_file, alive=lambda: parent.poll() is None)
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        try:
-            os.kill(worker, 0)
-        except ProcessLookupError:
-            return
-        time.sleep(0.2)
-    os.kill(worker, signal.SIGKILL)  # no orphan left by the test itself
-    raise AssertionError("the worker outlived its parent by 15 s")
+    assert_ends(worker, "its parent")
 
 
 def test_a_stopped_pool_stops_its_workers(tmp_path):
@@ -215,24 +229,12 @@ def test_a_stopped_pool_stops_its_workers(tmp_path):
     runs = LocalPool(workers=2).run([Job("quick", square, (3,)), Job("long", write_pid_and_wait, (str(pid_file),))])
     job, result = next(runs)
     assert job.key == "quick" and result == 9
-    deadline = time.monotonic() + 60
-    while not pid_file.exists() or not pid_file.read_text():
-        assert time.monotonic() < deadline
-        time.sleep(0.2)
-    worker = int(pid_file.read_text())
+    worker = worker_pid(pid_file)
     started = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
         runs.throw(KeyboardInterrupt)
     assert time.monotonic() - started < 30  # the long job sleeps 120 s
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        try:
-            os.kill(worker, 0)
-        except ProcessLookupError:
-            return
-        time.sleep(0.2)
-    os.kill(worker, 9)  # no orphan left by the test itself
-    raise AssertionError("the worker outlived its stopped pool by 15 s")
+    assert_ends(worker, "its stopped pool")
 
 
 def test_a_scan_refused_after_its_work_folder_was_made_leaves_none(tmp_path):
