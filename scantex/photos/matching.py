@@ -94,7 +94,6 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
     """Photo ``i``'s agreement with ``scan``'s texture seen through its camera (see the module docstring)."""
     from scipy import ndimage
 
-    from scantex.io.images import box_downscaled
     from scantex.photos.training import working_camera
     from scantex.views.render import render
 
@@ -107,10 +106,7 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
     reference = _band(_luma(texture), covered)[usable]
     if pixels < MIN_PIXELS or reference.std() < MIN_CONTRAST:
         return PhotoMatch(i, pixels, None, None)
-    image = photos.load_image(i)
-    if image.shape[1::-1] != (camera.width, camera.height):
-        image = box_downscaled(image, camera.width, camera.height)
-    luma = _luma(image.astype(np.float32) / 255.0)
+    luma = _photo_luma(photos, i, camera)
     band = _band(luma, covered)[usable]
     if band.std() < MIN_PHOTO_CONTRAST:
         return PhotoMatch(i, pixels, None, None)
@@ -148,7 +144,6 @@ class _SmallView:
 def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
     from scipy import ndimage
 
-    from scantex.io.images import box_downscaled
     from scantex.photos.training import working_camera
     from scantex.views.raycast import cast_gbuffer
 
@@ -156,10 +151,7 @@ def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
     g = cast_gbuffer(caster, camera)
     hit = g.face_id >= 0
     usable = ndimage.binary_erosion(hit, iterations=2)
-    image = photos.load_image(i)
-    if image.shape[1::-1] != (camera.width, camera.height):
-        image = box_downscaled(image, camera.width, camera.height)
-    luma = _luma(image.astype(np.float32) / 255.0)
+    luma = _photo_luma(photos, i, camera)
     band = _band(luma, hit)
     values = band[usable]
     centre, spread = (float(values.mean()), float(values.std())) if values.size else (0.0, 0.0)
@@ -257,6 +249,16 @@ def leave_out_mismatched(scan: Scan, photos: PhotoSet, train: np.ndarray, held: 
     left_out = [{**m.to_dict(), "image": str(photos.images[m.photo]), "why": found[m.photo]}
                 for m in matches if m.photo in found]
     return kept_train, kept_held, left_out
+
+
+def _photo_luma(photos: PhotoSet, i: int, camera: Camera) -> np.ndarray:
+    """``(H, W) float32`` luma of photo ``i`` box-filtered down to ``camera``'s size (its working camera)."""
+    from scantex.io.images import box_downscaled
+
+    image = photos.load_image(i)
+    if image.shape[1::-1] != (camera.width, camera.height):
+        image = box_downscaled(image, camera.width, camera.height)
+    return _luma(image.astype(np.float32) / 255.0)
 
 
 def _luma(image: np.ndarray) -> np.ndarray:

@@ -150,7 +150,8 @@ class PhotosConfig:
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame, and leave out a photo that does not show
-    what its camera sees (stored upside down, cropped; checked against a textured scan's texture)"""
+    what its camera sees (stored upside down, cropped; checked against a textured scan's texture, an untextured
+    scan's photos against one another)"""
     refine_poses: str = "auto"
     """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), consensus (against the texture the other training photos make together, repeated refine_iterations times), or auto (for fewer than 50 photos: input for a textured scan, consensus for an untextured one; off otherwise). A correction under half a working pixel is not applied. Refined textures are as sharp as the photos where blending through poses a few pixels off doubles and blurs every edge; through held-out photos whose own recorded poses are as far off they score about the same on average (bench/RESULTS.md, "real photos")"""
     refine_iterations: int = 1

@@ -261,19 +261,29 @@ class PhotoData:
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
 
 
+def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
+                  seed: int) -> tuple[object | None, np.ndarray, np.ndarray, list]:
+    """Photo mode's first step, whole or tiled: ``(alignment report, train, held, left_out)``. The alignment check
+    (refuses a mesh out of the cameras' frame; ``None`` when skipped), the held-out split, and the photos that do
+    not show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
+    from scantex.photos.alignment import require_alignment
+    from scantex.photos.training import split_photos
+
+    train, held = split_photos(len(photos), pc.holdout, seed)
+    if not pc.check_alignment:
+        return None, train, held, []
+    from scantex.photos.matching import leave_out_mismatched
+
+    report = require_alignment(scan, photos, caster=caster)  # logs its summary
+    return report, *leave_out_mismatched(scan, photos, train, held, caster)
+
+
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
                 update: Update) -> PhotoData:
     """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
-    from scantex.photos.alignment import require_alignment
-    from scantex.photos.training import prepare_photos, split_photos
+    from scantex.photos.training import prepare_photos
 
-    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None  # logs its summary
-    train, held = split_photos(len(photos), pc.holdout, seed)
-    left_out = []
-    if pc.check_alignment:
-        from scantex.photos.matching import leave_out_mismatched
-
-        train, held, left_out = leave_out_mismatched(scan, photos, train, held, caster)
+    report, train, held, left_out = checked_split(scan, photos, pc, caster, seed)
     corrections = []
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))

@@ -243,24 +243,16 @@ class TilePhotos:
 def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: EnhanceConfig, caster,
                      update=None) -> TilePhotos:
     """The whole capture's part of tiled photo mode (see the module docstring): the alignment check (refuses
-    a mesh out of the cameras' frame), the held-out split, the input-texture pose refinement, and which
-    training photos see each tile."""
+    a mesh out of the cameras' frame), the held-out split less the photos that do not show what their cameras see,
+    the input-texture pose refinement, and which training photos see each tile."""
     from functools import partial
 
-    from scantex.photos.alignment import require_alignment
     from scantex.photos.poses import refine_poses
-    from scantex.photos.training import split_photos
-    from scantex.pipeline.enhance import pose_refinement_mode
+    from scantex.pipeline.enhance import checked_split, pose_refinement_mode
     from scantex.views.render import shade_hits
 
     pc = config.photos
-    report = require_alignment(scan, photos, caster=caster) if pc.check_alignment else None
-    train, held = split_photos(len(photos), pc.holdout, config.seed)
-    left_out = []
-    if pc.check_alignment:
-        from scantex.photos.matching import leave_out_mismatched
-
-        train, held, left_out = leave_out_mismatched(scan, photos, train, held, caster)
+    report, train, held, left_out = checked_split(scan, photos, pc, caster, config.seed)
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
     corrections: list = []
     # the stage's progress counts the training photos refined (input mode), then each one cast
