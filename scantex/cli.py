@@ -206,7 +206,7 @@ def cmd_enhance(args) -> int:
     config = validate(config.override(seed=args.seed, device=args.device, bake__texture_size=args.texture_size,
                                       train__steps=args.steps, views__n_views=args.views, uv__mode=args.uv,
                                       photos__holdout=args.holdout, photos__refine_poses=args.refine_poses,
-                                      photos__final=args.final_texture,
+                                      photos__final=args.final_texture, photos__detail=args.detail,
                                       refine__enabled=refine, refine__over_input=refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
                                       refine__diffusion=True if args.diffusion else None,
@@ -778,6 +778,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "
                         "against the input texture for a textured scan and the consensus for an untextured "
                         "one; off otherwise)")
+    p.add_argument("--detail", choices=("blend", "sharp"), default=None,
+                   help="with --photos: the texture's fine detail blended from every photo that sees it (blend, "
+                        "the default: the best held-out scores; a room's many photos, registered a few pixels "
+                        "apart, blur into one another) or taken from the best views (sharp: colour and exposure "
+                        "still from every photo; as sharp as the photos, at a lower held-out score)")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views with a Vision Transformer trained self-supervised on the scan's own "
                         "views (masked completion, cross-view consistency, internal super-resolution) and fuse "

@@ -32,6 +32,12 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
 - **culling**: given the mesh's faces, a photo is asked only about points on the faces its G-buffer sees
   (and their one-ring neighbours, for faces smaller than a working pixel), so a texel costs the photos that
   see it, not every photo of the capture (a room's hundred photos see a few per cent of it each);
+- **detail** (``detail_temperature``, off by default): two bands. A blend of many photos whose registration
+  differs by a few pixels (a room's video frames) is a blur; the photos' coarse band (a Gaussian blur) is blended
+  at ``temperature`` and the fine band (photo less blur) at a low temperature, nearly the best view's: detail of
+  one photo, colour of all (a two-band blend, as panorama stitchers blend). Three blends a point, by linearity:
+  coarse at ``temperature``, then the photos and their blur at the detail temperature, whose difference is the
+  blended fine band;
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 
@@ -42,6 +48,7 @@ twin (the same colours) and runs elsewhere.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -97,6 +104,12 @@ class ProjectiveSettings:
     others keeps half its weight, one twice as far a fifth (0: a plain weighted mean)"""
     consistency_rounds: int = 3
     """reweighting rounds of the robust blend"""
+    detail_temperature: float = 0.0
+    """two bands (0: one): the photos' coarse band (each photo blurred by a Gaussian of ``detail_sigma`` working
+    pixels) blended at ``temperature``, their fine band (the photo less its blur) at this lower temperature, so
+    the detail comes from the best views while colour and exposure still average over every photo"""
+    detail_sigma: float = 4.0
+    """the Gaussian (in working pixels, scaled to each photo's sampling resolution) that splits the bands"""
 
 
 #: a connected part of the mesh holding less than this share of its faces is a loose fragment (see
@@ -210,6 +223,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
     pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
     pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)
+    bands = settings.detail_temperature > 0
+    coarse = np.empty_like(pixels) if bands else pixels  # the photos' coarse band, packed as they are
 
     def source(k: int) -> _Source:
         """Training photo ``k``, ready to sample: its image at the sampling resolution, packed, its feather
@@ -219,6 +234,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         if image.shape[:2] != (cam.height, cam.width):
             image = box_downscaled(image, cam.width, cam.height)
         packed = _packed(image, pixels[pixel_start[k]:pixel_start[k] + pixel_sizes[k]])
+        if bands:
+            _packed(_blurred(image, settings.detail_sigma * cam.K[0, 0] / view.camera.K[0, 0]),
+                    coarse[pixel_start[k]:pixel_start[k] + pixel_sizes[k]])
         inside = np.pad(view.valid, 1)  # the image border ends the usable region too
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
         feather = feathers[view_start[k]:view_start[k] + view_sizes[k]].reshape(view.valid.shape)
@@ -245,8 +263,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         mean_sharp = float(np.median([s.log_sharpness for s in sources]))
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
     report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources],
-              "photo_memory_mb": round(sum(s.pixels.nbytes for s in sources) / 2**20, 1),
               "temperature": settings.temperature,
+              **({"detail": {"temperature": settings.detail_temperature, "sigma_px": settings.detail_sigma}}
+                 if bands else {}),
+              "photo_memory_mb": round((pixels.nbytes + (coarse.nbytes if bands else 0)) / 2**20, 1),
               # filled in as the bake samples (the dict is shared by the report's copies)
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
 
@@ -259,17 +279,22 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None,
                              pixels, pixel_start, feathers, view_start)
     report["compiled"] = tables is not None
+    # the same photos with their coarse band in place of the image (the sources' other arrays shared)
+    coarse_tables = dataclasses.replace(tables, pixels=coarse) if bands and tables is not None else tables
+    coarse_sources = ([dataclasses.replace(s, pixels=coarse[start:start + s.pixels.size])
+                       for s, start in zip(sources, pixel_start)] if bands else sources)
 
     tallying = threading.Lock()  # the report's counts, from calls in several threads
     threads = _WORKERS if threads is None else threads
 
-    def compiled_blend(local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, without: int | None
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The blend, compiled: ``(colour (n, 3), total weight (n,), largest feather (n,))``; the points in
-        ``threads`` parts side by side (the kernel releases the interpreter lock)."""
+    def compiled_blend(local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, without: int | None,
+                       photo_tables, temperature: float, tally_it: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blend of ``photo_tables`` at ``temperature``, compiled: ``(colour (n, 3), total weight (n,), largest
+        feather (n,))``; the points in ``threads`` parts side by side (the kernel releases the interpreter lock).
+        ``tally_it``: count its samples in the report."""
         def part(span: slice):
-            return compiled.blend(tables, local[span], unit[span], face_ids[span],
-                                  depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
+            return compiled.blend(photo_tables, local[span], unit[span], face_ids[span],
+                                  depth_tolerance=settings.depth_tolerance, temperature=temperature,
                                   clip_level=settings.clip_level, overshoot=settings.overshoot,
                                   consistency=settings.consistency, rounds=settings.consistency_rounds,
                                   without=without, censors=settings.overshoot > 0 and to_recorded is not None)
@@ -286,6 +311,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             results = [part(spans[0])]
         out, total, alpha = (np.concatenate([r[k] for r in results]) for k in range(3))
         tally = sum(r[3] for r in results)
+        if not tally_it:
+            return out, total, alpha
         with tallying:
             counts = report["clipped"]
             counts["samples"] += int(tally[0])
@@ -310,16 +337,17 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 pix = full @ s.to_view_t + s.to_view[:2, 2]  # the same projection at the working size
             return cam, full, pix
 
-        asked = [s for k, s in enumerate(sources) if k != without]
-
-        def each_photo(job):
+        def each_photo(job, among=sources):
+            asked = [s for k, s in enumerate(among) if k != without]
             if len(asked) > 1 and threads > 1:
                 with ThreadPoolExecutor(min(threads, len(asked))) as pool:
                     return [x for x in pool.map(job, asked) if x is not None]
             return [x for x in map(job, asked) if x is not None]
 
-        def numpy_blend() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            """The blend in numpy, photo by photo: ``(colour (n, 3), total weight (n,), largest feather (n,))``."""
+        def numpy_blend(among: list[_Source], temperature: float, tally_it: bool
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """The blend of the photos ``among`` at ``temperature`` in numpy, photo by photo: ``(colour (n, 3),
+            total weight (n,), largest feather (n,))``; ``tally_it``: count its samples in the report."""
             # first pass: each photo's samples of the points it sees, their quality and feather weight, the
             # photos side by side on the cores (numpy releases the interpreter lock in the array work)
             unit = normals.astype(np.float32)
@@ -354,7 +382,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                         _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
                 return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
 
-            seen_by: list[_Samples] = each_photo(sample)
+            seen_by: list[_Samples] = each_photo(sample, among)
             best = np.full(n, -np.inf, np.float32)
             for x in seen_by:
                 best[x.idx] = np.maximum(best[x.idx], x.quality)  # a photo sees a point once: idx has no repeats
@@ -362,15 +390,15 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             alpha = np.zeros(n, np.float32)
             weights = []
             for x in seen_by:
-                weights.append(np.exp((x.quality - best[x.idx]) / settings.temperature) * x.feather)
+                weights.append(np.exp((x.quality - best[x.idx]) / temperature) * x.feather)
                 alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
             gave_way = 0
             if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
                 out, total, weights, gave_way = _censored_mean(n, seen_by, weights, to_recorded, settings.overshoot)
             else:
                 out, total = _weighted_mean(n, seen_by, weights)
-            with tallying:
-                tally = report["clipped"]
+            with tallying if tally_it else contextlib.nullcontext():
+                tally = report["clipped"] if tally_it else {"samples": 0, "clipped": 0, "gave_way": 0}
                 tally["samples"] += sum(len(x.idx) for x in seen_by)
                 tally["clipped"] += sum(int(x.clipped.sum()) for x in seen_by)
                 tally["gave_way"] += gave_way
@@ -383,10 +411,16 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     out, _ = _weighted_mean(n, seen_by, robust)
             return out, total, alpha
 
-        if tables is not None:
-            out, total, alpha = compiled_blend(points - origin, normals, face_ids, without)
-        else:
-            out, total, alpha = numpy_blend()
+        def blend(fine: bool, temperature: float, tally_it: bool = False):
+            """The photos' blend at ``temperature``: of the photos themselves (``fine``) or of their coarse band."""
+            if tables is not None:
+                return compiled_blend(points - origin, normals, face_ids, without,
+                                      tables if fine else coarse_tables, temperature, tally_it)
+            return numpy_blend(sources if fine else coarse_sources, temperature, tally_it)
+
+        out, total, alpha = blend(not bands, settings.temperature, tally_it=True)
+        if bands:  # the fine band at the detail temperature: the photos' blend less their coarse band's
+            out += blend(True, settings.detail_temperature)[0] - blend(False, settings.detail_temperature)[0]
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
         if loose.size:
@@ -667,6 +701,19 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         feather=feathers, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
         offset=np.ascontiguousarray(transforms[:, 3]), gain=np.ascontiguousarray(transforms[:, :3]),
         canonical=canonical)
+
+
+def _blurred(image: np.ndarray, sigma: float) -> np.ndarray:
+    """``image (H, W, 3) uint8`` blurred by a Gaussian of ``sigma`` pixels, channel by channel, as uint8."""
+    from scipy import ndimage
+
+    out = np.empty_like(image)
+    channel = np.empty(image.shape[:2], np.float32)
+    for c in range(3):
+        ndimage.gaussian_filter(image[..., c], sigma, output=channel, mode="nearest")
+        np.rint(channel, out=channel)
+        out[..., c] = channel  # in [0, 255]: a Gaussian does not leave its input's range
+    return out
 
 
 def _packed(image: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

@@ -182,6 +182,11 @@ FINAL_ALL_BELOW = 50
 #: sharp as the photos, at the same held-out scores on average. A room's hundred photos blur into one another
 #: instead, and their alignment cost a real apartment 0.16 dB and 1.6x its time (bench/RESULTS.md)
 REFINE_BELOW = 50
+#: ``photos.detail`` sharp: the softmax temperature of the photos' fine band (their coarse band keeps
+#: ``photos.temperature``). On a real apartment's 197 photos, 0.1 gives the detail of about the best view alone:
+#: mean |Laplacian| of the held-out renders 0.0175 against the input's 0.0224 and the blend's 0.0097
+#: (bench/RESULTS.md, "sharp detail")
+SHARP_DETAIL_TEMPERATURE = 0.1
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
 #: 4.5 GB against 3.5 (bench/RESULTS.md); ``--texture-size`` asks for another
@@ -453,7 +458,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     else:
         canonicalise = None
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
-                                  consistency=pc.consistency, overshoot=pc.clip_overshoot)
+                                  consistency=pc.consistency, overshoot=pc.clip_overshoot,
+                                  detail_temperature=SHARP_DETAIL_TEMPERATURE if pc.detail == "sharp" else 0.0)
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
 
     def levelled(points, normals, face_ids, bary):

@@ -128,6 +128,50 @@ def test_weights_are_smooth_between_photos(tmp_path):
     assert (green > 0.7 * 0.5 - 0.02).all() and (green < 0.5 + 0.02).all()  # between the two exposures
 
 
+def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_path):
+    """A close photo and a far one whose registration is off by half the stripes' period there (4 px): blended at the
+    default temperature, the stripes cancel; with two bands, the fine band at the detail temperature, they come
+    from the close photo alone, while the coarse colour is still both photos' (the far one's exposure shows in
+    it). Where the photos agree, the two bands give the one band's colours."""
+    scan = smooth_wall()
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480)
+            for e in [(0.9, -2.0, 1.0), (1.2, -3.6, 1.1)]]
+    photos = photograph(scan, cams, tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    sharp_settings = ProjectiveSettings(detail_temperature=0.1)
+
+    def colours(settings, photos=photos, views=views):
+        colour, report = projective_colour(photos, views, [0, 1], None, grey, settings)
+        return colour(points, normals, f, b), report
+
+    agreeing, _ = colours(ProjectiveSettings())
+    agreeing_sharp, report = colours(sharp_settings)
+    assert report["detail"] == {"temperature": 0.1, "sigma_px": 4.0}
+    # the wall's middle, well inside both photos (the far one alone sees more, where it gives the detail too)
+    seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
+    assert seen.mean() > 0.1 and (np.abs(agreeing[seen] - 0.5).max(axis=1) > 1e-6).all()
+    assert np.abs(agreeing_sharp[seen] - agreeing[seen]).mean() < 0.01
+    shifted = np.roll(np.asarray(Image.open(photos.images[1])).astype(np.float32), 4, axis=1) * 0.8
+    Image.fromarray(shifted.astype(np.uint8)).save(tmp_path / "shifted.png")  # misregistered, darker
+    photos = dataclasses.replace(photos, images=(photos.images[0], tmp_path / "shifted.png"))
+    views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
+    blend, _ = colours(ProjectiveSettings(), photos, views)
+    sharp, _ = colours(sharp_settings, photos, views)
+
+    def matched_error(got):  # after a gain and offset per channel: the stripes' error, not the exposure's
+        fit = [np.polyval(np.polyfit(truth[seen, c], got[seen, c], 1), truth[seen, c]) for c in range(3)]
+        return np.abs(np.stack(fit, axis=1) - got[seen]).mean()
+
+    error_blend, error_sharp = matched_error(blend), matched_error(sharp)
+    assert error_sharp < 0.5 * error_blend, (error_sharp, error_blend)
+    # the coarse colour, averaged over many stripes: both photos' exposure, the same in either mode
+    assert np.abs(sharp[seen].mean(axis=0) - blend[seen].mean(axis=0)).max() < 0.01
+    assert (blend[seen].mean(axis=0) < truth[seen].mean(axis=0) - 0.02).all()
+
+
 def test_a_photo_nothing_ties_down_takes_the_others_median_gain(tmp_path):
     """A photo with too few usable pixels to fit (a sliver of a tile) is not left at gain 1 among photos whose
     gains are far from it: it takes the fitted photos' median."""
