@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import platform
 import time
 from pathlib import Path
@@ -9,6 +10,15 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).with_name("RESULTS.md")
+
+
+def parse_override(item: str) -> dict:
+    """``SECTION__NAME=VALUE`` (a JSON value, or else a string) as a config override ``{key: value}``."""
+    key, _, value = item.partition("=")
+    try:
+        return {key: json.loads(value)}
+    except json.JSONDecodeError:
+        return {key: value}
 
 
 def machine() -> str:

@@ -2,6 +2,7 @@
 
     python bench/bench_few_photos.py                          # five draws of the 3 held-out photos
     python bench/bench_few_photos.py --held 1,5,9 --held 2,6,10
+    python bench/bench_few_photos.py --override photos__detail=sharp
 
 The project is also scored on a real relief wall kept outside the repository (12 RGB-D photos, 9 given and
 3 held out, an app-style input). ``../shared/data/bolster_rgbd_posed`` (14 Kinect photos) stands in for it:
@@ -30,7 +31,7 @@ DRAWS = [((1, 5, 9), (0, 1, 2, 3, 5, 6, 7, 8, 9, 10, 12, 13)), ((2, 6, 10), (0, 
          ((4, 8, 11), (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12))]
 
 
-def run_draw(held: tuple[int, ...], pool: tuple[int, ...]) -> dict:
+def run_draw(held: tuple[int, ...], pool: tuple[int, ...], override: dict | None = None) -> dict:
     from bench.baselines import app_style_bake
     from scantex.io import load_scan
     from scantex.photos import load_photos
@@ -45,7 +46,7 @@ def run_draw(held: tuple[int, ...], pool: tuple[int, ...]) -> dict:
     caster = RayCaster(scan.positions, scan.faces)
     app = app_style_bake(scan, photos, prepare_photos(scan, photos, range(len(photos)), caster, 640), size=2048)
     t = time.perf_counter()
-    result = enhance(app, preset("default").override(photos__holdout=0), photos=photos)
+    result = enhance(app, preset("default").override(photos__holdout=0, **(override or {})), photos=photos)
     seconds = time.perf_counter() - t
     held_views = prepare_photos(app, everything, list(held), caster, 640, VisibilitySettings(supersample=2))
     scores = score_photos({"input": app, "output": result.scan}, held_views, caster)
@@ -53,11 +54,16 @@ def run_draw(held: tuple[int, ...], pool: tuple[int, ...]) -> dict:
 
 
 def main() -> None:
+    from bench._results import parse_override
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--held", action="append", default=None, metavar="I,J,K",
                         help="three photos to hold out (repeat for more draws; the capture is the bolster's "
                              "protocol photos, all but 4 and 11, unless a held-out photo is one of them)")
+    parser.add_argument("--override", action="append", default=[], metavar="SECTION__NAME=VALUE",
+                        help="a config override for the scantex runs (JSON value or a string)")
     args = parser.parse_args()
+    override = {k: v for item in args.override for k, v in parse_override(item).items()}
     if not CAPTURE.exists():
         print(f"{CAPTURE}: not found; skipped")
         return
@@ -70,7 +76,7 @@ def main() -> None:
             draws.append((held, pool))
     print("| held out | given | colour-matched PSNR (input -> output) | SSIM | enhance s |\n|---|---|---|---|---|")
     for held, pool in draws:
-        r = run_draw(held, pool)
+        r = run_draw(held, pool, override)
         i, o = r["scores"]["input"], r["scores"]["output"]
         given = ", ".join(str(p) for p in pool if p not in held)
         print(f"| {', '.join(map(str, held))} | {given} | {i['psnr_matched']:.2f} -> **{o['psnr_matched']:.2f}** "

@@ -25,7 +25,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench._results import run_worker, update_section  # noqa: E402
+from bench._results import parse_override, run_worker, update_section  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 CAPTURES = {
@@ -128,13 +128,7 @@ def main() -> None:
     if not DATA.exists():
         print(f"{DATA} not present: nothing to do")
         return
-    override = {}
-    for item in args.override:
-        key, _, value = item.partition("=")
-        try:
-            override[key] = json.loads(value)
-        except json.JSONDecodeError:
-            override[key] = value
+    override = {k: v for item in args.override for k, v in parse_override(item).items()}
     lines = ["## Photo mode on real captures (held-out protocol of ../shared/data)", "",
              "| capture | method | held-out PSNR dB (input -> output) | colour-matched PSNR | colour-matched SSIM | "
              "pose-aligned PSNR (SSIM) | time s | peak GiB |", "|---|---|---|---|---|---|---|---|"]

@@ -25,7 +25,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench._results import run_worker, update_section  # noqa: E402
+from bench._results import parse_override, run_worker, update_section  # noqa: E402
 from bench.bench_real_photos import WORKER  # noqa: E402
 
 CAPTURE = Path("/tmp/scantex_room_capture")
@@ -75,12 +75,7 @@ def main() -> None:
     n = len(json.loads(cameras.read_text())["frames"])
     held = held_out(n)
     runs = [{}]
-    for item in args.override:
-        key, _, value = item.partition("=")
-        try:
-            runs.append({key: json.loads(value)})
-        except json.JSONDecodeError:
-            runs.append({key: value})
+    runs += [parse_override(item) for item in args.override]
     lines = ["## Photo mode at room scale (synthetic room, held-out protocol)", "",
              "| run | held-out colour-matched PSNR (input -> output) | SSIM | pose-aligned PSNR | time s | "
              "peak GiB |", "|---|---|---|---|---|---|"]

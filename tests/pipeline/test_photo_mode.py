@@ -263,7 +263,7 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
            str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--refine-poses", "consensus",
-           "--final-texture", "all", "--photos", str(toy_photos.source), "-o", str(out)]
+           "--final-texture", "all", "--detail", "sharp", "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "2 held-out photos" in run.stdout and "made from all 10 photos" in run.stdout
@@ -272,6 +272,7 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
+    assert metrics["photos"]["texturing"]["detail"] == {"temperature": 0.1, "sigma_px": 4.0}  # --detail sharp
     tally = metrics["photos"]["texturing"]["clipped"]
     assert tally["samples"] > 0 and 0 <= tally["gave_way"] <= tally["clipped"] <= tally["samples"]
     assert metrics["photos"]["final_texture"]["photos"] == 10
