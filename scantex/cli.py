@@ -427,6 +427,7 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
     inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
+    from scantex.report.html import fine_detail
 
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
@@ -466,6 +467,9 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
                      f": PSNR {s['input']['psnr']:.2f} -> {s['enhanced']['psnr']:.2f} dB "
                      f"(colour-matched {s['input']['psnr_matched']:.2f} -> {s['enhanced']['psnr_matched']:.2f}), "
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
+        detail, _ = fine_detail(s, m.get("photos", {}).get("texturing", {}))
+        if detail:
+            lines.append("  " + detail)
         if "psnr_aligned" in s["input"] and "psnr_aligned" in s["enhanced"]:
             lines.append(f"  each held-out photo's pose aligned to each texture, as the training photos' were: "
                          f"colour-matched PSNR {s['input']['psnr_aligned']:.2f} -> {s['enhanced']['psnr_aligned']:.2f} "

@@ -183,9 +183,9 @@ FINAL_ALL_BELOW = 50
 #: instead, and their alignment cost a real apartment 0.16 dB and 1.6x its time (bench/RESULTS.md)
 REFINE_BELOW = 50
 #: ``photos.detail`` sharp: the softmax temperature of the photos' fine band (their coarse band keeps
-#: ``photos.temperature``). On a real apartment's 197 photos, 0.1 gives the detail of about the best view alone:
-#: mean |Laplacian| of the held-out renders 0.0175 against the input's 0.0224 and the blend's 0.0097
-#: (bench/RESULTS.md, "sharp detail")
+#: ``photos.temperature``). On a real apartment's 197 photos, 0.1 gives about the best view's detail: the held-out
+#: renders' 0.0055 against the input's 0.0072 and the blend's 0.0027 (``score_photos``'s ``detail``;
+#: bench/RESULTS.md, "sharp detail")
 SHARP_DETAIL_TEMPERATURE = 0.1
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and

@@ -61,6 +61,28 @@ KEPT_APART = 0.01
 MESH_GEOMETRY = ("x", "y", "z", "i", "j", "k")
 
 
+#: the held-out renders' fine detail below this share of the photos' own: the summary says the texture is softer
+#: than the photos and names ``--detail sharp`` (bench/RESULTS.md, "sharp detail": a real apartment's blend of
+#: 197 photos about half, the bolster's and the facade's 0.8 and more)
+SOFT_DETAIL = 0.65
+
+
+def fine_detail(scores: dict, texturing: dict) -> tuple[str, bool]:
+    """The held-out photos' fine detail in words (mean |Laplacian of Gaussian| of the renders' grey and of the
+    photos'), and whether photo mode's blend left the texture much softer than the photos (the words then name
+    ``--detail sharp``); ``("", False)`` where it was not measured."""
+    result, photos = scores["enhanced"].get("detail"), scores["enhanced"].get("photo_detail")
+    if not photos or result is None:
+        return "", False
+    line = (f"fine detail (mean |Laplacian of Gaussian| of the grey): photos {photos:.4f}, input "
+            f"{scores['input']['detail']:.4f}, result {result:.4f}")
+    soft = result < SOFT_DETAIL * photos and texturing.get("mode") == "projective" and "detail" not in texturing
+    if soft:
+        line += (": softer than the photos, whose registration differs by a few pixels (--detail sharp takes the "
+                 "fine detail from the best views, at a lower held-out score)")
+    return line, soft
+
+
 def write_report(result, path: str | Path, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
                  metrics: dict | None = None, max_faces: int = MAX_FACES) -> Path:
     """Write the report of an enhance run to ``path`` (atomically) and return the path.
@@ -200,6 +222,9 @@ def _headline(m: dict) -> str:
                      "favours the input" + ("; the texture made without them (the one written was then made from "
                                             "every photo, these included: photos.final)" if _remade(m) else ""),
                      "good" if e["psnr_matched"] > i["psnr_matched"] else "bad"))
+        detail, soft = fine_detail(photos, m.get("photos", {}).get("texturing", {}))
+        if detail:
+            rows.append(("Fine detail (held-out photos)", detail[0].upper() + detail[1:], "bad" if soft else ""))
         truth = m.get("held_out_photos_vs_ground_truth")
         if truth:
             rows.append(("Held-out photos' cameras vs ground truth",

@@ -293,6 +293,29 @@ def test_score_photos_prefers_the_true_texture(tmp_path):
     assert sorted(sheets) == [0, 1] and sheets[0].shape == (72, 3 * 96, 3)
     assert np.array_equal(sheets[1][:, :96], views[1].image)
     assert s["grey"]["psnr_matched"] > s["grey"]["psnr"] - 1e-6
+    # fine detail: the true texture's renders hold about the photos' own, a flat grey none
+    assert s["true"]["detail"] == pytest.approx(s["true"]["photo_detail"], rel=0.2)
+    assert s["grey"]["detail"] < 0.1 * s["grey"]["photo_detail"] and s["true"]["photo_detail"] > 0
+
+
+def test_the_summary_says_when_the_blend_is_much_softer_than_the_photos():
+    from scantex.report.html import fine_detail
+
+    def detail_summary(scores, texturing):
+        return fine_detail(scores, texturing)[0]
+
+    def scores(result):
+        return {"input": {"detail": 0.0224, "photo_detail": 0.0229},
+                "enhanced": {"detail": result, "photo_detail": 0.0229}}
+
+    soft = detail_summary(scores(0.0097), {"mode": "projective"})
+    assert "photos 0.0229, input 0.0224, result 0.0097" in soft and "--detail sharp" in soft
+    assert "--detail sharp" not in detail_summary(scores(0.0200), {"mode": "projective"})
+    # asked for sharp detail already, or the field's colour: no hint
+    assert "--detail sharp" not in detail_summary(scores(0.0097), {"mode": "projective", "detail": {}})
+    assert "--detail sharp" not in detail_summary(scores(0.0097), {"mode": "field"})
+    assert detail_summary({"input": {}, "enhanced": {}}, {}) == ""  # scored before detail was measured
+    assert fine_detail(scores(0.0097), {"mode": "projective"})[1] and not fine_detail(scores(0.02), {})[1]
 
 
 @pytest.mark.parametrize("canonical", ["input", "photos"])
