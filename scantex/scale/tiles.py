@@ -693,6 +693,17 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
                          renders=shown)
 
 
+def tiled_texturing(pc) -> dict:
+    """How every tile coloured its texels (the settings; each tile's own report stays with it): the mode, and the
+    two bands' settings where ``photos.detail`` is sharp, as a whole run's ``photos.texturing`` gives them."""
+    from scantex.photos.texturing import ProjectiveSettings
+    from scantex.pipeline.enhance import SHARP_DETAIL_TEMPERATURE
+
+    detail = ({"detail": {"temperature": SHARP_DETAIL_TEMPERATURE, "sigma_px": ProjectiveSettings.detail_sigma}}
+              if pc.texturing == "projective" and pc.detail == "sharp" else {})
+    return {"mode": pc.texturing, **detail}
+
+
 def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,
                         config: EnhanceConfig, caster, images: dict | None = None) -> dict:
     """Photo mode's metrics of a tiled run, in ``enhance``'s shape: what the photos gave, and the input and the
@@ -711,6 +722,7 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
         "alignment": alignment_metrics(photos.alignment), "left_out": photos.left_out,
         "final_texture": {"photos": len(photos.train), "mode": "training", "setting": pc.final,
                           "note": "tiles write the texture the held-out photos score: the training photos'"},
+        "texturing": tiled_texturing(pc),
     }}
     if len(photos.held_out):
         held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side, visibility_settings(pc))

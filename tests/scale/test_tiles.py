@@ -271,6 +271,9 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
     assert "enhancing in 2 overlapping tiles" in run.stdout and "1 held-out photo:" in run.stdout
     metrics = json.loads((tmp_path / "cli" / "metrics.json").read_text())
     assert metrics["tiles"]["count"] == 2 and metrics["photos"]["final_texture"]["mode"] == "training"
+    # how the tiles coloured their texels, as a whole run says it (the summary's hint on fine detail reads it)
+    assert metrics["photos"]["texturing"] == {"mode": "projective"}
+    assert "fine detail" in run.stdout
 
 
 def test_an_untextured_scan_is_laid_out_whole_and_tiled_with_its_photos(toy_demo, toy_photos):
@@ -326,3 +329,13 @@ def _vertex_samples(scan):
     for k in range(3):
         face[scan.faces[:, k]], corner[scan.faces[:, k]] = np.arange(scan.n_faces), k
     return face, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])[corner]
+
+
+def test_a_tiled_run_says_how_its_tiles_coloured_their_texels():
+    from scantex.pipeline.config import PhotosConfig
+    from scantex.scale.tiles import tiled_texturing
+
+    assert tiled_texturing(PhotosConfig()) == {"mode": "projective"}
+    assert tiled_texturing(PhotosConfig(detail="sharp")) == {"mode": "projective",
+                                                             "detail": {"temperature": 0.1, "sigma_px": 4.0}}
+    assert tiled_texturing(PhotosConfig(texturing="field", detail="sharp")) == {"mode": "field"}
