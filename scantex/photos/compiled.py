@@ -24,16 +24,19 @@ log = logging.getLogger(__name__)
 
 
 def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
-           log_sharpness, photo_group, pixel_start, widths, heights, pixels, view_start, view_widths,
-           view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature,
+           log_sharpness, photo_group, pixel_start, widths, heights, pixels, coarse, view_start, view_widths,
+           view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature, detail_temperature,
            clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
     """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
     n, P = len(local), len(rotation_t)
+    bands = len(coarse) > 0
     quality = np.empty(P, np.float64)
+    reach_of = np.empty(P, np.float64)  # each sample's feather weight
     weight = np.empty(P, np.float64)
-    rgb = np.empty((P, 3), np.float64)
-    raw = np.empty((P, 3), np.float64)
-    clipped = np.empty(P, np.bool_)
+    # each sample's colour (canonical and as recorded) and clipping: [0] the photo's, [1] its coarse band's
+    rgbs = np.empty((2, P, 3), np.float64)
+    raws = np.empty((2, P, 3), np.float64)
+    clips = np.empty((2, P), np.bool_)
     group = np.empty(P, np.int64)
     for i in range(n):
         f = face_ids[i]
@@ -69,40 +72,44 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             distance = np.sqrt(cx * cx + cy * cy + cz * cz)
             cos = abs(unit[i, 0] * dx + unit[i, 1] * dy + unit[i, 2] * dz) / distance
             quality[m] = np.log(max(cos, 1e-3) * focal[p] / cz) + log_sharpness[p]  # one log: log(a) + log(b)
-            weight[m] = feather[at]
-            # the photo's colour there, bilinear
+            reach_of[m] = feather[at]
+            # the photo's colour there, bilinear (and its coarse band's, with two bands)
             W, H = widths[p], heights[p]
             x = min(max(fx, 0.0), W - 1.001)
             y = min(max(fy, 0.0), H - 1.001)
             x0, y0 = int(x), int(y)
             ax, ay = x - x0, y - y0
             corner = pixel_start[p] + y0 * W + x0
-            a, b, c, d = pixels[corner], pixels[corner + 1], pixels[corner + W], pixels[corner + W + 1]
-            top = 0.0
-            for k in range(3):
-                s = 8 * k
-                va, vb = float((a >> s) & 255), float((b >> s) & 255)
-                vc, vd = float((c >> s) & 255), float((d >> s) & 255)
-                upper = va + ax * (vb - va)
-                lower = vc + ax * (vd - vc)
-                raw[m, k] = (upper + ay * (lower - upper)) / 255.0
-                top = max(top, raw[m, k])
-            clipped[m] = top >= clip_level
-            # brought to the canonical appearance: (rgb - offset) @ inverse
             g = photo_group[p]
             group[m] = g
-            for k in range(3):
-                rgb[m, k] = ((raw[m, 0] - offset[g, 0]) * inverse[g, 0, k] + (raw[m, 1] - offset[g, 1]) * inverse[g, 1, k]
-                             + (raw[m, 2] - offset[g, 2]) * inverse[g, 2, k])
-            if clipped[m] and canonical:
-                # the clipped channels raised to the brightest of their canonical values
-                highest = -np.inf
+            for band in range(2 if bands else 1):
+                image = coarse if band == 1 else pixels
+                raw, rgb = raws[band], rgbs[band]
+                a, b, c, d = image[corner], image[corner + 1], image[corner + W], image[corner + W + 1]
+                top = 0.0
                 for k in range(3):
-                    if raw[m, k] >= clip_level:
-                        highest = max(highest, rgb[m, k])
+                    s = 8 * k
+                    va, vb = float((a >> s) & 255), float((b >> s) & 255)
+                    vc, vd = float((c >> s) & 255), float((d >> s) & 255)
+                    upper = va + ax * (vb - va)
+                    lower = vc + ax * (vd - vc)
+                    raw[m, k] = (upper + ay * (lower - upper)) / 255.0
+                    top = max(top, raw[m, k])
+                clips[band, m] = top >= clip_level
+                # brought to the canonical appearance: (rgb - offset) @ inverse
                 for k in range(3):
-                    if raw[m, k] >= clip_level:
-                        rgb[m, k] = max(rgb[m, k], highest)
+                    rgb[m, k] = ((raw[m, 0] - offset[g, 0]) * inverse[g, 0, k]
+                                 + (raw[m, 1] - offset[g, 1]) * inverse[g, 1, k]
+                                 + (raw[m, 2] - offset[g, 2]) * inverse[g, 2, k])
+                if clips[band, m] and canonical:
+                    # the clipped channels raised to the brightest of their canonical values
+                    highest = -np.inf
+                    for k in range(3):
+                        if raw[m, k] >= clip_level:
+                            highest = max(highest, rgb[m, k])
+                    for k in range(3):
+                        if raw[m, k] >= clip_level:
+                            rgb[m, k] = max(rgb[m, k], highest)
             m += 1
         tally[0] += m
         if m == 0:
@@ -110,61 +117,73 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             total[i] = 0.0
             alpha[i] = 0.0
             continue
-        best, reach, any_clipped = -np.inf, 0.0, False
+        best, reach = -np.inf, 0.0
         for j in range(m):
             best = max(best, quality[j])
-            reach = max(reach, weight[j])
-            any_clipped = any_clipped or clipped[j]
+            reach = max(reach, reach_of[j])
         alpha[i] = reach
-        for j in range(m):
-            weight[j] *= np.exp((quality[j] - best) / temperature)
-        if any_clipped:
-            tally[1] += np.sum(clipped[:m])
-        if censors and any_clipped:
-            # the clipped samples give way where the unclipped ones say their photo overshot its white point
-            support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+        out[i, 0] = out[i, 1] = out[i, 2] = 0.0
+        # one band: the photos' blend. Two: their coarse band's blend at the temperature, plus the fine band's at the
+        # detail temperature (by linearity, the photos' blend there less their coarse band's)
+        for blend_pass in range(3 if bands else 1):
+            band = 0 if blend_pass == 1 or not bands else 1
+            sign = -1.0 if blend_pass == 2 else 1.0
+            rgb, clipped = rgbs[band], clips[band]
+            t = temperature if blend_pass == 0 else detail_temperature
+            any_clipped = False
             for j in range(m):
-                if not clipped[j]:
-                    support += weight[j]
-                    s0 += weight[j] * rgb[j, 0]
-                    s1 += weight[j] * rgb[j, 1]
-                    s2 += weight[j] * rgb[j, 2]
-            if support > 0:
-                u0, u1, u2 = s0 / max(support, 1e-12), s1 / max(support, 1e-12), s2 / max(support, 1e-12)
+                weight[j] = reach_of[j] * np.exp((quality[j] - best) / t)
+                any_clipped = any_clipped or clipped[j]
+            if any_clipped and blend_pass == 0:
+                tally[1] += np.sum(clipped[:m])
+            if censors and any_clipped:
+                # the clipped samples give way where the unclipped ones say their photo overshot its white point
+                support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
                 for j in range(m):
-                    if clipped[j]:
-                        g = group[j]
-                        predicted = -np.inf
-                        for k in range(3):
-                            predicted = max(predicted, u0 * gain[g, 0, k] + u1 * gain[g, 1, k] + u2 * gain[g, 2, k]
-                                            + offset[g, k])
-                        scale = min(max(1.0 - (predicted - 1.0) / overshoot, 1e-3), 1.0)
-                        if scale < 0.5:  # the sample keeps less than half its weight
-                            tally[2] += 1
-                        weight[j] *= scale
-        support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
-        for j in range(m):
-            support += weight[j]
-            s0 += weight[j] * rgb[j, 0]
-            s1 += weight[j] * rgb[j, 1]
-            s2 += weight[j] * rgb[j, 2]
-        total[i] = support
-        norm = max(support, 1e-12)
-        o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
-        # photo-consistency: each round reweights every sample by its distance from the last blend
-        for _ in range(rounds if consistency > 0 else 0):
-            inv_scale = 1.0 / (consistency * consistency)
+                    if not clipped[j]:
+                        support += weight[j]
+                        s0 += weight[j] * rgb[j, 0]
+                        s1 += weight[j] * rgb[j, 1]
+                        s2 += weight[j] * rgb[j, 2]
+                if support > 0:
+                    u0, u1, u2 = s0 / max(support, 1e-12), s1 / max(support, 1e-12), s2 / max(support, 1e-12)
+                    for j in range(m):
+                        if clipped[j]:
+                            g = group[j]
+                            predicted = -np.inf
+                            for k in range(3):
+                                predicted = max(predicted, u0 * gain[g, 0, k] + u1 * gain[g, 1, k]
+                                                + u2 * gain[g, 2, k] + offset[g, k])
+                            scale = min(max(1.0 - (predicted - 1.0) / overshoot, 1e-3), 1.0)
+                            if scale < 0.5 and blend_pass == 0:  # the sample keeps less than half its weight
+                                tally[2] += 1
+                            weight[j] *= scale
             support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
             for j in range(m):
-                r = (rgb[j, 0] - o0) ** 2 + (rgb[j, 1] - o1) ** 2 + (rgb[j, 2] - o2) ** 2
-                robust = weight[j] / (1.0 + inv_scale * r)
-                support += robust
-                s0 += robust * rgb[j, 0]
-                s1 += robust * rgb[j, 1]
-                s2 += robust * rgb[j, 2]
+                support += weight[j]
+                s0 += weight[j] * rgb[j, 0]
+                s1 += weight[j] * rgb[j, 1]
+                s2 += weight[j] * rgb[j, 2]
+            if blend_pass == 0:
+                total[i] = support
             norm = max(support, 1e-12)
             o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
-        out[i, 0], out[i, 1], out[i, 2] = o0, o1, o2
+            # photo-consistency: each round reweights every sample by its distance from the last blend
+            for _ in range(rounds if consistency > 0 else 0):
+                inv_scale = 1.0 / (consistency * consistency)
+                support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+                for j in range(m):
+                    r = (rgb[j, 0] - o0) ** 2 + (rgb[j, 1] - o1) ** 2 + (rgb[j, 2] - o2) ** 2
+                    robust = weight[j] / (1.0 + inv_scale * r)
+                    support += robust
+                    s0 += robust * rgb[j, 0]
+                    s1 += robust * rgb[j, 1]
+                    s2 += robust * rgb[j, 2]
+                norm = max(support, 1e-12)
+                o0, o1, o2 = s0 / norm, s1 / norm, s2 / norm
+            out[i, 0] += sign * o0
+            out[i, 1] += sign * o1
+            out[i, 2] += sign * o2
 
 
 def _kernel():
@@ -197,6 +216,7 @@ class PhotoTables:
     widths: np.ndarray  # (P,) int64: sampling resolution
     heights: np.ndarray  # (P,) int64
     pixels: np.ndarray  # (sum H W,) uint32: the images packed (a pixel's RGB bytes in one word), row-major
+    coarse: np.ndarray  # the same for each image's coarse band (two bands), or empty (one band)
     view_start: np.ndarray  # (P,) int64: where its working-resolution maps start
     view_widths: np.ndarray  # (P,) int64
     view_heights: np.ndarray  # (P,) int64
@@ -211,12 +231,15 @@ class PhotoTables:
 
 def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, *, depth_tolerance: float,
           temperature: float, clip_level: float, overshoot: float, consistency: float, rounds: int,
-          without: int | None, censors: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          without: int | None, censors: bool, detail_temperature: float = 0.0
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The photos' blend at points ``local (n, 3)`` (about the capture's origin) with normals ``unit (n, 3)`` on
     faces ``face_ids (n,)``: ``(colour (n, 3) float32, total weight (n,) float32, the largest feather weight
     (n,) float32, tally (3,) int64: samples, clipped samples, clipped samples that gave way)``, as
     :func:`scantex.photos.texturing.projective_colour`'s numpy path makes them (``censors``: clipped samples
-    give way where the others say their photo overshot its white point)."""
+    give way where the others say their photo overshot its white point). With ``tables.coarse`` (two bands), the
+    colour is the coarse band's blend at ``temperature`` plus the fine band's at ``detail_temperature``; the total
+    weight and the tally are the coarse band's blend's."""
     n = len(local)
     out = np.empty((n, 3), np.float64)
     total = np.empty(n, np.float64)
@@ -226,8 +249,9 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
     _kernel()(np.ascontiguousarray(local, np.float64), np.ascontiguousarray(unit, np.float64),
               np.ascontiguousarray(face_ids, np.int64), t.seen_faces, t.rotation_t, t.translation, t.intrinsics_t,
               t.to_view, t.centre, t.focal, t.log_sharpness, t.group, t.pixel_start, t.widths, t.heights, t.pixels,
-              t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
-              t.gain, float(depth_tolerance), float(temperature), float(clip_level), float(overshoot),
+              t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
+              t.gain, float(depth_tolerance), float(temperature), float(detail_temperature or 1.0), float(clip_level),
+              float(overshoot),
               float(consistency), int(rounds), -1 if without is None else int(without), bool(censors),
               t.canonical, out, total, alpha, tally)
     return out.astype(np.float32), total.astype(np.float32), alpha.astype(np.float32), tally

@@ -35,9 +35,10 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
 - **detail** (``detail_temperature``, off by default): two bands. A blend of many photos whose registration
   differs by a few pixels (a room's video frames) is a blur; the photos' coarse band (a Gaussian blur) is blended
   at ``temperature`` and the fine band (photo less blur) at a low temperature, nearly the best view's: detail of
-  one photo, colour of all (a two-band blend, as panorama stitchers blend). Three blends a point, by linearity:
-  coarse at ``temperature``, then the photos and their blur at the detail temperature, whose difference is the
-  blended fine band;
+  one photo, colour of all (a two-band blend, as panorama stitchers blend). By linearity, three blends of a
+  point's samples: the coarse band's at ``temperature``, then the photos' and their coarse band's at the detail
+  temperature, whose difference is the blended fine band (the compiled blend samples both bands of a photo in one
+  pass; the numpy path runs the three blends one after another);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 
@@ -277,24 +278,23 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     if sources and (canonicalise is None or transforms is not None):
         if compiled.available():
             tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None,
-                             pixels, pixel_start, feathers, view_start)
+                             pixels, pixel_start, feathers, view_start, coarse if bands else None)
     report["compiled"] = tables is not None
     # the same photos with their coarse band in place of the image (the sources' other arrays shared)
-    coarse_tables = dataclasses.replace(tables, pixels=coarse) if bands and tables is not None else tables
     coarse_sources = ([dataclasses.replace(s, pixels=coarse[start:start + s.pixels.size])
                        for s, start in zip(sources, pixel_start)] if bands else sources)
 
     tallying = threading.Lock()  # the report's counts, from calls in several threads
     threads = _WORKERS if threads is None else threads
 
-    def compiled_blend(local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, without: int | None,
-                       photo_tables, temperature: float, tally_it: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The blend of ``photo_tables`` at ``temperature``, compiled: ``(colour (n, 3), total weight (n,), largest
-        feather (n,))``; the points in ``threads`` parts side by side (the kernel releases the interpreter lock).
-        ``tally_it``: count its samples in the report."""
+    def compiled_blend(local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, without: int | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blend, compiled (both bands in one pass): ``(colour (n, 3), total weight (n,), largest feather
+        (n,))``; the points in ``threads`` parts side by side (the kernel releases the interpreter lock)."""
         def part(span: slice):
-            return compiled.blend(photo_tables, local[span], unit[span], face_ids[span],
-                                  depth_tolerance=settings.depth_tolerance, temperature=temperature,
+            return compiled.blend(tables, local[span], unit[span], face_ids[span],
+                                  depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
+                                  detail_temperature=settings.detail_temperature,
                                   clip_level=settings.clip_level, overshoot=settings.overshoot,
                                   consistency=settings.consistency, rounds=settings.consistency_rounds,
                                   without=without, censors=settings.overshoot > 0 and to_recorded is not None)
@@ -311,8 +311,6 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             results = [part(spans[0])]
         out, total, alpha = (np.concatenate([r[k] for r in results]) for k in range(3))
         tally = sum(r[3] for r in results)
-        if not tally_it:
-            return out, total, alpha
         with tallying:
             counts = report["clipped"]
             counts["samples"] += int(tally[0])
@@ -411,16 +409,13 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     out, _ = _weighted_mean(n, seen_by, robust)
             return out, total, alpha
 
-        def blend(fine: bool, temperature: float, tally_it: bool = False):
-            """The photos' blend at ``temperature``: of the photos themselves (``fine``) or of their coarse band."""
-            if tables is not None:
-                return compiled_blend(points - origin, normals, face_ids, without,
-                                      tables if fine else coarse_tables, temperature, tally_it)
-            return numpy_blend(sources if fine else coarse_sources, temperature, tally_it)
-
-        out, total, alpha = blend(not bands, settings.temperature, tally_it=True)
-        if bands:  # the fine band at the detail temperature: the photos' blend less their coarse band's
-            out += blend(True, settings.detail_temperature)[0] - blend(False, settings.detail_temperature)[0]
+        if tables is not None:
+            out, total, alpha = compiled_blend(points - origin, normals, face_ids, without)
+        else:
+            out, total, alpha = numpy_blend(coarse_sources, settings.temperature, tally_it=True)
+            if bands:  # the fine band at the detail temperature: the photos' blend less their coarse band's
+                td = settings.detail_temperature
+                out += numpy_blend(sources, td, tally_it=False)[0] - numpy_blend(coarse_sources, td, tally_it=False)[0]
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
         if loose.size:
@@ -656,12 +651,14 @@ def _replace_sharpness(s: _Source, value: float) -> _Source:
 
 
 def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray | None, n_faces: int | None,
-            pixels: np.ndarray, pixel_start: np.ndarray, feathers: np.ndarray, view_start: np.ndarray):
+            pixels: np.ndarray, pixel_start: np.ndarray, feathers: np.ndarray, view_start: np.ndarray,
+            coarse: np.ndarray | None = None):
     """The sources as :mod:`scantex.photos.compiled` reads them (a :class:`~scantex.photos.compiled.PhotoTables`):
     their arrays end to end, their poses stacked in float64 about ``origin``; ``transforms`` ``None``: the
     photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling. ``pixels`` and
     ``feathers``: the sources' packed images and feather weights end to end (each source's a view of its part),
-    each photo's part starting at ``pixel_start`` and ``view_start``.
+    each photo's part starting at ``pixel_start`` and ``view_start``; ``coarse``: the images' coarse bands, packed
+    as ``pixels`` (two bands), or ``None``.
 
     The working views' usable pixels and depth (the caller's) are copied as one array of the usable pixels'
     depth; the faces each photo may see are held once (``sources`` is changed in place: theirs become views)."""
@@ -696,6 +693,7 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         log_sharpness=np.array([s.log_sharpness for s in sources], np.float64), group=groups,
         pixel_start=pixel_start, widths=np.array([s.camera.width for s in sources], np.int64),
         heights=np.array([s.camera.height for s in sources], np.int64), pixels=pixels,
+        coarse=coarse if coarse is not None else np.empty(0, np.uint32),
         view_start=view_start, view_widths=np.array([s.valid.shape[1] for s in sources], np.int64),
         view_heights=np.array([s.valid.shape[0] for s in sources], np.int64), depth=usable_depth,
         feather=feathers, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
