@@ -22,11 +22,14 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+#: robust rounds that find what most photos' coarse bands say of a point (two bands' ``detail_consistency``)
+DETAIL_ROUNDS = 3
+
 
 def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
            log_sharpness, photo_group, pixel_start, widths, heights, pixels, coarse, view_start, view_widths,
            view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature, detail_temperature,
-           clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
+           detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
     """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
     n, P = len(local), len(rotation_t)
     bands = len(coarse) > 0
@@ -118,6 +121,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             alpha[i] = 0.0
             continue
         best, reach = -np.inf, 0.0
+        low0 = low1 = low2 = 0.0
         for j in range(m):
             best = max(best, quality[j])
             reach = max(reach, reach_of[j])
@@ -134,6 +138,10 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             for j in range(m):
                 weight[j] = reach_of[j] * np.exp((quality[j] - best) / t)
                 any_clipped = any_clipped or clipped[j]
+                if blend_pass > 0 and detail_consistency > 0:
+                    # the fine band from photos whose coarse band agrees with the coarse blend (not an occluder's)
+                    r = ((rgbs[1, j, 0] - low0) ** 2 + (rgbs[1, j, 1] - low1) ** 2 + (rgbs[1, j, 2] - low2) ** 2)
+                    weight[j] *= np.exp(-r / (detail_consistency * detail_consistency))
             if any_clipped and blend_pass == 0:
                 tally[1] += np.sum(clipped[:m])
             if censors and any_clipped:
@@ -184,6 +192,22 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             out[i, 0] += sign * o0
             out[i, 1] += sign * o1
             out[i, 2] += sign * o2
+            if blend_pass == 0 and bands and detail_consistency > 0:
+                # what most photos' coarse bands say: robust (Cauchy) rounds from the coarse blend, so that a photo
+                # that saw an occluder or a highlight stands out from it
+                low0, low1, low2 = o0, o1, o2
+                inv_scale = 1.0 / (detail_consistency * detail_consistency)
+                for _ in range(DETAIL_ROUNDS):
+                    support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+                    for j in range(m):
+                        r = (rgbs[1, j, 0] - low0) ** 2 + (rgbs[1, j, 1] - low1) ** 2 + (rgbs[1, j, 2] - low2) ** 2
+                        robust = reach_of[j] * np.exp((quality[j] - best) / temperature) / (1.0 + inv_scale * r)
+                        support += robust
+                        s0 += robust * rgbs[1, j, 0]
+                        s1 += robust * rgbs[1, j, 1]
+                        s2 += robust * rgbs[1, j, 2]
+                    if support > 0:
+                        low0, low1, low2 = s0 / support, s1 / support, s2 / support
 
 
 def _kernel():
@@ -231,15 +255,16 @@ class PhotoTables:
 
 def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, *, depth_tolerance: float,
           temperature: float, clip_level: float, overshoot: float, consistency: float, rounds: int,
-          without: int | None, censors: bool, detail_temperature: float = 0.0
+          without: int | None, censors: bool, detail_temperature: float = 0.0, detail_consistency: float = 0.0
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The photos' blend at points ``local (n, 3)`` (about the capture's origin) with normals ``unit (n, 3)`` on
     faces ``face_ids (n,)``: ``(colour (n, 3) float32, total weight (n,) float32, the largest feather weight
     (n,) float32, tally (3,) int64: samples, clipped samples, clipped samples that gave way)``, as
     :func:`scantex.photos.texturing.projective_colour`'s numpy path makes them (``censors``: clipped samples
     give way where the others say their photo overshot its white point). With ``tables.coarse`` (two bands), the
-    colour is the coarse band's blend at ``temperature`` plus the fine band's at ``detail_temperature``; the total
-    weight and the tally are the coarse band's blend's."""
+    colour is the coarse band's blend at ``temperature`` plus the fine band's at ``detail_temperature``, a photo's
+    weight there times ``exp(-(d / detail_consistency)^2)``, ``d`` its coarse band's distance from what most
+    photos' coarse bands say (:data:`DETAIL_ROUNDS` robust rounds from the coarse blend; 0: no such weight); the total weight and the tally are the coarse band's blend's."""
     n = len(local)
     out = np.empty((n, 3), np.float64)
     total = np.empty(n, np.float64)
@@ -250,7 +275,8 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
               np.ascontiguousarray(face_ids, np.int64), t.seen_faces, t.rotation_t, t.translation, t.intrinsics_t,
               t.to_view, t.centre, t.focal, t.log_sharpness, t.group, t.pixel_start, t.widths, t.heights, t.pixels,
               t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
-              t.gain, float(depth_tolerance), float(temperature), float(detail_temperature or 1.0), float(clip_level),
+              t.gain, float(depth_tolerance), float(temperature), float(detail_temperature or 1.0),
+              float(detail_consistency), float(clip_level),
               float(overshoot),
               float(consistency), int(rounds), -1 if without is None else int(without), bool(censors),
               t.canonical, out, total, alpha, tally)

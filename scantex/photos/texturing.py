@@ -38,7 +38,8 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   one photo, colour of all (a two-band blend, as panorama stitchers blend). By linearity, three blends of a
   point's samples: the coarse band's at ``temperature``, then the photos' and their coarse band's at the detail
   temperature, whose difference is the blended fine band (the compiled blend samples both bands of a photo in one
-  pass; the numpy path runs the three blends one after another);
+  pass; the numpy path runs the three blends one after another). In the fine band a photo whose coarse band
+  disagrees with the coarse blend (an occluder, a highlight) gives way (``detail_consistency``);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 
@@ -111,6 +112,10 @@ class ProjectiveSettings:
     the detail comes from the best views while colour and exposure still average over every photo"""
     detail_sigma: float = 4.0
     """the Gaussian (in working pixels, scaled to each photo's sampling resolution) that splits the bands"""
+    detail_consistency: float = 0.05
+    """two bands: a photo's weight in the fine band's blend is multiplied by ``exp(-(d / detail_consistency)^2)``,
+    ``d`` the RGB distance of its coarse band from what most photos' coarse bands say there (0: not), so the detail
+    does not come from a photo that saw an occluder or a highlight there"""
 
 
 #: a connected part of the mesh holding less than this share of its faces is a loose fragment (see
@@ -295,6 +300,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             return compiled.blend(tables, local[span], unit[span], face_ids[span],
                                   depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
                                   detail_temperature=settings.detail_temperature,
+                                  detail_consistency=settings.detail_consistency,
                                   clip_level=settings.clip_level, overshoot=settings.overshoot,
                                   consistency=settings.consistency, rounds=settings.consistency_rounds,
                                   without=without, censors=settings.overshoot > 0 and to_recorded is not None)
@@ -342,10 +348,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     return [x for x in pool.map(job, asked) if x is not None]
             return [x for x in map(job, asked) if x is not None]
 
-        def numpy_blend(among: list[_Source], temperature: float, tally_it: bool
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        def numpy_blend(among: list[_Source], temperature: float, tally_it: bool,
+                        gates: list[np.ndarray] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[_Samples]]:
             """The blend of the photos ``among`` at ``temperature`` in numpy, photo by photo: ``(colour (n, 3),
-            total weight (n,), largest feather (n,))``; ``tally_it``: count its samples in the report."""
+            total weight (n,), largest feather (n,), the samples)``; ``tally_it``: count its samples in the report;
+            ``gates``: a factor on each photo's weights (for the photos that see some point, in order)."""
             # first pass: each photo's samples of the points it sees, their quality and feather weight, the
             # photos side by side on the cores (numpy releases the interpreter lock in the array work)
             unit = normals.astype(np.float32)
@@ -387,8 +395,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             # second pass: the softmax of the quality (relative to each point's best view), feathered
             alpha = np.zeros(n, np.float32)
             weights = []
-            for x in seen_by:
-                weights.append(np.exp((x.quality - best[x.idx]) / temperature) * x.feather)
+            for k, x in enumerate(seen_by):
+                weights.append(np.exp((x.quality - best[x.idx]) / temperature) * x.feather
+                               * (gates[k] if gates is not None else np.float32(1)))
                 alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
             gave_way = 0
             if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
@@ -407,15 +416,18 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     robust = [w / (1 + scale * np.square(x.rgb - out[x.idx]).sum(axis=1))
                               for x, w in zip(seen_by, weights)]
                     out, _ = _weighted_mean(n, seen_by, robust)
-            return out, total, alpha
+            return out, total, alpha, seen_by
 
         if tables is not None:
             out, total, alpha = compiled_blend(points - origin, normals, face_ids, without)
         else:
-            out, total, alpha = numpy_blend(coarse_sources, settings.temperature, tally_it=True)
+            out, total, alpha, coarse_seen = numpy_blend(coarse_sources, settings.temperature, tally_it=True)
             if bands:  # the fine band at the detail temperature: the photos' blend less their coarse band's
-                td = settings.detail_temperature
-                out += numpy_blend(sources, td, tally_it=False)[0] - numpy_blend(coarse_sources, td, tally_it=False)[0]
+                td, gates = settings.detail_temperature, None
+                if settings.detail_consistency > 0:  # from photos whose coarse band agrees with most photos'
+                    gates = _detail_gates(n, coarse_seen, out, settings.temperature, settings.detail_consistency)
+                fine = numpy_blend(sources, td, False, gates)[0] - numpy_blend(coarse_sources, td, False, gates)[0]
+                out = out + fine
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
         if loose.size:
@@ -626,6 +638,26 @@ def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
     total, blend = total + support, blend + sums
     return ((blend / np.maximum(total, 1e-12)[:, None]).astype(np.float32), total.astype(np.float32),
             np.split(weight, start[1:-1]), gave_way)
+
+
+def _detail_gates(n: int, coarse: list[_Samples], blend: np.ndarray, temperature: float, scale: float
+                  ) -> list[np.ndarray]:
+    """Two bands: each photo's factor on its weight in the fine band's blend, ``exp(-(d / scale)^2)``, ``d`` its
+    coarse band's RGB distance from what most photos' coarse bands say of the point (robust Cauchy rounds from the
+    coarse ``blend``): the detail does not come from a photo that saw an occluder or a highlight there."""
+    from scantex.photos.compiled import DETAIL_ROUNDS
+
+    best = np.full(n, -np.inf, np.float32)
+    for x in coarse:
+        best[x.idx] = np.maximum(best[x.idx], x.quality)
+    base = [x.feather * np.exp((x.quality - best[x.idx]) / temperature) for x in coarse]
+    inv = np.float32(1.0 / scale ** 2)
+    reference = blend
+    for _ in range(DETAIL_ROUNDS):
+        robust = [w / (1 + inv * np.square(x.rgb - reference[x.idx]).sum(axis=1)) for x, w in zip(coarse, base)]
+        moved, support = _weighted_mean(n, coarse, robust)
+        reference = np.where((support > 0)[:, None], moved, reference)
+    return [np.exp(-inv * np.square(x.rgb - reference[x.idx]).sum(axis=1)) for x in coarse]
 
 
 def _weighted_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -172,6 +172,34 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
     assert (blend[seen].mean(axis=0) < truth[seen].mean(axis=0) - 0.02).all()
 
 
+def test_sharp_detail_does_not_come_from_a_photo_that_saw_an_occluder(tmp_path):
+    """The best view has a patterned occluder in front of part of the wall (a tree): the two other photos see the
+    wall there. Without the gate the fine band there is the occluder's pattern; with it, the other photos'."""
+    scan = smooth_wall()
+    eyes = [(1.0, -2.0, 1.0), (0.6, -3.4, 1.0), (1.4, -3.4, 1.0)]  # the first the closest, the best view
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480) for e in eyes]
+    photos = photograph(scan, cams, tmp_path)
+    image = np.asarray(Image.open(photos.images[0])).copy()
+    yy, xx = np.mgrid[160:320, 240:400]
+    image[160:320, 240:400] = np.where(((xx // 6 + yy // 6) % 2 == 0)[..., None], (40, 120, 40), (200, 230, 90))
+    Image.fromarray(image).save(photos.images[0])
+    caster = RayCaster(scan.positions, scan.faces)
+    views = prepare_photos(scan, photos, range(3), caster, 160, VisibilitySettings(supersample=2))
+    points, normals, f, b = surface_points(scan, 20000)
+    truth = shade_hits(scan, f, b)
+    # the wall behind the occluder: where the first photo sees it, well inside the patch
+    pix, _ = cams[0].project(points)
+    behind = (pix[:, 0] > 260) & (pix[:, 0] < 380) & (pix[:, 1] > 180) & (pix[:, 1] < 300)
+    assert behind.sum() > 200
+
+    def error(consistency):
+        colour, _ = projective_colour(photos, views, [0, 1, 2], None, grey,
+                                      ProjectiveSettings(detail_temperature=0.1, detail_consistency=consistency))
+        return np.abs(colour(points, normals, f, b)[behind] - truth[behind]).mean()
+
+    assert error(0.05) < 0.6 * error(0.0), (error(0.05), error(0.0))
+
+
 def test_a_photo_nothing_ties_down_takes_the_others_median_gain(tmp_path):
     """A photo with too few usable pixels to fit (a sliver of a tile) is not left at gain 1 among photos whose
     gains are far from it: it takes the fitted photos' median."""
