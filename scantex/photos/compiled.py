@@ -29,7 +29,8 @@ DETAIL_ROUNDS = 3
 def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
            log_sharpness, photo_group, pixel_start, widths, heights, pixels, coarse, view_start, view_widths,
            view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature, detail_temperature,
-           detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total, alpha, tally):
+           detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total,
+           alpha, tally):
     """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
     n, P = len(local), len(rotation_t)
     bands = len(coarse) > 0
@@ -85,10 +86,11 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             corner = pixel_start[p] + y0 * W + x0
             g = photo_group[p]
             group[m] = g
-            for band in range(2 if bands else 1):
-                image = coarse if band == 1 else pixels
-                raw, rgb = raws[band], rgbs[band]
-                a, b, c, d = image[corner], image[corner + 1], image[corner + W], image[corner + W + 1]
+            for band in range(2 if bands else 1):  # indexed in full: a view a sample costs the loop time
+                if band == 0:
+                    a, b, c, d = pixels[corner], pixels[corner + 1], pixels[corner + W], pixels[corner + W + 1]
+                else:
+                    a, b, c, d = coarse[corner], coarse[corner + 1], coarse[corner + W], coarse[corner + W + 1]
                 top = 0.0
                 for k in range(3):
                     s = 8 * k
@@ -96,23 +98,24 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
                     vc, vd = float((c >> s) & 255), float((d >> s) & 255)
                     upper = va + ax * (vb - va)
                     lower = vc + ax * (vd - vc)
-                    raw[m, k] = (upper + ay * (lower - upper)) / 255.0
-                    top = max(top, raw[m, k])
+                    raws[band, m, k] = (upper + ay * (lower - upper)) / 255.0
+                    top = max(top, raws[band, m, k])
                 clips[band, m] = top >= clip_level
                 # brought to the canonical appearance: (rgb - offset) @ inverse
+                r0 = raws[band, m, 0] - offset[g, 0]
+                r1 = raws[band, m, 1] - offset[g, 1]
+                r2 = raws[band, m, 2] - offset[g, 2]
                 for k in range(3):
-                    rgb[m, k] = ((raw[m, 0] - offset[g, 0]) * inverse[g, 0, k]
-                                 + (raw[m, 1] - offset[g, 1]) * inverse[g, 1, k]
-                                 + (raw[m, 2] - offset[g, 2]) * inverse[g, 2, k])
+                    rgbs[band, m, k] = r0 * inverse[g, 0, k] + r1 * inverse[g, 1, k] + r2 * inverse[g, 2, k]
                 if clips[band, m] and canonical:
                     # the clipped channels raised to the brightest of their canonical values
                     highest = -np.inf
                     for k in range(3):
-                        if raw[m, k] >= clip_level:
-                            highest = max(highest, rgb[m, k])
+                        if raws[band, m, k] >= clip_level:
+                            highest = max(highest, rgbs[band, m, k])
                     for k in range(3):
-                        if raw[m, k] >= clip_level:
-                            rgb[m, k] = max(rgb[m, k], highest)
+                        if raws[band, m, k] >= clip_level:
+                            rgbs[band, m, k] = max(rgbs[band, m, k], highest)
             m += 1
         tally[0] += m
         if m == 0:
@@ -264,7 +267,8 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
     give way where the others say their photo overshot its white point). With ``tables.coarse`` (two bands), the
     colour is the coarse band's blend at ``temperature`` plus the fine band's at ``detail_temperature``, a photo's
     weight there times ``exp(-(d / detail_consistency)^2)``, ``d`` its coarse band's distance from what most
-    photos' coarse bands say (:data:`DETAIL_ROUNDS` robust rounds from the coarse blend; 0: no such weight); the total weight and the tally are the coarse band's blend's."""
+    photos' coarse bands say (:data:`DETAIL_ROUNDS` robust rounds from the coarse blend; 0: no such weight); the
+    total weight and the tally are the coarse band's blend's."""
     n = len(local)
     out = np.empty((n, 3), np.float64)
     total = np.empty(n, np.float64)
