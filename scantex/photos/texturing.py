@@ -39,7 +39,7 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   point's samples: the coarse band's at ``temperature``, then the photos' and their coarse band's at the detail
   temperature, whose difference is the blended fine band (the compiled blend samples both bands of a photo in one
   pass; the numpy path runs the three blends one after another). In the fine band a photo whose coarse band
-  disagrees with the coarse blend (an occluder, a highlight) gives way (``detail_consistency``);
+  disagrees with what most photos' coarse bands say (an occluder, a highlight) gives way (``detail_consistency``);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 
