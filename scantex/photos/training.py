@@ -386,6 +386,7 @@ def colour_match(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> np.
 #: (:func:`score_photos`)
 DETAIL_SIGMA = 1.0
 
+
 def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: RayCaster,
                  supersample: int = 2, images: dict | None = None, align: bool = False) -> dict:
     """PSNR / SSIM of each scan rendered through held-out photos' cameras, raw and colour-matched,
@@ -427,7 +428,8 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
 
         def detail(image: np.ndarray) -> float:
             """Fine detail: mean |Laplacian of a Gaussian of 1 px| of the grey, over the pixels scored (the plain
-            Laplacian counts a noisy photo's sensor noise as detail: the bolster's photos 0.16, 0.04 so)."""
+            Laplacian counts a noisy photo's sensor noise as detail: the bolster's photos score 0.16 by it, 0.04 by
+            this, its texture's renders 0.10 and 0.03)."""
             grey = image.mean(axis=2)
             return float(np.abs(ndimage.gaussian_laplace(grey, DETAIL_SIGMA))[inner].mean()) if inner.any() else 0.0
 
