@@ -469,7 +469,7 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
                      f"SSIM {s['input']['ssim']:.3f} -> {s['enhanced']['ssim']:.3f}")
         detail, _ = fine_detail(s, m.get("photos", {}).get("texturing", {}))
         if detail:
-            lines.append("  " + detail)
+            lines.append("  fine detail: " + detail)
         if "psnr_aligned" in s["input"] and "psnr_aligned" in s["enhanced"]:
             lines.append(f"  each held-out photo's pose aligned to each texture, as the training photos' were: "
                          f"colour-matched PSNR {s['input']['psnr_aligned']:.2f} -> {s['enhanced']['psnr_aligned']:.2f} "

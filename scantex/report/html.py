@@ -74,8 +74,8 @@ def fine_detail(scores: dict, texturing: dict) -> tuple[str, bool]:
     result, photos = scores["enhanced"].get("detail"), scores["enhanced"].get("photo_detail")
     if not photos or result is None:
         return "", False
-    line = (f"fine detail (mean |Laplacian of Gaussian| of the grey): photos {photos:.4f}, input "
-            f"{scores['input']['detail']:.4f}, result {result:.4f}")
+    line = (f"photos {photos:.4f}, input {scores['input']['detail']:.4f}, result {result:.4f} (mean |Laplacian of "
+            f"Gaussian| of the grey)")
     soft = result < SOFT_DETAIL * photos and texturing.get("mode") == "projective" and "detail" not in texturing
     if soft:
         line += (": softer than the photos, whose registration differs by a few pixels (--detail sharp takes the "
