@@ -142,7 +142,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
                 weight[j] = reach_of[j] * np.exp((quality[j] - best) / t)
                 any_clipped = any_clipped or clipped[j]
                 if blend_pass > 0 and detail_consistency > 0:
-                    # the fine band from photos whose coarse band agrees with the coarse blend (not an occluder's)
+                    # the fine band from photos whose coarse band agrees with what most photos' say (see below)
                     r = ((rgbs[1, j, 0] - low0) ** 2 + (rgbs[1, j, 1] - low1) ** 2 + (rgbs[1, j, 2] - low2) ** 2)
                     weight[j] *= np.exp(-r / (detail_consistency * detail_consistency))
             if any_clipped and blend_pass == 0:
@@ -279,9 +279,9 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
               np.ascontiguousarray(face_ids, np.int64), t.seen_faces, t.rotation_t, t.translation, t.intrinsics_t,
               t.to_view, t.centre, t.focal, t.log_sharpness, t.group, t.pixel_start, t.widths, t.heights, t.pixels,
               t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
-              t.gain, float(depth_tolerance), float(temperature), float(detail_temperature or 1.0),
-              float(detail_consistency), float(clip_level),
-              float(overshoot),
-              float(consistency), int(rounds), -1 if without is None else int(without), bool(censors),
+              t.gain, float(depth_tolerance), float(temperature),
+              float(detail_temperature or 1.0),  # read with two bands only
+              float(detail_consistency), float(clip_level), float(overshoot), float(consistency), int(rounds),
+              -1 if without is None else int(without), bool(censors),
               t.canonical, out, total, alpha, tally)
     return out.astype(np.float32), total.astype(np.float32), alpha.astype(np.float32), tally

@@ -270,8 +270,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         sources = [_replace_sharpness(s, s.log_sharpness - mean_sharp) for s in sources]
     report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources],
               "temperature": settings.temperature,
-              **({"detail": {"temperature": settings.detail_temperature, "sigma_px": settings.detail_sigma}}
-                 if bands else {}),
+              **detail_report(settings),
               "photo_memory_mb": round((pixels.nbytes + (coarse.nbytes if bands else 0)) / 2**20, 1),
               # filled in as the bake samples (the dict is shared by the report's copies)
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
@@ -638,6 +637,13 @@ def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
     total, blend = total + support, blend + sums
     return ((blend / np.maximum(total, 1e-12)[:, None]).astype(np.float32), total.astype(np.float32),
             np.split(weight, start[1:-1]), gave_way)
+
+
+def detail_report(settings: ProjectiveSettings) -> dict:
+    """The two bands' settings as the metrics give them (``{}`` with one band)."""
+    if settings.detail_temperature <= 0:
+        return {}
+    return {"detail": {"temperature": settings.detail_temperature, "sigma_px": settings.detail_sigma}}
 
 
 def _detail_gates(n: int, coarse: list[_Samples], blend: np.ndarray, temperature: float, scale: float

@@ -187,6 +187,13 @@ REFINE_BELOW = 50
 #: renders' 0.0055 against the input's 0.0072 and the blend's 0.0027 (``score_photos``'s ``detail``;
 #: bench/RESULTS.md, "sharp detail")
 SHARP_DETAIL_TEMPERATURE = 0.1
+
+
+def detail_temperature(pc: PhotosConfig) -> float:
+    """Projective texturing's fine-band temperature for ``photos.detail`` (0: one band)."""
+    return SHARP_DETAIL_TEMPERATURE if pc.detail == "sharp" else 0.0
+
+
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
 #: (106 m², photos 3.5 px/cm) scored 24.21 dB at 2048², 25.26 at 4096², 25.29 at 8192² in 1.4x the time and
 #: 4.5 GB against 3.5 (bench/RESULTS.md); ``--texture-size`` asks for another
@@ -459,7 +466,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         canonicalise = None
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot,
-                                  detail_temperature=SHARP_DETAIL_TEMPERATURE if pc.detail == "sharp" else 0.0)
+                                  detail_temperature=detail_temperature(pc))
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
 
     def levelled(points, normals, face_ids, bary):

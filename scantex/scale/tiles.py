@@ -696,12 +696,11 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
 def tiled_texturing(pc) -> dict:
     """How every tile coloured its texels (the settings; each tile's own report stays with it): the mode, and the
     two bands' settings where ``photos.detail`` is sharp, as a whole run's ``photos.texturing`` gives them."""
-    from scantex.photos.texturing import ProjectiveSettings
-    from scantex.pipeline.enhance import SHARP_DETAIL_TEMPERATURE
+    from scantex.photos.texturing import ProjectiveSettings, detail_report
+    from scantex.pipeline.enhance import detail_temperature
 
-    detail = ({"detail": {"temperature": SHARP_DETAIL_TEMPERATURE, "sigma_px": ProjectiveSettings.detail_sigma}}
-              if pc.texturing == "projective" and pc.detail == "sharp" else {})
-    return {"mode": pc.texturing, **detail}
+    bands = ProjectiveSettings(detail_temperature=detail_temperature(pc)) if pc.texturing == "projective" else None
+    return {"mode": pc.texturing, **(detail_report(bands) if bands else {})}
 
 
 def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,
