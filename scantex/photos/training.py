@@ -58,33 +58,39 @@ class PhotoView:
     Attributes:
         index: the photo's index in its :class:`PhotoSet`.
         camera: its camera for the working resolution.
-        image: ``(H, W, 3) float32`` in [0, 1], box-filtered down from the photo; ``None`` once
-            :meth:`sampled` (the texture made, what teaches it is no longer held).
+        pixels: the photo box-filtered down to the working resolution, ``(H, W, 3) uint8`` as read (a quarter
+            of the memory of its colours in float: a room's two hundred views of 640x480 hold 0.5 GB less), or
+            ``float32`` in [0, 1] for a view made from others' pixels (:func:`halved`); ``None`` once
+            :meth:`sampled` (the texture made, what teaches it is no longer held). Read it as :attr:`image`.
         face_id: ``(H, W) int32`` face at the pixel centre, -1 for none.
         depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z).
         valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed).
         rejected: pixels that hit the mesh but failed the test, by reason (for the report).
-        bary: ``(H, W, 2) float32`` barycentric coordinates of the hit at the pixel centre (with
-            ``face_id``: the surface point the pixel sees, for :func:`texture_seen`), or ``None``.
         depth_factor: what :func:`depth_factor` found of the photo's depth map (``None``: it has none), for
             the photo prepared again at another pose (not judged, nor warned about, twice).
     """
 
     index: int
     camera: Camera
-    image: np.ndarray | None
+    pixels: np.ndarray | None
     face_id: np.ndarray
     depth: np.ndarray
     valid: np.ndarray
     rejected: dict
-    bary: np.ndarray | None = None
     depth_factor: float | None = None
 
+    @property
+    def image(self) -> np.ndarray | None:
+        """``(H, W, 3) float32`` in [0, 1], ``None`` once :meth:`sampled`: made from :attr:`pixels` at each
+        call (about 1 ms for 640x480), so hold it in a variable while it is used."""
+        if self.pixels is None or self.pixels.dtype != np.uint8:
+            return self.pixels
+        return self.pixels.astype(np.float32) / np.float32(255.0)
+
     def sampled(self) -> PhotoView:
-        """The view without its image and barycentrics, once the texture has been sampled: what the report
-        still asks (camera, usable pixels, rejections) at a third of the memory (a room's hundred views of
-        640x480 hold 0.6 GB less through the bake)."""
-        return dataclasses.replace(self, image=None, bary=None)
+        """The view without its pixels, once the texture has been sampled: what the report still asks (camera,
+        usable pixels, rejections)."""
+        return dataclasses.replace(self, pixels=None)
 
 
 def working_camera(camera: Camera, max_side: int) -> Camera:
@@ -144,10 +150,9 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     photo = photos.load_image(i)
     if (W, H) != photo.shape[1::-1]:
         photo = box_downscaled(photo, W, H)
-    image = photo.astype(np.float32) / 255.0
 
     s = max(1, settings.supersample)
-    centre, bary, n_hit, all_hit, mean_depth, spread = _footprints(caster, cam, s)
+    centre, _, n_hit, all_hit, mean_depth, spread = _footprints(caster, cam, s)
     any_hit = n_hit > 0
     clean = all_hit & (spread < 0.02 * mean_depth)
 
@@ -191,8 +196,8 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
     if hidden.any():
         # no depth where another surface is in front: nothing of this scan is seen there, not even through it
         mean_depth = np.where(hidden, np.float32(0), mean_depth)
-    return PhotoView(i, cam, image, centre.astype(np.int32), mean_depth, valid, rejected,
-                     np.ascontiguousarray(bary, dtype=np.float32), factor)
+    return PhotoView(i, cam, np.ascontiguousarray(photo[..., :3], np.uint8), centre.astype(np.int32), mean_depth,
+                     valid, rejected, factor)
 
 
 def _footprints(caster: RayCaster, cam: Camera, s: int):
@@ -277,19 +282,19 @@ def _changing_kernel(hit, depth, out):
 
 def halved(view: PhotoView) -> PhotoView:
     """``view`` at half its working resolution (for fits that need many pixels, not fine ones): the image
-    box-filtered, a pixel usable where all four of its pixels are, face, depth and barycentrics those of
-    its top-left pixel (half a working pixel off: below the poses' own error)."""
+    box-filtered, a pixel usable where all four of its pixels are, face and depth those of its top-left pixel
+    (half a working pixel off: below the poses' own error)."""
     H, W = view.face_id.shape
     h, w = H // 2, W // 2
     if h < 1 or w < 1:
         return view
     corners = [(slice(a, 2 * h, 2), slice(b, 2 * w, 2)) for a in (0, 1) for b in (0, 1)]
-    image = sum(view.image[c] for c in corners) * np.float32(0.25)  # elementwise: reductions over strided
+    full = view.image
+    image = sum(full[c] for c in corners) * np.float32(0.25)  # elementwise: reductions over strided
     valid = np.logical_and.reduce([view.valid[c] for c in corners])  # axes are several times slower
     camera = resized_camera(crop_camera(view.camera, 2 * w, 2 * h), w, h)  # an odd last row or column dropped
     return PhotoView(view.index, camera, image, view.face_id[:2 * h:2, :2 * w:2], view.depth[:2 * h:2, :2 * w:2],
-                     valid, view.rejected, None if view.bary is None else view.bary[:2 * h:2, :2 * w:2],
-                     view.depth_factor)
+                     valid, view.rejected, view.depth_factor)
 
 
 def crop_camera(camera: Camera, width: int, height: int) -> Camera:
@@ -299,12 +304,11 @@ def crop_camera(camera: Camera, width: int, height: int) -> Camera:
 
 def texture_seen(scan: Scan, view: PhotoView, caster: RayCaster) -> np.ndarray:
     """``(H, W, 3) float32``: ``scan``'s texture at the surface points ``view``'s pixels see (black where
-    none): the scan rendered through the view's camera, from the ray cast the view was prepared with."""
-    from scantex.views.render import render, shade_pixels
+    none): the scan rendered through the view's camera. Cast again rather than kept from the view's own ray
+    cast: a view's barycentrics held 8 bytes a pixel, a room's 219 views 0.5 GB, for this one use."""
+    from scantex.views.render import render
 
-    if view.bary is None:
-        return render(scan, view.camera, caster)[0]
-    return shade_pixels(scan, view.face_id, view.bary)
+    return render(scan, view.camera, caster)[0]
 
 
 def prepare_photos(scan: Scan, photos: PhotoSet, indices: Sequence[int], caster: RayCaster, max_side: int,
@@ -419,11 +423,12 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
         mask = view.valid
         if mask.sum() < 64:
             return None
-        row = [view.image]
+        photo = view.image  # made from the view's 8-bit pixels at each read: once here
+        row = [photo]
         renders = render_scans(scans, view.camera, caster, supersample=supersample)  # one ray cast for all
-        matched = {name: colour_match(img, view.image, mask) for name, (img, _) in renders.items()}
+        matched = {name: colour_match(img, photo, mask) for name, (img, _) in renders.items()}
         # every render's SSIM against the photo, the photo's own filtering done once
-        maps = iter(ssim_maps([image for name in scans for image in (renders[name][0], matched[name])], view.image))
+        maps = iter(ssim_maps([image for name in scans for image in (renders[name][0], matched[name])], photo))
         inner = ndimage.binary_erosion(mask, iterations=4)  # the filter's reach off the mask's border
 
         def detail(image: np.ndarray) -> float:
@@ -433,21 +438,21 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
             grey = image.mean(axis=2)
             return float(np.abs(ndimage.gaussian_laplace(grey, DETAIL_SIGMA))[inner].mean()) if inner.any() else 0.0
 
-        photo_detail = detail(view.image)
+        photo_detail = detail(photo)
         out = {}
-        aligned_row = [view.image]
+        aligned_row = [photo]
         settings = PoseSettings(max_side=max(view.camera.width, view.camera.height))
 
         def fit(scan: Scan, start: Camera) -> Camera:
-            return align_camera(scan, start, view.image, lambda f, b: shade_hits(scan, f, b), caster, settings,
+            return align_camera(scan, start, photo, lambda f, b: shade_hits(scan, f, b), caster, settings,
                                 index=view.index).camera
 
         fits = {name: fit(scan, view.camera) for name, scan in scans.items()} if align else {}
         for name, scan in scans.items():
             img, _ = renders[name]
             row.append(img)
-            s = out[name] = {"psnr": psnr(img, view.image, mask), "ssim": float(next(maps)[mask].mean()),
-                             "psnr_matched": psnr(matched[name], view.image, mask),
+            s = out[name] = {"psnr": psnr(img, photo, mask), "ssim": float(next(maps)[mask].mean()),
+                             "psnr_matched": psnr(matched[name], photo, mask),
                              "ssim_matched": float(next(maps)[mask].mean()),
                              "detail": detail(img), "photo_detail": photo_detail}
             if align:
@@ -461,13 +466,13 @@ def score_photos(scans: dict[str, Scan], views: Sequence[PhotoView], caster: Ray
                 for camera in starts:
                     moved, alpha = render(scan, camera, caster, supersample=supersample)
                     covered = mask & (alpha > 0.999)
-                    matched_moved = colour_match(moved, view.image, covered)
-                    score_here = psnr(matched_moved, view.image, covered)
+                    matched_moved = colour_match(moved, photo, covered)
+                    score_here = psnr(matched_moved, photo, covered)
                     if best is None or score_here > best[0]:
                         best = (score_here, camera, moved, matched_moved, covered)
                 score_here, camera, moved, matched_moved, covered = best
                 aligned_row.append(moved)
-                s.update(psnr_aligned=score_here, ssim_aligned=ssim(matched_moved, view.image, covered),
+                s.update(psnr_aligned=score_here, ssim_aligned=ssim(matched_moved, photo, covered),
                          aligned_by_deg=rotation_between(camera, view.camera))
         if images is None:
             return out, None
