@@ -128,8 +128,7 @@ class _Source:
     camera: Camera  # at the sampling resolution
     pixels: np.ndarray  # (H * W,) uint32: the RGB image at the sampling resolution, a pixel in one word
     to_view: np.ndarray  # (3, 3): a pixel of ``camera`` to the same point's pixel at the working resolution
-    # of the working view only what sampling asks (its image, barycentrics and faces are not kept: a room's
-    # hundred views would hold 0.6 GB more through the bake)
+    # of the working view only what sampling asks (its pixels and faces are not kept)
     centre: np.ndarray  # (3,) the camera's centre
     valid: np.ndarray  # (h, w) bool: the usable pixels at the working resolution
     depth: np.ndarray  # (h, w) float32: their depth
