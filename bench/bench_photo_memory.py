@@ -2,6 +2,8 @@
 
     python bench/bench_photo_memory.py                  # 100 photos of 4032x3024 (504x378 x 8)
     python bench/bench_photo_memory.py --photos 24 --base-width 1008 --scale 2
+    python bench/bench_photo_memory.py --photos 300 --base-width 480 --scale 4 --texture-size 8192 \
+        --override photos__sample_memory_mb=0     # phone frames on a fine atlas, the samples unbounded
 
 The demo wall (``make_wall(seed=0)``) is photographed by ``scantex.synth.photos.capture_photos`` at
 ``--base-width`` (4:3; pose errors, exposure, blur, noise as in ``bench/bench_photos.py``), and every photo is
@@ -58,6 +60,11 @@ def main() -> None:
     parser.add_argument("--photos", type=int, default=100, help="photos to take (default: 100)")
     parser.add_argument("--base-width", type=int, default=504, help="the photos are rendered this wide (default: 504)")
     parser.add_argument("--scale", type=int, default=8, help="and written this many times larger (default: 8)")
+    parser.add_argument("--texture-size", type=int, default=0,
+                        help="the output atlas's size (default: the run's own, 2048 on the demo wall): a finer atlas "
+                             "wants the photos sampled finer")
+    parser.add_argument("--override", action="append", default=[], metavar="SECTION__NAME=VALUE",
+                        help="a config setting for the run, e.g. photos__sample_memory_mb=0 (repeatable)")
     args = parser.parse_args()
     from scantex.synth import make_wall
 
@@ -71,9 +78,19 @@ def main() -> None:
 
         save_scan(demo.scan, folder / "scan" / "scan.obj")
         out = folder / "out"
+        command = [sys.executable, "-m", "scantex", "enhance", str(folder / "scan" / "scan.obj"), "--photos",
+                   str(cameras), "-o", str(out)]
+        if args.texture_size:
+            command += ["--texture-size", str(args.texture_size)]
+        if args.override:
+            from bench._results import parse_override
+            from scantex.pipeline.config import preset, save_config
+
+            overrides = {k: v for item in args.override for k, v in parse_override(item).items()}
+            save_config(preset("default").override(**overrides), folder / "config.json")
+            command += ["--config", str(folder / "config.json")]
         t = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "scantex", "enhance", str(folder / "scan" / "scan.obj"), "--photos",
-                        str(cameras), "-o", str(out)], check=True, cwd=ROOT)
+        subprocess.run(command, check=True, cwd=ROOT)
         seconds = time.perf_counter() - t
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20
         m = json.loads((out / "metrics.json").read_text())

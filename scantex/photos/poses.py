@@ -338,7 +338,7 @@ def refine_poses(scan: Scan, photos: PhotoSet, indices, reference: Reference, ca
 def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, caster, fallback,
                     iterations: int = 1, temperature: float = 5.0, settings: PoseSettings = PoseSettings(),
                     prepare: Callable[[PhotoSet], list] | None = None,
-                    update: Callable[[int, int], None] | None = None
+                    update: Callable[[int, int], None] | None = None, memory_mb: float = 0.0
                     ) -> tuple[PhotoSet, list, list[PoseCorrection]]:
     """Each training photo's pose aligned to the *consensus* of the others: the projective texture the other
     training photos make together (:func:`scantex.photos.texturing.projective_colour`, leave-one-out), so
@@ -353,6 +353,7 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
         views: the training photos' working G-buffers (:class:`~scantex.photos.training.PhotoView`).
         canonicalise: brings photo ``k``'s colours (``group`` k) to a common appearance (or ``None``).
         fallback: the colour where no other photo sees a point (a :data:`SurfaceColour`).
+        memory_mb: the most the consensus's photo samples may hold (:class:`ProjectiveSettings`'s ``memory_mb``).
 
     Returns:
         ``(photos, views, corrections)``: the refined photo set, its training G-buffers, and the corrections
@@ -365,7 +366,7 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
     total, done = iterations * len(views), 0
     for _ in range(iterations):
         cameras = list(photos.cameras)
-        consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature)
+        consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature, memory_mb)
 
         def align(k: int, consensus=consensus) -> PoseCorrection:
             # from the recorded pose every round (its prior stays the recorded pose): a photo that a first,
@@ -391,7 +392,7 @@ def consensus_poses(scan: Scan, photos: PhotoSet, views: list, canonicalise, cas
 
 
 def consensus_reference(scan: Scan, photos: PhotoSet, views: list, canonicalise, fallback,
-                        temperature: float = 5.0) -> Callable[..., np.ndarray]:
+                        temperature: float = 5.0, memory_mb: float = 0.0) -> Callable[..., np.ndarray]:
     """``reference(face_ids, bary, without=None) -> (n, 3)``: the colour the photos of ``views`` give surface
     points together (:func:`scantex.photos.texturing.projective_colour`; ``without``: leave that one of the
     views out), a :data:`Reference` for :func:`align_camera`."""
@@ -400,7 +401,7 @@ def consensus_reference(scan: Scan, photos: PhotoSet, views: list, canonicalise,
 
     corners = scan.positions[scan.faces]
     colour, _ = projective_colour(photos, views, range(len(views)), canonicalise, fallback,
-                                  ProjectiveSettings(temperature=temperature))
+                                  ProjectiveSettings(temperature=temperature, memory_mb=memory_mb))
 
     def reference(face_ids, bary, without=None):
         return colour(interpolate(face_ids, bary, corners), scan.face_normals[face_ids], face_ids, bary,
@@ -409,11 +410,11 @@ def consensus_reference(scan: Scan, photos: PhotoSet, views: list, canonicalise,
 
 
 def align_to_consensus(scan: Scan, photos: PhotoSet, indices, views: list, canonicalise, caster, fallback,
-                       temperature: float = 5.0, settings: PoseSettings = PoseSettings()
+                       temperature: float = 5.0, settings: PoseSettings = PoseSettings(), memory_mb: float = 0.0
                        ) -> tuple[PhotoSet, list[PoseCorrection]]:
     """``photos`` with the cameras at ``indices`` (photos not among ``views``) aligned to the consensus of
     ``views``' photos, and the corrections: how photos held out of a consensus refinement join its frame."""
-    consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature)
+    consensus = consensus_reference(scan, photos, views, canonicalise, fallback, temperature, memory_mb)
     cameras = list(photos.cameras)
     corrections = []
     for i in indices:

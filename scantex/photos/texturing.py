@@ -101,6 +101,9 @@ class ProjectiveSettings:
     memory at full size (0: every photo at full resolution)"""
     oversample: float = 2.0
     """photo pixels per texel kept at most, per axis (see ``texel_px_per_cm``)"""
+    memory_mb: float = 0.0
+    """the most the photos' samples may hold (packed pixels, and their coarse band with two bands), in MiB: when
+    the sizes above would need more, every photo is sampled smaller by one factor, with a warning (0: no bound)"""
     consistency: float = 0.0
     """photo-consistency scale (RGB distance in [0, 1] units): a sample this far from the blend of the
     others keeps half its weight, one twice as far a fifth (0: a plain weighted mean)"""
@@ -152,6 +155,25 @@ def photo_sharpness(image: np.ndarray) -> float:
 
     gray = image[..., :3].mean(axis=2)
     return float(ndimage.laplace(gray).var())
+
+
+def bounded(cameras: list[Camera], bytes_per_pixel: int, memory_mb: float) -> list[Camera]:
+    """``cameras`` (each photo's at the size it would be sampled at), all made smaller by one factor when their
+    pixels, at ``bytes_per_pixel``, would hold more than ``memory_mb`` MiB (0: no bound): a capture of many
+    large photos (600 phone frames of 1920x1440 on a fine atlas: 6.6 GB) then fits, a little softer, with a
+    warning. A side is kept at 64 pixels at least."""
+    wanted = sum(cam.width * cam.height for cam in cameras) * bytes_per_pixel
+    if memory_mb <= 0 or wanted <= memory_mb * 2**20:
+        return cameras
+    from scantex.photos.training import working_camera
+
+    factor = float(np.sqrt(memory_mb * 2**20 / wanted))
+    smaller = [working_camera(cam, max(64, int(max(cam.width, cam.height) * factor))) for cam in cameras]
+    log.warning("the %d photos' samples would hold %.3g MiB at the resolution the atlas wants: sampled at %.0f %% of "
+                "it a side, %.3g MiB (photos.sample_memory_mb %g; raise it where memory allows)", len(cameras),
+                wanted / 2**20, 100 * factor, sum(c.width * c.height for c in smaller) * bytes_per_pixel / 2**20,
+                memory_mb)
+    return smaller
 
 
 def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequence[int],
@@ -224,7 +246,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
     # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
     # blend reads them so, the numpy path photo by photo)
-    cameras = [sampling_camera(view) for view in views]
+    cameras = bounded([sampling_camera(view) for view in views], 8 if settings.detail_temperature > 0 else 4,
+                      settings.memory_mb)
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
     pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
     pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)

@@ -140,6 +140,12 @@ class PhotosConfig:
     """photos held out for scoring: a share of them (rounded up, spread over the capture), or a count if >= 1"""
     max_side: int = 640
     """photos are box-filtered down to this longer side for training and scoring"""
+    sample_memory_mb: float = 1024.0
+    """projective texturing samples each photo at the resolution the atlas wants (2 photo pixels a texel, at most
+    the photo's own); when all of them would hold more than this (MiB: 4 bytes a pixel, 8 with --detail sharp),
+    every photo is sampled smaller by one factor, with a warning (0: no bound); the same for the consensus poses'
+    reference (refine_poses consensus). The captures measured hold 80-280 MB (a hundred 12-megapixel photos: 282);
+    300 phone frames of 1920x1440 at full resolution would hold 3.2 GB"""
     synthetic_weight: float = 0.1
     """weight of the synthetic views of the input texture relative to the photos (they teach what no photo sees)"""
     edge_margin_px: int = 2
@@ -377,7 +383,7 @@ RANGES: dict[str, tuple] = {
     "photos.texturing": ("projective", "field"), "photos.detail": ("blend", "sharp"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
-    "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0),
+    "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0), "photos.sample_memory_mb": (0.0, 1e9),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),

@@ -334,7 +334,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             scan, photos, train_views, canonicalise, caster, fallback, pc.refine_iterations, pc.temperature,
             prepare=lambda refined: prepare_photos(scan, judged(refined, train_views), train, caster, pc.max_side,
                                                    settings),
-            update=update)
+            update=update, memory_mb=pc.sample_memory_mb)
     final = None
     if (corrections and len(held) and pc.texturing == "projective"
             and final_texture_mode(pc.final, len(photos)) == "all"):
@@ -346,7 +346,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             from scantex.photos.poses import align_to_consensus
 
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
-                                                pc.temperature)
+                                                pc.temperature, memory_mb=pc.sample_memory_mb)
         final = aligned, prepare_photos(scan, judged(aligned, held_views), held, caster, pc.max_side, settings), moved
     return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out)
 
@@ -466,7 +466,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         canonicalise = None
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot,
-                                  detail_temperature=detail_temperature(pc))
+                                  detail_temperature=detail_temperature(pc), memory_mb=pc.sample_memory_mb)
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
 
     def levelled(points, normals, face_ids, bary):

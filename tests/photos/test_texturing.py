@@ -96,6 +96,30 @@ def test_photos_much_finer_than_the_atlas_are_sampled_at_the_atlas_density(tmp_p
     assert seen.mean() > 0.5 and np.abs(got[seen].mean(axis=0) - blurred).max() < 0.05
 
 
+def test_photos_are_sampled_smaller_where_their_samples_would_pass_the_memory_bound(tmp_path, caplog):
+    """Two 640x480 photos hold 2.3 MiB packed: bounded to 0.6, both are sampled at half their size (one factor
+    for all), said in a warning, and still give the wall its colours."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan)
+    _, whole = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(memory_mb=4.0))
+    assert whole["sampled_at"] == [[640, 480], [640, 480]]
+    with caplog.at_level("WARNING"):
+        colour, bound = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(memory_mb=0.6))
+    assert bound["sampled_at"] == [[323, 242], [323, 242]]
+    assert 0.5 < bound["photo_memory_mb"] <= 0.6
+    assert ("would hold 2.34 MiB" in caplog.text and "sampled at 51 % of it a side, 0.596 MiB (photos.sample_memory_mb "
+            "0.6;" in caplog.text)
+    # two bands hold 8 bytes a pixel: the same bound, a smaller factor
+    _, bands = projective_colour(photos, views, [0, 1], None, grey,
+                                 ProjectiveSettings(memory_mb=0.6, detail_temperature=0.1))
+    assert bands["sampled_at"] == [[228, 171], [228, 171]]
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    got = colour(points, normals, f, b)
+    seen = np.abs(got - 0.5).max(axis=1) > 1e-6
+    assert seen.mean() > 0.5 and np.abs(got[seen] - truth[seen]).mean() < 0.05
+
+
 def test_unseen_points_get_the_fallback_and_appearance_is_corrected(tmp_path):
     scan = smooth_wall()
     photos, views = wall_photos(tmp_path, scan, gains=(0.6, 0.6))

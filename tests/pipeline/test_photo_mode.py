@@ -187,6 +187,16 @@ def test_the_photos_sampled_for_the_texture_are_let_go_once_it_is_baked(toy_demo
     assert alive["measuring"] == 0
 
 
+def test_photos_sample_memory_bounds_what_the_photos_samples_hold(toy_demo, toy_photos, photo_result):
+    def mib(texturing):  # the packed samples, 4 bytes a pixel
+        return sum(w * h for w, h in texturing["sampled_at"]) * 4 / 2**20
+
+    wanted = mib(photo_result.metrics["photos"]["texturing"])
+    bound = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__sample_memory_mb=0.75 * wanted),
+                    photos=toy_photos).metrics["photos"]["texturing"]
+    assert 0.6 * wanted < mib(bound) <= 0.75 * wanted
+
+
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
     """The photos hold what the degraded atlas lost: with them, the held-out views come out closer to the truth."""
     mesh_only = enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth)
