@@ -530,6 +530,17 @@ def photo_atlas_scale(scan: Scan, photos_px_per_cm: float) -> tuple[int, dict]:
     return scale, {"photos_px_per_cm": round(photos_px_per_cm, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
 
 
+def atlas_growth(scan: Scan, requested: int, scale: int) -> float:
+    """How many times finer than the input's atlas the output's is on the input's own layout: ``requested``
+    (``bake.texture_size``, 0: none) or ``scale`` times the input's size, at most 8192 (:func:`output_size`), over
+    the input's size; the largest over the materials. The photos are sampled for that atlas: for ``scale`` (2)
+    alone they were sampled twice too finely for an 8192 input, whose atlas cannot grow, and too coarsely for a
+    texture size asked above twice the input's."""
+    growth = [output_size(scan, m, requested, scale=scale)[1] / m_image.shape[1]
+              for m, m_image in enumerate(material.image for material in scan.materials) if m_image is not None]
+    return max(growth, default=float(scale))
+
+
 def photo_density(photo: PhotoData) -> float:
     """How finely the training photos resolve the surface: the median over the photos of their usable pixels'
     median full-resolution pixels per centimetre (0 when none has usable pixels)."""
@@ -843,7 +854,8 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
     # at a time
     workers = 1
     if photo is not None and config.photos.texturing != "field":
-        atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * photo_scale
+        atlas_density = bake_report.get("atlas_px_per_cm", 0.0) * (
+            atlas_growth(scan, config.bake.texture_size, photo_scale) if mode == "keep" else photo_scale)
         if not refines_photos:
             workers = min(8, config.threads or os.cpu_count() or 1)
         sampling_threads = 1 if workers > 1 else None  # a chunk's photos one after another, or side by side

@@ -197,6 +197,34 @@ def test_photos_sample_memory_bounds_what_the_photos_samples_hold(toy_demo, toy_
     assert 0.6 * wanted < mib(bound) <= 0.75 * wanted
 
 
+def test_photos_are_sampled_for_the_atlas_written():
+    """On the input's layout the atlas written is bake.texture_size, or twice the input's at most 8192: the photos'
+    sampling density follows that atlas, not twice the input's whatever it is."""
+    from scantex.pipeline.enhance import atlas_growth
+    from tests.conftest import textured_cube
+
+    cube = textured_cube()  # two 64x64 atlases
+    assert atlas_growth(cube, 0, 2) == 2.0 and atlas_growth(cube, 0, 1) == 1.0
+    assert atlas_growth(cube, 512, 2) == 8.0
+    huge = np.zeros((8192, 8192, 3), np.uint8)
+
+    def with_images(*images):
+        return dataclasses.replace(cube, materials=tuple(dataclasses.replace(m, image=image)
+                                                         for m, image in zip(cube.materials, images)))
+
+    assert atlas_growth(with_images(huge, cube.materials[1].image), 0, 2) == 2.0  # the small atlas still doubles
+    assert atlas_growth(with_images(huge, huge), 0, 2) == 1.0  # an 8192 atlas cannot grow
+    assert atlas_growth(with_images(None, None), 0, 2) == 2.0
+
+
+def test_a_larger_texture_size_samples_the_photos_finer(toy_demo, toy_photos, photo_result):
+    size = toy_demo.scan.materials[0].image.shape[0]
+    default = photo_result.metrics["photos"]["texturing"]["sampled_at"]
+    finer = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, bake__texture_size=4 * size),
+                    photos=toy_photos).metrics["photos"]["texturing"]["sampled_at"]
+    assert all(w < 128 for w, _ in default) and all(w == 128 for w, _ in finer)  # the photos' own 128 px
+
+
 def test_photo_mode_beats_mesh_only_mode(toy_demo, photo_result):
     """The photos hold what the degraded atlas lost: with them, the held-out views come out closer to the truth."""
     mesh_only = enhance(toy_demo.scan, TOY, ground_truth=toy_demo.ground_truth)
