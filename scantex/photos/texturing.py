@@ -157,7 +157,7 @@ def photo_sharpness(image: np.ndarray) -> float:
     return float(ndimage.laplace(gray).var())
 
 
-def bounded(cameras: list[Camera], bytes_per_pixel: int, memory_mb: float) -> list[Camera]:
+def within_memory(cameras: list[Camera], bytes_per_pixel: int, memory_mb: float) -> list[Camera]:
     """``cameras`` (each photo's at the size it would be sampled at), all made smaller by one factor when their
     pixels, at ``bytes_per_pixel``, would hold more than ``memory_mb`` MiB (0: no bound): a capture of many
     large photos (600 phone frames of 1920x1440 on a fine atlas: 6.6 GB) then fits, a little softer, with a
@@ -246,8 +246,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
     # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
     # blend reads them so, the numpy path photo by photo)
-    cameras = bounded([sampling_camera(view) for view in views], 8 if settings.detail_temperature > 0 else 4,
-                      settings.memory_mb)
+    cameras = within_memory([sampling_camera(view) for view in views], 8 if settings.detail_temperature > 0 else 4,
+                            settings.memory_mb)
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
     pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
     pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)
