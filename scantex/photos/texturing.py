@@ -169,10 +169,14 @@ def within_memory(cameras: list[Camera], bytes_per_pixel: int, memory_mb: float)
 
     factor = float(np.sqrt(memory_mb * 2**20 / wanted))
     smaller = [working_camera(cam, max(64, int(max(cam.width, cam.height) * factor))) for cam in cameras]
-    log.warning("the %d photos' samples would hold %.3g MiB at the resolution the atlas wants: sampled at %.0f %% of "
-                "it a side, %.3g MiB (photos.sample_memory_mb %g; raise it where memory allows)", len(cameras),
-                wanted / 2**20, 100 * factor, sum(c.width * c.height for c in smaller) * bytes_per_pixel / 2**20,
-                memory_mb)
+    held = sum(c.width * c.height for c in smaller) * bytes_per_pixel
+
+    def mib(n: float) -> str:
+        return f"{n / 2**20:.0f}" if n >= 100 * 2**20 else f"{n / 2**20:.3g}"
+
+    log.warning("the %d photos' samples would hold %s MiB at the resolution the atlas wants: sampled at %.0f %% of "
+                "it a side, %s MiB (photos.sample_memory_mb %g; raise it where memory allows)", len(cameras),
+                mib(wanted), 100 * factor, mib(held), memory_mb)
     return smaller
 
 
