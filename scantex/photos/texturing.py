@@ -250,12 +250,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
     # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
     # blend reads them so, the numpy path photo by photo)
-    cameras = within_memory([sampling_camera(view) for view in views], 8 if settings.detail_temperature > 0 else 4,
-                            settings.memory_mb)
+    bands = settings.detail_temperature > 0
+    cameras = within_memory([sampling_camera(view) for view in views], 8 if bands else 4, settings.memory_mb)
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
     pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
     pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)
-    bands = settings.detail_temperature > 0
     coarse = np.empty_like(pixels) if bands else pixels  # the photos' coarse band, packed as they are
 
     def source(k: int) -> _Source:
