@@ -69,7 +69,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             if not (vx >= 0 and vx < w and vy >= 0 and vy < h):
                 continue
             at = view_start[p] + int(vy) * w + int(vx)
-            if not abs(depth[at] - cz) < depth_tolerance * cz:  # an unusable pixel's depth is NaN
+            if not abs(depth[at] - cz) < depth_tolerance * cz:  # an unusable pixel's depth is not positive
                 continue
             # view quality: log cos(angle) + log(pixels per metre) + log(relative sharpness)
             dx, dy, dz = local[i, 0] - centre[p, 0], local[i, 1] - centre[p, 1], local[i, 2] - centre[p, 2]
@@ -247,7 +247,7 @@ class PhotoTables:
     view_start: np.ndarray  # (P,) int64: where its working-resolution maps start
     view_widths: np.ndarray  # (P,) int64
     view_heights: np.ndarray  # (P,) int64
-    depth: np.ndarray  # (sum h w,) float32: the usable pixels' depth at the working resolution, NaN elsewhere
+    depth: np.ndarray  # (sum h w,) float32: the pixels' signed depth at the working resolution (``_Source.depth``)
     feather: np.ndarray  # (sum h w,) float32
     inverse: np.ndarray  # (G, 3, 3) float64: the inverse of each transform's linear part
     offset: np.ndarray  # (G, 3) float64: each transform's offset

@@ -133,8 +133,9 @@ class _Source:
     to_view: np.ndarray  # (3, 3): a pixel of ``camera`` to the same point's pixel at the working resolution
     # of the working view only what sampling asks (its pixels and faces are not kept)
     centre: np.ndarray  # (3,) the camera's centre
-    valid: np.ndarray  # (h, w) bool: the usable pixels at the working resolution
-    depth: np.ndarray  # (h, w) float32: their depth
+    # (h, w) float32: each pixel's depth at the working resolution, signed: a usable pixel's, negated where the
+    # pixel hits the mesh but is not usable, 0 where it sees none of it (one array, not the view's depth and mask)
+    depth: np.ndarray
     feather: np.ndarray  # (h, w) float32 in [0, 1] at the working resolution
     log_sharpness: float
     group: int
@@ -186,7 +187,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                       faces: np.ndarray | None = None,
                       recorded: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
                       threads: int | None = None, through: np.ndarray | None = None,
-                      transforms: np.ndarray | None = None) -> tuple[SurfaceColour, dict]:
+                      transforms: np.ndarray | None = None, release: bool = False) -> tuple[SurfaceColour, dict]:
     """A colour source for :func:`scantex.atlas.bake.bake` that samples the photos themselves.
 
     Args:
@@ -215,6 +216,10 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             undoes and ``recorded`` applies, when they are such: the compiled blend
             (:mod:`scantex.photos.compiled`) then applies them itself. It runs where numba is installed and
             ``canonicalise`` is ``None`` or given with its ``transforms``; elsewhere the same blend runs in numpy.
+        release: ``views`` (a list) has each view replaced by its :meth:`~scantex.photos.training.PhotoView.sampled`
+            copy once its photo is sampled, so that a caller holding the views nowhere else lets their maps go
+            while the samples are made (a room's four hundred views of 640x480: 1.5 GB, held beside as much of
+            samples, depth and feather maps, were the run's peak).
 
     Returns:
         ``(colour, report)``: the colour function and a small dict for the metrics. ``colour`` also takes
@@ -224,6 +229,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     """
     from scipy import ndimage
 
+    from scantex import heap
     from scantex.io.images import box_downscaled
 
     incidence = _incidence(faces) if faces is not None else None
@@ -255,6 +261,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
     pixel_start, view_start = _starts(pixel_sizes), _starts(view_sizes)
     pixels, feathers = np.empty(sum(pixel_sizes), np.uint32), np.empty(sum(view_sizes), np.float32)
+    depths = np.empty(sum(view_sizes), np.float32)  # the views' signed depth (see ``_Source.depth``), end to end
     coarse = np.empty_like(pixels) if bands else pixels  # the photos' coarse band, packed as they are
 
     def source(k: int) -> _Source:
@@ -272,6 +279,9 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         distance = ndimage.distance_transform_edt(inside)[1:-1, 1:-1]
         feather = feathers[view_start[k]:view_start[k] + view_sizes[k]].reshape(view.valid.shape)
         np.clip(distance / max(settings.feather_px, 1e-6), 0, 1, out=feather, casting="same_kind")
+        depth = depths[view_start[k]:view_start[k] + view_sizes[k]].reshape(view.valid.shape)
+        np.copyto(depth, view.depth)
+        np.negative(depth, out=depth, where=~view.valid)
         sharpness = float(np.log(photo_sharpness(view.image) + 1e-8))
         if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
             raise ValueError(f"photo {view.index}: its working view was made at another pose")
@@ -281,9 +291,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             seen = np.zeros(len(faces), np.float32)
             seen[view.face_id[view.valid & (view.face_id >= 0) & (view.face_id < len(faces))]] = 1
             seen = (incidence @ (incidence.T @ seen)) > 0  # the faces seen, and those sharing a vertex with one
-        to_view = to_view.astype(np.float32)
-        return _Source(cam, packed, to_view, view.camera.center, view.valid, view.depth,
-                       feather, sharpness, int(groups[k]), seen,
+        to_view, centre = to_view.astype(np.float32), view.camera.center
+        if release:  # the view's maps go (and the memory they held, back to the system)
+            views[k] = view.sampled()
+            del view
+            heap.trim()
+        return _Source(cam, packed, to_view, centre, depth, feather, sharpness, int(groups[k]), seen,
                        np.ascontiguousarray(cam.R.T, np.float32), (cam.R @ origin + cam.t).astype(np.float32),
                        np.ascontiguousarray(cam.K.T, np.float32), np.ascontiguousarray(to_view[:2, :2].T))
 
@@ -307,7 +320,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     if sources and (canonicalise is None or transforms is not None):
         if compiled.available():
             tables = _tables(sources, origin, transforms, len(faces) if faces is not None else None,
-                             pixels, pixel_start, feathers, view_start, coarse if bands else None)
+                             pixels, pixel_start, feathers, depths, view_start, coarse if bands else None)
     report["compiled"] = tables is not None
     # the same photos with their coarse band in place of the image (the sources' other arrays shared)
     coarse_sources = ([dataclasses.replace(s, pixels=coarse[start:start + s.pixels.size])
@@ -390,7 +403,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 # np.take: numpy's fancy indexing of rows is several times slower
                 cam, full, pix = project(s, local if sub is None else np.take(local, sub, axis=0))
                 z = cam[:, 2]
-                idx, xi, yi = _seen_in(s.valid, s.depth, pix, z, settings.depth_tolerance)
+                idx, xi, yi = _seen_in(None, s.depth, pix, z, settings.depth_tolerance)
                 if idx.size == 0:
                     return None
                 seen = np.take(cam, idx, axis=0)
@@ -459,7 +472,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 """The photo's pixels at the loose points no usable pixel coloured that it has in view, no
                 surface of the mesh in front of them."""
                 cam, full, pix = project(s, local[loose])
-                idx, _, _ = _seen_in(None, s.depth, pix, cam[:, 2], settings.depth_tolerance)
+                idx = _seen_through(s.depth, pix, cam[:, 2], settings.depth_tolerance)
                 if idx.size == 0:
                     return None
                 rgb = _bilinear(s.pixels, s.camera.width, s.camera.height, full[idx])
@@ -577,21 +590,33 @@ def _seen_in(valid: np.ndarray | None, depth: np.ndarray, pix: np.ndarray, z: np
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(idx, x, y)``: the points (of working-resolution pixels ``pix (n, 2)`` and camera depths ``z (n,)``)
     that a view sees (``valid`` and ``depth``: its usable pixels and their depth), a usable pixel whose depth
-    agrees within ``depth_tolerance`` (relative), and their nearest pixel. ``valid`` ``None``: the points
-    with no surface in front of them closer than that (any pixel, usable or not)."""
+    agrees within ``depth_tolerance`` (relative), and their nearest pixel. ``valid`` ``None``: ``depth`` is a
+    source's signed depth (:attr:`_Source.depth`), whose unusable pixels' depth is not positive."""
+    idx, xi, yi, there = _nearest_depth(depth, pix, z)
+    seen = np.abs(there - z[idx]) < depth_tolerance * z[idx]
+    if valid is not None:
+        seen &= np.take(valid.reshape(-1), yi * depth.shape[1] + xi)
+    return idx[seen], xi[seen], yi[seen]
+
+
+def _seen_through(depth: np.ndarray, pix: np.ndarray, z: np.ndarray, depth_tolerance: float) -> np.ndarray:
+    """The points (as :func:`_seen_in`'s) with no surface in front of them closer than ``depth_tolerance``
+    (relative) in a source's signed depth ``depth`` (any pixel that hits the mesh, usable or not)."""
+    idx, _, _, there = _nearest_depth(depth, pix, z)
+    return idx[np.abs(there) > (1 - depth_tolerance) * z[idx]]
+
+
+def _nearest_depth(depth: np.ndarray, pix: np.ndarray, z: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(idx, x, y, depth)``: the points of ``pix (n, 2)`` in front of the camera (``z (n,)``) and inside the
+    ``(h, w)`` map ``depth``, their nearest pixel and its depth."""
     h, w = depth.shape
     rounded = np.round(pix)
     x, y = rounded[:, 0], rounded[:, 1]
     # a NaN or infinite pixel fails these comparisons: it is not seen
     idx = np.flatnonzero((z > 0) & (x >= 0) & (x < w) & (y >= 0) & (y < h))
-    z, xi, yi = z[idx], x[idx].astype(np.intp), y[idx].astype(np.intp)
-    at = yi * w + xi
-    there = np.take(depth.reshape(-1), at)
-    if valid is None:
-        seen = there > (1 - depth_tolerance) * z
-    else:
-        seen = np.take(valid.reshape(-1), at) & (np.abs(there - z) < depth_tolerance * z)
-    return idx[seen], xi[seen], yi[seen]
+    xi, yi = x[idx].astype(np.intp), y[idx].astype(np.intp)
+    return idx, xi, yi, np.take(depth.reshape(-1), yi * w + xi)
 
 
 def _level_clipped_channels(rgb: np.ndarray, recorded: np.ndarray, clipped: np.ndarray, clip_level: float) -> None:
@@ -714,17 +739,15 @@ def _replace_sharpness(s: _Source, value: float) -> _Source:
 
 
 def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray | None, n_faces: int | None,
-            pixels: np.ndarray, pixel_start: np.ndarray, feathers: np.ndarray, view_start: np.ndarray,
-            coarse: np.ndarray | None = None):
+            pixels: np.ndarray, pixel_start: np.ndarray, feathers: np.ndarray, depths: np.ndarray,
+            view_start: np.ndarray, coarse: np.ndarray | None = None):
     """The sources as :mod:`scantex.photos.compiled` reads them (a :class:`~scantex.photos.compiled.PhotoTables`):
     their arrays end to end, their poses stacked in float64 about ``origin``; ``transforms`` ``None``: the
-    photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling. ``pixels`` and
-    ``feathers``: the sources' packed images and feather weights end to end (each source's a view of its part),
-    each photo's part starting at ``pixel_start`` and ``view_start``; ``coarse``: the images' coarse bands, packed
-    as ``pixels`` (two bands), or ``None``.
-
-    The working views' usable pixels and depth (the caller's) are copied as one array of the usable pixels'
-    depth; the faces each photo may see are held once (``sources`` is changed in place: theirs become views)."""
+    photos' colours as they are (one identity transform); ``n_faces`` ``None``: no culling. ``pixels``,
+    ``feathers`` and ``depths``: the sources' packed images, feather weights and signed depths end to end (each
+    source's a view of its part), each photo's part starting at ``pixel_start`` and ``view_start``; ``coarse``:
+    the images' coarse bands, packed as ``pixels`` (two bands), or ``None``. The faces each photo may see are
+    held once (``sources`` is changed in place: theirs become views)."""
     from scantex.photos.compiled import PhotoTables
 
     def stacked(values) -> np.ndarray:
@@ -742,10 +765,6 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         seen_faces = np.ascontiguousarray(np.stack([s.faces for s in sources], axis=1))
         for k in range(len(sources)):  # held once too
             sources[k] = dataclasses.replace(sources[k], faces=seen_faces[:, k])
-    # the usable pixels' depth, NaN elsewhere (a depth test nothing passes): one array, not two
-    usable_depth = np.full(feathers.size, np.nan, np.float32)
-    for s, start in zip(sources, view_start):
-        np.copyto(usable_depth[start:start + s.valid.size].reshape(s.valid.shape), s.depth, where=s.valid)
     return PhotoTables(
         seen_faces=seen_faces,
         rotation_t=stacked([s.rotation_t for s in sources]), translation=stacked([s.translation for s in sources]),
@@ -757,8 +776,8 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         pixel_start=pixel_start, widths=np.array([s.camera.width for s in sources], np.int64),
         heights=np.array([s.camera.height for s in sources], np.int64), pixels=pixels,
         coarse=coarse if coarse is not None else np.empty(0, np.uint32),
-        view_start=view_start, view_widths=np.array([s.valid.shape[1] for s in sources], np.int64),
-        view_heights=np.array([s.valid.shape[0] for s in sources], np.int64), depth=usable_depth,
+        view_start=view_start, view_widths=np.array([s.depth.shape[1] for s in sources], np.int64),
+        view_heights=np.array([s.depth.shape[0] for s in sources], np.int64), depth=depths,
         feather=feathers, inverse=np.ascontiguousarray(np.linalg.inv(transforms[:, :3])),
         offset=np.ascontiguousarray(transforms[:, 3]), gain=np.ascontiguousarray(transforms[:, :3]),
         canonical=canonical)
@@ -828,13 +847,15 @@ def _bilinear(pixels: np.ndarray, W: int, H: int, pix: np.ndarray) -> np.ndarray
     return d[:, :3] * np.float32(1 / 255)
 
 
-def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence[PhotoView],
+def fit_photo_transforms(reference: Sequence[np.ndarray] | Callable[[int], np.ndarray] | None,
+                         views: Sequence[PhotoView],
                          charts: np.ndarray | None = None, chart_area: np.ndarray | None = None,
                          blur_px: float = 1.0, min_pixels: int = 50, pair_weight: float = 0.0) -> np.ndarray:
     """Each photo's colour transform onto the reference texture's appearance, in closed form.
 
     ``reference[k]`` is the reference colour (the input texture rendered through view ``k``'s camera,
-    ``(H, W, 3)`` float). A capture app's atlas is itself a patchwork of exposures, one per chart, so a
+    ``(H, W, 3)`` float), or ``reference(k)`` makes it when it is asked (once a photo: a room's hundreds of
+    references are then not all held at once). A capture app's atlas is itself a patchwork of exposures, one per chart, so a
     photo is not fitted to the texture as it is: per channel, the model is ``photo = g_photo x`` and
     ``texture = g_chart x`` for the true colour ``x`` (exposure and white balance are gains), and
     ``log g_photo - log g_chart`` is measured as the median log ratio of every (photo, chart) pair's
@@ -875,7 +896,7 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | None, views: Sequence
 
     def chart_rows(k: int) -> list[tuple[int, int, np.ndarray, float]]:
         """Photo ``k``'s (photo, chart, median log ratio (3,), weight) rows."""
-        view, ref = views[k], reference[k]
+        view, ref = views[k], reference(k) if callable(reference) else reference[k]
         mask = view.valid & (view.face_id >= 0)
         if mask.sum() < min_pixels:
             return []

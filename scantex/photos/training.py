@@ -62,9 +62,11 @@ class PhotoView:
             of the memory of its colours in float: a room's two hundred views of 640x480 hold 0.5 GB less), or
             ``float32`` in [0, 1] for a view made from others' pixels (:func:`halved`); ``None`` once
             :meth:`sampled` (the texture made, what teaches it is no longer held). Read it as :attr:`image`.
-        face_id: ``(H, W) int32`` face at the pixel centre, -1 for none.
-        depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z).
-        valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed).
+        face_id: ``(H, W) int32`` face at the pixel centre, -1 for none; ``None`` once :meth:`sampled`.
+        depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z), 0 where none hits the
+            mesh; ``None`` once :meth:`sampled`.
+        valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed); ``None`` once
+            :meth:`sampled`.
         rejected: pixels that hit the mesh but failed the test, by reason (for the report).
         depth_factor: what :func:`depth_factor` found of the photo's depth map (``None``: it has none), for
             the photo prepared again at another pose (not judged, nor warned about, twice).
@@ -73,9 +75,9 @@ class PhotoView:
     index: int
     camera: Camera
     pixels: np.ndarray | None
-    face_id: np.ndarray
-    depth: np.ndarray
-    valid: np.ndarray
+    face_id: np.ndarray | None
+    depth: np.ndarray | None
+    valid: np.ndarray | None
     rejected: dict
     depth_factor: float | None = None
 
@@ -88,9 +90,9 @@ class PhotoView:
         return self.pixels.astype(np.float32) / np.float32(255.0)
 
     def sampled(self) -> PhotoView:
-        """The view without its pixels, once the texture has been sampled: what the report still asks (camera,
-        usable pixels, rejections)."""
-        return dataclasses.replace(self, pixels=None)
+        """The view without its maps, once the texture has been sampled: what the report still asks (index,
+        camera, rejections; a room's four hundred views of 640x480 held 1.5 GB of maps through the bake)."""
+        return dataclasses.replace(self, pixels=None, face_id=None, depth=None, valid=None)
 
 
 def working_camera(camera: Camera, max_side: int) -> Camera:

@@ -383,9 +383,9 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
 
     # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
     small = [halved(view) for view in views]
-    # the photos' views of the input texture side by side (Embree and numpy release the interpreter lock)
-    references = (list(side_by_side(lambda view: texture_seen(scan, view, caster), small))
-                  if scan.is_textured else None)
+    # each photo's view of the input texture, rendered when the fit asks for it (the photos side by side: Embree
+    # and numpy release the interpreter lock), not all held at once (a room's 400 photos: 0.4 GB)
+    references = (lambda k: texture_seen(scan, small[k], caster)) if scan.is_textured else None
     transforms = fit_photo_transforms(references, small, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       blur_px=0.5, pair_weight=pair_weight)
@@ -432,14 +432,17 @@ def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight
 
 
 def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConfig, caster: RayCaster,
-                  charts: np.ndarray, device, texel_px_per_cm: float = 0.0, threads: int | None = None):
+                  charts: np.ndarray, device, texel_px_per_cm: float = 0.0, threads: int | None = None,
+                  release: bool = False):
     """Photo mode's colour source: texels sampled from the training photos at full resolution, brought
     to the canonical appearance by each photo's inverse colour transform, with ``fallback`` (the field, or
     the input's texels) where no photo sees them. The transforms are the field's (training photo ``k`` is
     appearance group ``k``) when it was trained, else fitted in closed form against the input texture
     (``charts``: the input atlas's chart of each face). ``texel_px_per_cm``: the output atlas's texel density
     (photos much finer than it are sampled at a lower resolution; 0: full resolution). ``threads``: how many
-    sample one call's photos side by side (``None``: the cores; 1 when the bake colours chunks in parallel)."""
+    sample one call's photos side by side (``None``: the cores; 1 when the bake colours chunks in parallel).
+    ``release``: ``photo.train`` (a list) has its views replaced by their sampled copies as the photos are
+    sampled (:func:`~scantex.photos.texturing.projective_colour`'s ``release``)."""
     from scantex.photos.texturing import ProjectiveSettings, loose_fragments, projective_colour, recorded_transforms
 
     report: dict = {}
@@ -484,7 +487,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     report["loose_fragment_faces"] = int(through.sum()) if through is not None else 0
     colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
                                         levelled if level else fallback, settings, faces=welded,
-                                        recorded=recorded, threads=threads, through=through, transforms=transforms)
+                                        recorded=recorded, threads=threads, through=through, transforms=transforms,
+                                        release=release)
     if level:
         from scantex.photos.texturing import MAX_FALLBACK_STEP, fallback_offsets
 
@@ -868,9 +872,10 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
             colour, final_report = photo_texture(scan, every, None, photo_fallback, config.photos, caster, charts,
                                                  device, atlas_density, threads=sampling_threads)
         else:
+            # the training views' maps go as their photos are sampled (nothing else here holds them)
+            photo = dataclasses.replace(photo, train=list(photo.train))
             colour, projective_report = photo_texture(scan, photo, fitted, colour, config.photos, caster, charts,
-                                                      device, atlas_density, threads=sampling_threads)
-            photo = dataclasses.replace(photo, train=[view.sampled() for view in photo.train])
+                                                      device, atlas_density, threads=sampling_threads, release=True)
     bake_seconds = time.perf_counter() - t
 
     refine_report = None

@@ -271,6 +271,38 @@ def test_colour_transforms_in_closed_form_undo_each_photos_exposure(tmp_path):
     assert np.abs(got[seen] - truth[seen]).mean() < 0.4 * np.abs(before[seen] - truth[seen]).mean()
 
 
+def test_references_made_when_asked_fit_the_same_transforms(tmp_path):
+    """A reference given as a function of the photo (rendered when the fit asks, not all held at once) fits the
+    transforms of the same references given as a list."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(0.6, 1.2))
+    caster = RayCaster(scan.positions, scan.faces)
+    references = [render(scan, v.camera, caster)[0] for v in views]
+    asked = []
+
+    def reference(k):
+        asked.append(k)
+        return render(scan, views[k].camera, caster)[0]
+
+    np.testing.assert_array_equal(fit_photo_transforms(reference, views, pair_weight=4.0),
+                                  fit_photo_transforms(references, views, pair_weight=4.0))
+    assert sorted(asked) == [0, 1]  # once a photo
+
+
+def test_views_released_as_their_photos_are_sampled_give_the_same_colours(tmp_path):
+    """``release``: each view in the list is replaced by its sampled copy (no maps) as its photo is sampled,
+    and the colours are those of the views kept."""
+    scan = smooth_wall()
+    photos, views = wall_photos(tmp_path, scan, gains=(1.0, 0.7))
+    points, normals, f, b = surface_points(scan, 20000)
+    kept, _ = projective_colour(photos, views, [0, 1], None, grey, faces=scan.faces)
+    given = list(views)
+    released, _ = projective_colour(photos, given, [0, 1], None, grey, faces=scan.faces, release=True)
+    assert all(v.face_id is None and v.depth is None and v.valid is None and v.pixels is None for v in given)
+    assert [v.index for v in given] == [v.index for v in views] and all(v.face_id is not None for v in views)
+    np.testing.assert_array_equal(released(points, normals, f, b), kept(points, normals, f, b))
+
+
 def test_photo_consistency_rejects_an_occluder_one_photo_saw(tmp_path):
     """Four photos of the wall; in one, something the mesh does not hold (a red board) hides part of it. The
     plain blend carries a quarter of the red; the photo-consistent blend outvotes it and keeps the wall's

@@ -165,26 +165,33 @@ def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, 
 
 def test_the_photos_sampled_for_the_texture_are_let_go_once_it_is_baked(toy_demo, toy_photos):
     """The photos at their sampling resolution, with their depth and feather maps (0.7 GB of a real apartment's
-    197 photos), are not held through the measuring."""
+    197 photos), are not held through the measuring; the training photos' working views (their image, faces,
+    depth and usable pixels: 1.5 GB of 400 views of 640x480) are not held through the bake."""
     import contextlib
     import gc
 
     from scantex.photos.texturing import _Source
+    from scantex.photos.training import PhotoView
     from scantex.pipeline.enhance import Reporter
 
-    alive = {}
+    alive, with_maps = {}, {}
 
     class Counting(Reporter):
         @contextlib.contextmanager
         def stage(self, name):
             gc.collect()
-            alive[name] = sum(type(o) is _Source for o in gc.get_objects())  # type(): gc holds dead proxies too
+            objects = gc.get_objects()
+            alive[name] = sum(type(o) is _Source for o in objects)  # type(): gc holds dead proxies too
+            with_maps[name] = sum(type(o) is PhotoView and o.face_id is not None for o in objects)
             yield lambda done, total: None
 
-    enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="training"),
-            photos=toy_photos, reporter=Counting())
+    result = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__final="training"),
+                     photos=toy_photos, reporter=Counting())
+    held = len(result.metrics["photos"]["held_out"])
     assert alive["baking the texture"] == 9  # sampled from while the atlas is baked
     assert alive["measuring"] == 0
+    assert with_maps["UV layout (keep)"] == 9 + held
+    assert with_maps["baking the texture"] == held  # the held-out photos', which score the result
 
 
 def test_photos_sample_memory_bounds_what_the_photos_samples_hold(toy_demo, toy_photos, photo_result):
