@@ -855,8 +855,8 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | Callable[[int], np.nd
 
     ``reference[k]`` is the reference colour (the input texture rendered through view ``k``'s camera,
     ``(H, W, 3)`` float), or ``reference(k)`` makes it when it is asked (once a photo: a room's hundreds of
-    references are then not all held at once). A capture app's atlas is itself a patchwork of exposures, one per chart, so a
-    photo is not fitted to the texture as it is: per channel, the model is ``photo = g_photo x`` and
+    references are then not all held at once). A capture app's atlas is itself a patchwork of exposures, one
+    per chart, so a photo is not fitted to the texture as it is: per channel, the model is ``photo = g_photo x`` and
     ``texture = g_chart x`` for the true colour ``x`` (exposure and white balance are gains), and
     ``log g_photo - log g_chart`` is measured as the median log ratio of every (photo, chart) pair's
     pixels (robust to the poses' few pixels of error), then solved for all gains at once by least

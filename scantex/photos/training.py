@@ -63,8 +63,8 @@ class PhotoView:
             ``float32`` in [0, 1] for a view made from others' pixels (:func:`halved`); ``None`` once
             :meth:`sampled` (the texture made, what teaches it is no longer held). Read it as :attr:`image`.
         face_id: ``(H, W) int32`` face at the pixel centre, -1 for none; ``None`` once :meth:`sampled`.
-        depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z), 0 where none hits the
-            mesh; ``None`` once :meth:`sampled`.
+        depth: ``(H, W) float32`` mean depth of the pixel's sub-samples (camera z), 0 where it sees none of
+            the mesh; ``None`` once :meth:`sampled`.
         valid: ``(H, W) bool`` the pixel may teach / be scored (visibility test passed); ``None`` once
             :meth:`sampled`.
         rejected: pixels that hit the mesh but failed the test, by reason (for the report).

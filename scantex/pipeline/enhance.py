@@ -525,13 +525,15 @@ def photo_atlas_scale(scan: Scan, photos_px_per_cm: float) -> tuple[int, dict]:
     """How much finer than the input atlas photo mode bakes: 2 when the photos resolve the surface at least
     ``PHOTO_DENSITY_FOR_2X`` (2) times finer than the input atlas's texels do (median over the training
     photos' usable pixels of full-resolution pixels per centimetre), else 1 (a finer atlas would only
-    resample the same detail). ``photos_px_per_cm``: :func:`photo_density`. At 1.4 (before), a real apartment (photos 1.52x the atlas's density) scored
-    +0.02 dB for 1.6x the time and +1.1 GB, and the synthetic room (1.93x) 0.07 dB less (bench/RESULTS.md)."""
+    resample the same detail). ``photos_px_per_cm``: :func:`photo_density`. At 1.4 (before), a real apartment
+    (photos 1.52x the atlas's density) scored +0.02 dB for 1.6x the time and +1.1 GB, and the synthetic room
+    (1.93x) 0.07 dB less (bench/RESULTS.md)."""
     from scantex.metrics.texture import texel_density
 
     atlas = texel_density(scan)["px_per_cm_mean"] if scan.is_textured else 0.0
     scale = 2 if atlas <= 0 or photos_px_per_cm >= PHOTO_DENSITY_FOR_2X * atlas else 1
-    return scale, {"photos_px_per_cm": round(photos_px_per_cm, 2), "atlas_px_per_cm": round(atlas, 2), "atlas_scale": scale}
+    return scale, {"photos_px_per_cm": round(photos_px_per_cm, 2), "atlas_px_per_cm": round(atlas, 2),
+                   "atlas_scale": scale}
 
 
 def atlas_growth(scan: Scan, requested: int, scale: int) -> float:

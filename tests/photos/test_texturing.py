@@ -353,7 +353,8 @@ def test_photo_pairs_level_photos_whose_texture_is_a_patchwork(tmp_path):
     photos, views = wall_photos(tmp_path, scan, gains=(1.0, 0.8))
     image = scan.materials[0].image.astype(np.float32)
     image[:, : image.shape[1] // 2] *= 0.7
-    patchwork = dataclasses.replace(scan, materials=(dataclasses.replace(scan.materials[0], image=image.astype(np.uint8)),))
+    patchwork = dataclasses.replace(scan, materials=(dataclasses.replace(scan.materials[0],
+                                                                          image=image.astype(np.uint8)),))
     caster = RayCaster(scan.positions, scan.faces)
     references = [render(patchwork, v.camera, caster)[0] for v in views]
     alone = fit_photo_transforms(references, views)
@@ -512,7 +513,8 @@ def test_fallback_offsets_carry_the_photos_tone_across_what_they_do_not_see():
     scan = Scan(np.concatenate([wall.positions, island]), np.concatenate([wall.faces, wall.faces + len(island)]))
     covered_x = 1.0  # the photos see x < 1 of the first wall
     odd = 12  # one covered face whose photos say something else entirely (an object the fallback lacks)
-    left_faces = np.flatnonzero((scan.triangles[:, :, 0].max(axis=1) <= covered_x) & (scan.triangles[:, :, 2].max(axis=1) < 3))
+    left_faces = np.flatnonzero((scan.triangles[:, :, 0].max(axis=1) <= covered_x)
+                                & (scan.triangles[:, :, 2].max(axis=1) < 3))
     assert odd in left_faces
 
     def fallback(points, normals, face_ids, bary):

@@ -386,7 +386,8 @@ def test_photo_mode_without_a_field_never_imports_torch(tmp_path, toy_demo, toy_
 
 def test_refiner_skips_photo_mode_unless_asked(toy_demo, toy_photos):
     """The refiner learns from renders of the input texture, which the photos outclass (bench_photos)."""
-    cfg = TOY.override(photos__check_alignment=False, train__steps=30, refine__enabled=True, refine__steps=4, refine__batch=2, refine__max_views=2)
+    cfg = TOY.override(photos__check_alignment=False, train__steps=30, refine__enabled=True, refine__steps=4,
+                       refine__batch=2, refine__max_views=2)
     skipped = enhance(toy_demo.scan, cfg, photos=toy_photos)
     assert "refine" not in skipped.metrics and "refine" not in skipped.metrics["timings_s"]
     asked = enhance(toy_demo.scan, cfg.override(refine__with_photos=True), photos=toy_photos)
