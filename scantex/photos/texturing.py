@@ -593,7 +593,8 @@ def _seen_in(valid: np.ndarray | None, depth: np.ndarray, pix: np.ndarray, z: np
     agrees within ``depth_tolerance`` (relative), and their nearest pixel. ``valid`` ``None``: ``depth`` is a
     source's signed depth (:attr:`_Source.depth`), whose unusable pixels' depth is not positive."""
     idx, xi, yi, there = _nearest_depth(depth, pix, z)
-    seen = np.abs(there - z[idx]) < depth_tolerance * z[idx]
+    z = z[idx]
+    seen = np.abs(there - z) < depth_tolerance * z
     if valid is not None:
         seen &= np.take(valid.reshape(-1), yi * depth.shape[1] + xi)
     return idx[seen], xi[seen], yi[seen]
