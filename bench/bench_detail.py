@@ -1,4 +1,4 @@
-"""Photo mode's fine detail against its held-out score on a capture of many photos (a room): blend and sharp.
+"""Photo mode's fine detail against its held-out score on a capture of many photos (a room): blend, balanced, sharp.
 
     python bench/bench_detail.py MESH CAMERAS                      # every tenth photo from the fifth held out
     python bench/bench_detail.py MESH CAMERAS --app-style 4096 --override photos__temperature=0.5
@@ -7,11 +7,12 @@ MESH is the capture's mesh with its texture (a capture app's input), or, with ``
 UV layout an app-style input is baked on from the given photos (:func:`bench.baselines.app_style_bake`: per texel
 the photo that sees it best, as it is). CAMERAS is anything ``--photos`` reads. The held-out photos (every
 ``--every``-th from ``--first``) are given to nothing; scantex gets the others (``photos.holdout`` 0) and the
-input, once a run: the default (``photos.detail`` blend), ``photos.detail`` sharp, and each ``--override``. Input and
-results are rendered through the held-out photos' cameras and scored colour-matched
-(:func:`scantex.photos.training.score_photos`), with each render's fine detail (mean |Laplacian of a Gaussian of
-1 px| of its grey, the photos' own beside it). Prints a Markdown table; bench/RESULTS.md "sharp detail" holds the
-real apartment's (the G2LTex ``apt0`` capture, kept outside the repository: its mesh fused from the depth maps).
+input, once a run: the default (``photos.detail`` auto: balanced from 50 photos, blend below), the other two of
+``photos.detail`` blend, balanced and sharp, and each ``--override``. Input and results are rendered through the
+held-out photos' cameras and scored colour-matched (:func:`scantex.photos.training.score_photos`), with each
+render's fine detail (mean |Laplacian of a Gaussian of 1 px| of its grey, the photos' own beside it). Prints a
+Markdown table; bench/RESULTS.md "sharp detail" holds the real apartment's (the G2LTex ``apt0`` capture, kept
+outside the repository: its mesh fused from the depth maps).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def main() -> None:
     from scantex.photos import load_photos
     from scantex.photos.training import VisibilitySettings, prepare_photos, score_photos
     from scantex.pipeline.config import preset
-    from scantex.pipeline.enhance import enhance
+    from scantex.pipeline.enhance import detail_mode, enhance
     from scantex.views.raycast import RayCaster
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -54,7 +55,9 @@ def main() -> None:
     if args.app_style:
         scan = app_style_bake(scan, given, prepare_photos(scan, given, range(len(given)), caster, 640),
                               size=args.app_style)
-    runs = [{}, {"photos__detail": "sharp"}] + [parse_override(item) for item in args.override]
+    auto = detail_mode("auto", len(given))  # the default run's: not run twice
+    runs = [{}] + [{"photos__detail": mode} for mode in ("blend", "balanced", "sharp") if mode != auto]
+    runs += [parse_override(item) for item in args.override]
     results, seconds = {"input": scan}, {}
     for k, override in enumerate(runs):
         name = ", ".join(f"{key.replace('__', '.')} {value}" for key, value in override.items()) or "default"

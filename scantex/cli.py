@@ -782,11 +782,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "
                         "against the input texture for a textured scan and the consensus for an untextured "
                         "one; off otherwise)")
-    p.add_argument("--detail", choices=("blend", "sharp"), default=None,
-                   help="with --photos: the texture's fine detail blended from every photo that sees it (blend, "
-                        "the default: the best held-out scores; a room's many photos, registered a few pixels "
-                        "apart, blur into one another) or taken from the best views (sharp: colour and exposure "
-                        "still from every photo; as sharp as the photos, at a lower held-out score)")
+    p.add_argument("--detail", choices=("auto", "blend", "balanced", "sharp"), default=None,
+                   help="with --photos: the texture's fine detail blended from every photo that sees it (blend: "
+                        "the best held-out scores; a room's many photos, registered a few pixels apart, blur into "
+                        "one another, each edge in several faint copies), taken from the best views (sharp: "
+                        "colour and exposure still from every photo; as sharp as the photos, at a lower held-out "
+                        "score), or the best views' at half its contrast (balanced: one clean copy of each edge, "
+                        "nearly the blend's score); default auto: balanced for 50 photos or more, blend below")
     p.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None,
                    help="refine views with a Vision Transformer trained self-supervised on the scan's own "
                         "views (masked completion, cross-view consistency, internal super-resolution) and fuse "

@@ -29,8 +29,8 @@ DETAIL_ROUNDS = 3
 def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
            log_sharpness, photo_group, pixel_start, widths, heights, pixels, coarse, view_start, view_widths,
            view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature, detail_temperature,
-           detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical, out, total,
-           alpha, tally):
+           detail_gain, detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical,
+           out, total, alpha, tally):
     """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
     n, P = len(local), len(rotation_t)
     bands = len(coarse) > 0
@@ -131,10 +131,10 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
         alpha[i] = reach
         out[i, 0] = out[i, 1] = out[i, 2] = 0.0
         # one band: the photos' blend. Two: their coarse band's blend at the temperature, plus the fine band's at the
-        # detail temperature (by linearity, the photos' blend there less their coarse band's)
+        # detail temperature (by linearity, the photos' blend there less their coarse band's) times the detail gain
         for blend_pass in range(3 if bands else 1):
             band = 0 if blend_pass == 1 or not bands else 1
-            sign = -1.0 if blend_pass == 2 else 1.0
+            sign = -detail_gain if blend_pass == 2 else detail_gain if blend_pass == 1 else 1.0
             rgb, clipped = rgbs[band], clips[band]
             t = temperature if blend_pass == 0 else detail_temperature
             any_clipped = False
@@ -258,17 +258,17 @@ class PhotoTables:
 
 def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np.ndarray, *, depth_tolerance: float,
           temperature: float, clip_level: float, overshoot: float, consistency: float, rounds: int,
-          without: int | None, censors: bool, detail_temperature: float = 0.0, detail_consistency: float = 0.0
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          without: int | None, censors: bool, detail_temperature: float = 0.0, detail_gain: float = 1.0,
+          detail_consistency: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The photos' blend at points ``local (n, 3)`` (about the capture's origin) with normals ``unit (n, 3)`` on
     faces ``face_ids (n,)``: ``(colour (n, 3) float32, total weight (n,) float32, the largest feather weight
     (n,) float32, tally (3,) int64: samples, clipped samples, clipped samples that gave way)``, as
     :func:`scantex.photos.texturing.projective_colour`'s numpy path makes them (``censors``: clipped samples
     give way where the others say their photo overshot its white point). With ``tables.coarse`` (two bands), the
-    colour is the coarse band's blend at ``temperature`` plus the fine band's at ``detail_temperature``, a photo's
-    weight there times ``exp(-(d / detail_consistency)^2)``, ``d`` its coarse band's distance from what most
-    photos' coarse bands say (:data:`DETAIL_ROUNDS` robust rounds from the coarse blend; 0: no such weight); the
-    total weight and the tally are the coarse band's blend's."""
+    colour is the coarse band's blend at ``temperature`` plus ``detail_gain`` times the fine band's at
+    ``detail_temperature``, a photo's weight there times ``exp(-(d / detail_consistency)^2)``, ``d`` its coarse
+    band's distance from what most photos' coarse bands say (:data:`DETAIL_ROUNDS` robust rounds from the coarse
+    blend; 0: no such weight); the total weight and the tally are the coarse band's blend's."""
     n = len(local)
     out = np.empty((n, 3), np.float64)
     total = np.empty(n, np.float64)
@@ -280,7 +280,7 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
               t.to_view, t.centre, t.focal, t.log_sharpness, t.group, t.pixel_start, t.widths, t.heights, t.pixels,
               t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
               t.gain, float(depth_tolerance), float(temperature),
-              float(detail_temperature or 1.0),  # read with two bands only
+              float(detail_temperature or 1.0), float(detail_gain),  # read with two bands only
               float(detail_consistency), float(clip_level), float(overshoot), float(consistency), int(rounds),
               -1 if without is None else int(without), bool(censors),
               t.canonical, out, total, alpha, tally)

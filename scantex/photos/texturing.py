@@ -38,8 +38,9 @@ weighted blend of the training photos' pixels at the photos' **full resolution**
   one photo, colour of all (a two-band blend, as panorama stitchers blend). By linearity, three blends of a
   point's samples: the coarse band's at ``temperature``, then the photos' and their coarse band's at the detail
   temperature, whose difference is the blended fine band (the compiled blend samples both bands of a photo in one
-  pass; the numpy path runs the three blends one after another). In the fine band a photo whose coarse band
-  disagrees with what most photos' coarse bands say (an occluder, a highlight) gives way (``detail_consistency``);
+  pass; the numpy path runs the three blends one after another), added at ``detail_gain`` of its contrast. In the
+  fine band a photo whose coarse band disagrees with what most photos' coarse bands say (an occluder, a highlight)
+  gives way (``detail_consistency``);
 - **fill**: where no photo sees a point (the largest feather weight is below 1), the result fades
   smoothly into ``fallback`` (the field's canonical colour, harmonic fill in holes).
 
@@ -113,6 +114,9 @@ class ProjectiveSettings:
     """two bands (0: one): the photos' coarse band (each photo blurred by a Gaussian of ``detail_sigma`` working
     pixels) blended at ``temperature``, their fine band (the photo less its blur) at this lower temperature, so
     the detail comes from the best views while colour and exposure still average over every photo"""
+    detail_gain: float = 1.0
+    """two bands: the fine band's share of its contrast kept (1: the best views' detail as it is; 0.5: at half its
+    contrast, a single clean copy of each edge where a blend of photos a few pixels apart leaves several faint ones)"""
     detail_sigma: float = 4.0
     """the Gaussian (in working pixels, scaled to each photo's sampling resolution) that splits the bands"""
     detail_consistency: float = 0.05
@@ -336,7 +340,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         def part(span: slice):
             return compiled.blend(tables, local[span], unit[span], face_ids[span],
                                   depth_tolerance=settings.depth_tolerance, temperature=settings.temperature,
-                                  detail_temperature=settings.detail_temperature,
+                                  detail_temperature=settings.detail_temperature, detail_gain=settings.detail_gain,
                                   detail_consistency=settings.detail_consistency,
                                   clip_level=settings.clip_level, overshoot=settings.overshoot,
                                   consistency=settings.consistency, rounds=settings.consistency_rounds,
@@ -464,7 +468,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 if settings.detail_consistency > 0:  # from photos whose coarse band agrees with most photos'
                     gates = _detail_gates(n, coarse_seen, out, settings.temperature, settings.detail_consistency)
                 fine = numpy_blend(sources, td, False, gates)[0] - numpy_blend(coarse_sources, td, False, gates)[0]
-                out = out + fine
+                out = out + np.float32(settings.detail_gain) * fine
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
         if loose.size:
@@ -694,7 +698,8 @@ def detail_report(settings: ProjectiveSettings) -> dict:
     """The two bands' settings as the metrics give them (``{}`` with one band)."""
     if settings.detail_temperature <= 0:
         return {}
-    return {"detail": {"temperature": settings.detail_temperature, "sigma_px": settings.detail_sigma}}
+    return {"detail": {"temperature": settings.detail_temperature, "sigma_px": settings.detail_sigma,
+                       "gain": settings.detail_gain}}
 
 
 def _detail_gates(n: int, coarse: list[_Samples], blend: np.ndarray, temperature: float, scale: float

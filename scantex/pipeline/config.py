@@ -142,10 +142,10 @@ class PhotosConfig:
     """photos are box-filtered down to this longer side for training and scoring"""
     sample_memory_mb: float = 1024.0
     """projective texturing samples each photo at the resolution the atlas wants (2 photo pixels a texel, at most
-    the photo's own); when all of them would hold more than this (MiB: 4 bytes a pixel, 8 with --detail sharp),
-    every photo is sampled smaller by one factor, with a warning (0: no bound); the same for the consensus poses'
-    reference (refine_poses consensus). The captures measured hold 80-280 MB (a hundred 12-megapixel photos: 282);
-    300 phone frames of 1920x1440 at full resolution would hold 3.2 GB"""
+    the photo's own); when all of them would hold more than this (MiB: 4 bytes a pixel, 8 with two bands: --detail
+    balanced or sharp), every photo is sampled smaller by one factor, with a warning (0: no bound); the same for the
+    consensus poses' reference (refine_poses consensus). The captures measured hold 80-280 MB (a hundred
+    12-megapixel photos: 282); 300 phone frames of 1920x1440 at full resolution would hold 3.2 GB"""
     synthetic_weight: float = 0.1
     """weight of the synthetic views of the input texture relative to the photos (they teach what no photo sees)"""
     edge_margin_px: int = 1
@@ -163,8 +163,8 @@ class PhotosConfig:
     """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), consensus (against the texture the other training photos make together, repeated refine_iterations times), or auto (for fewer than 50 photos: input for a textured scan, consensus for an untextured one; off otherwise). A correction under half a working pixel is not applied. Refined textures are as sharp as the photos where blending through poses a few pixels off doubles and blurs every edge; through held-out photos whose own recorded poses are as far off they score about the same on average (bench/RESULTS.md, "real photos")"""
     refine_iterations: int = 1
     """refine_poses consensus: rounds of aligning every photo to the others"""
-    detail: str = "blend"
-    """projective texturing's fine detail: blend (every photo's, as their colour: a room's many photos, whose registration differs by a few pixels, blur into one another) or sharp (colour and exposure from every photo, detail finer than a Gaussian of 4 working pixels from the best views: as sharp as the input on a real apartment, at a lower held-out score through photos that are themselves a few pixels off; bench/RESULTS.md, "sharp detail")"""
+    detail: str = "auto"
+    """projective texturing's fine detail: blend (every photo's, as their colour: a room's many photos, whose registration differs by a few pixels, blur into one another, each edge in several faint copies), sharp (colour and exposure from every photo, detail finer than a Gaussian of 4 working pixels from the best views: as sharp as the input on a real apartment, at a lower held-out score through photos that are themselves a few pixels off), balanced (the best views' detail at half its contrast: one clean copy of each edge, at nearly the blend's held-out score), or auto (balanced from 50 photos, blend below: a few photos, aligned by default, blend into a sharp texture) (bench/RESULTS.md, "sharp detail")"""
     texturing: str = "projective"
     """texel colours: projective (sampled from the photos that see them, at full resolution, blended smoothly; the input's texels, or the field when it is trained, fill the rest) or field (the field's colour everywhere)"""
     final: str = "auto"
@@ -381,7 +381,7 @@ RANGES: dict[str, tuple] = {
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
     "photos.depth_tolerance": (0.0, 1e9), "photos.canonical": ("input", "photos"),
-    "photos.texturing": ("projective", "field"), "photos.detail": ("blend", "sharp"),
+    "photos.texturing": ("projective", "field"), "photos.detail": ("auto", "blend", "balanced", "sharp"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
     "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0), "photos.sample_memory_mb": (0.0, 1e9),

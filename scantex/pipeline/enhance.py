@@ -182,16 +182,37 @@ FINAL_ALL_BELOW = 50
 #: sharp as the photos, at the same held-out scores on average. A room's hundred photos blur into one another
 #: instead, and their alignment cost a real apartment 0.16 dB and 1.6x its time (bench/RESULTS.md)
 REFINE_BELOW = 50
-#: ``photos.detail`` sharp: the softmax temperature of the photos' fine band (their coarse band keeps
+#: ``photos.detail`` balanced and sharp: the softmax temperature of the photos' fine band (their coarse band keeps
 #: ``photos.temperature``). On a real apartment's 197 photos, 0.1 gives about the best view's detail: the held-out
 #: renders' 0.0055 against the input's 0.0072 and the blend's 0.0027 (``score_photos``'s ``detail``;
 #: bench/RESULTS.md, "sharp detail")
 SHARP_DETAIL_TEMPERATURE = 0.1
+#: ``photos.detail`` balanced: the best views' fine band at half its contrast. A room's blend of photos registered a
+#: few pixels apart smears each edge into several faint copies (a real apartment's tiles, dish rack and lamp
+#: pole); at 0.5 each edge is one clean copy at half its contrast, scoring 0.14 dB under the blend where the full
+#: detail (sharp) costs 0.58 (bench/RESULTS.md, "balanced detail")
+BALANCED_DETAIL_GAIN = 0.5
+#: ``photos.detail`` auto: balanced from this many photos (a room's video frames, blended as recorded), blend
+#: below it (a few photos, aligned by default, blend into a sharp texture already; the best views' detail brings
+#: their occluders and their registration with it: a façade's trees, 22.39 against 21.16 dB sharp)
+BALANCED_FROM = 50
 
 
-def detail_temperature(pc: PhotosConfig) -> float:
-    """Projective texturing's fine-band temperature for ``photos.detail`` (0: one band)."""
-    return SHARP_DETAIL_TEMPERATURE if pc.detail == "sharp" else 0.0
+def detail_mode(detail: str, n_photos: int) -> str:
+    """``photos.detail`` as a run applies it: ``blend``, ``balanced`` or ``sharp`` (``auto``: balanced from
+    ``BALANCED_FROM`` photos, blend below)."""
+    if detail == "auto":
+        return "balanced" if n_photos >= BALANCED_FROM else "blend"
+    return detail
+
+
+def detail_settings(detail: str, n_photos: int) -> dict:
+    """Projective texturing's two-band settings for ``photos.detail`` (``{}``: one band, the blend)."""
+    mode = detail_mode(detail, n_photos)
+    if mode == "blend":
+        return {}
+    return {"detail_temperature": SHARP_DETAIL_TEMPERATURE,
+            "detail_gain": BALANCED_DETAIL_GAIN if mode == "balanced" else 1.0}
 
 
 #: the atlas sizes photo mode lays an untextured scan out at (:func:`untextured_atlas_size`): a fused apartment
@@ -469,7 +490,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         canonicalise = None
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot,
-                                  detail_temperature=detail_temperature(pc), memory_mb=pc.sample_memory_mb)
+                                  memory_mb=pc.sample_memory_mb, **detail_settings(pc.detail, len(photo.photos)))
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
 
     def levelled(points, normals, face_ids, bary):

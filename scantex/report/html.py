@@ -74,12 +74,16 @@ def fine_detail(scores: dict, texturing: dict) -> tuple[str, bool]:
     result, photos = scores["enhanced"].get("detail"), scores["enhanced"].get("photo_detail")
     if not photos or result is None:
         return "", False
+    projective = texturing.get("mode") == "projective"
+    # the best views' detail in full (--detail sharp; a run before the gain was reported: gain 1), or at a share
+    full = "detail" in texturing and texturing["detail"].get("gain", 1.0) >= 1.0
+    mode = "sharp" if full else "balanced" if "detail" in texturing else "blend"
     line = (f"photos {photos:.4f}, input {scores['input']['detail']:.4f}, result {result:.4f} (mean |Laplacian of "
-            f"Gaussian| of the grey)")
-    soft = result < SOFT_DETAIL * photos and texturing.get("mode") == "projective" and "detail" not in texturing
+            f"Gaussian| of the grey{f'; --detail {mode}' if projective else ''})")
+    soft = result < SOFT_DETAIL * photos and projective and not full
     if soft:
         line += (": softer than the photos, whose registration differs by a few pixels (--detail sharp takes the "
-                 "fine detail from the best views, at a lower held-out score)")
+                 "fine detail from the best views in full, at a lower held-out score)")
     return line, soft
 
 

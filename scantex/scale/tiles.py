@@ -235,9 +235,13 @@ class TilePhotos:
         return dataclasses.replace(subset, hidden=tuple(masks), depths=depths, depth_factors=factors)
 
     def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
-        """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here."""
+        """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here, the
+        fine detail chosen for the whole capture (a tile sees a part of its photos)."""
+        from scantex.pipeline.enhance import detail_mode
+
         return config.override(photos__holdout=0, photos__check_alignment=False, photos__final="training",
-                               photos__refine_poses="consensus" if self.pose_mode == "consensus" else "off")
+                               photos__refine_poses="consensus" if self.pose_mode == "consensus" else "off",
+                               photos__detail=detail_mode(config.photos.detail, len(self.photos)))
 
 
 def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: EnhanceConfig, caster,
@@ -693,14 +697,16 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
                          renders=shown)
 
 
-def tiled_texturing(pc) -> dict:
+def tiled_texturing(pc, n_photos: int) -> dict:
     """How every tile coloured its texels (the settings; each tile's own report stays with it): the mode, and the
-    two bands' settings where ``photos.detail`` is sharp, as a whole run's ``photos.texturing`` gives them."""
+    two bands' settings where ``photos.detail`` (auto: by the capture's ``n_photos``) asks for them, as a whole
+    run's ``photos.texturing`` gives them."""
     from scantex.photos.texturing import ProjectiveSettings, detail_report
-    from scantex.pipeline.enhance import detail_temperature
+    from scantex.pipeline.enhance import detail_settings
 
-    bands = ProjectiveSettings(detail_temperature=detail_temperature(pc)) if pc.texturing == "projective" else None
-    return {"mode": pc.texturing, **(detail_report(bands) if bands else {})}
+    if pc.texturing != "projective":
+        return {"mode": pc.texturing}
+    return {"mode": pc.texturing, **detail_report(ProjectiveSettings(**detail_settings(pc.detail, n_photos)))}
 
 
 def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,
@@ -721,7 +727,7 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
         "alignment": alignment_metrics(photos.alignment), "left_out": photos.left_out,
         "final_texture": {"photos": len(photos.train), "mode": "training", "setting": pc.final,
                           "note": "tiles write the texture the held-out photos score: the training photos'"},
-        "texturing": tiled_texturing(pc),
+        "texturing": tiled_texturing(pc, len(photos.photos)),
     }}
     if len(photos.held_out):
         held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side, visibility_settings(pc))

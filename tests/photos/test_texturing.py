@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from scantex.photos.texturing import (
@@ -173,7 +174,7 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
 
     agreeing, _ = colours(ProjectiveSettings())
     agreeing_sharp, report = colours(sharp_settings)
-    assert report["detail"] == {"temperature": 0.1, "sigma_px": 4.0}
+    assert report["detail"] == {"temperature": 0.1, "sigma_px": 4.0, "gain": 1.0}
     # the wall's middle, well inside both photos (the far one alone sees more, where it gives the detail too)
     seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
     assert seen.mean() > 0.1 and (np.abs(agreeing[seen] - 0.5).max(axis=1) > 1e-6).all()
@@ -194,6 +195,32 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
     # the coarse colour, averaged over many stripes: both photos' exposure, the same in either mode
     assert np.abs(sharp[seen].mean(axis=0) - blend[seen].mean(axis=0)).max() < 0.01
     assert (blend[seen].mean(axis=0) < truth[seen].mean(axis=0) - 0.02).all()
+
+
+def test_the_detail_gain_scales_the_best_views_fine_band_alone(tmp_path):
+    """Balanced detail (``detail_gain`` 0.5) is the coarse blend plus half the best views' fine band: halfway between
+    the coarse band alone (gain 0) and sharp detail (gain 1) at every point, its stripes at half their contrast."""
+    scan = smooth_wall()
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480)
+            for e in [(0.9, -2.0, 1.0), (1.2, -3.6, 1.1)]]
+    photos = photograph(scan, cams, tmp_path)
+    caster = RayCaster(scan.positions, scan.faces)
+    views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
+    points, normals, f, b = surface_points(scan)
+    truth = shade_hits(scan, f, b)
+    seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
+
+    def colours(gain):
+        colour, report = projective_colour(photos, views, [0, 1], None, grey,
+                                           ProjectiveSettings(detail_temperature=0.1, detail_gain=gain))
+        assert report["detail"]["gain"] == gain
+        return colour(points, normals, f, b)[seen]
+
+    coarse, balanced, sharp = colours(0.0), colours(0.5), colours(1.0)
+    np.testing.assert_allclose(balanced, 0.5 * (coarse + sharp), atol=1e-5)
+    stripes = np.abs(sharp - coarse).mean()
+    assert stripes > 0.02  # the fine band holds the stripes
+    assert np.abs(balanced - coarse).mean() == pytest.approx(0.5 * stripes, rel=1e-3)
 
 
 def test_sharp_detail_does_not_come_from_a_photo_that_saw_an_occluder(tmp_path):

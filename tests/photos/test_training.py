@@ -313,12 +313,19 @@ def test_the_summary_says_when_the_blend_is_much_softer_than_the_photos():
         return {"input": {"detail": 0.0224, "photo_detail": 0.0229},
                 "enhanced": {"detail": result, "photo_detail": 0.0229}}
 
+    hint = "--detail sharp takes"
     soft = detail_summary(scores(0.0097), {"mode": "projective"})
-    assert "photos 0.0229, input 0.0224, result 0.0097" in soft and "--detail sharp" in soft
-    assert "--detail sharp" not in detail_summary(scores(0.0200), {"mode": "projective"})
+    assert "photos 0.0229, input 0.0224, result 0.0097" in soft and hint in soft and "; --detail blend)" in soft
+    assert hint not in detail_summary(scores(0.0200), {"mode": "projective"})
     # asked for sharp detail already, or the field's colour: no hint
-    assert "--detail sharp" not in detail_summary(scores(0.0097), {"mode": "projective", "detail": {}})
-    assert "--detail sharp" not in detail_summary(scores(0.0097), {"mode": "field"})
+    sharp = detail_summary(scores(0.0097), {"mode": "projective", "detail": {"gain": 1.0}})
+    assert hint not in sharp and "; --detail sharp)" in sharp
+    assert hint not in detail_summary(scores(0.0097), {"mode": "projective", "detail": {}})  # before gains
+    field = detail_summary(scores(0.0097), {"mode": "field"})
+    assert hint not in field and "--detail" not in field
+    # balanced: the best views' detail at half its contrast; sharp has more of it
+    balanced = detail_summary(scores(0.0097), {"mode": "projective", "detail": {"gain": 0.5}})
+    assert "; --detail balanced)" in balanced and hint in balanced
     assert detail_summary({"input": {}, "enhanced": {}}, {}) == ""  # scored before detail was measured
     assert fine_detail(scores(0.0097), {"mode": "projective"})[1] and not fine_detail(scores(0.02), {})[1]
 

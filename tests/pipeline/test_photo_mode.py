@@ -13,7 +13,8 @@ import pytest
 from scantex.errors import ScanError
 from scantex.io import save_scan
 from scantex.photos import load_photos
-from scantex.pipeline.enhance import FINAL_ALL_BELOW, REFINE_BELOW, enhance, final_texture_mode, pose_refinement_mode
+from scantex.pipeline.enhance import (
+    BALANCED_FROM, FINAL_ALL_BELOW, REFINE_BELOW, detail_mode, enhance, final_texture_mode, pose_refinement_mode)
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
 from scantex.views.render import render
@@ -138,6 +139,20 @@ def test_photos_final_all_writes_a_texture_from_every_photo(toy_demo, toy_photos
     assert final_texture_mode("auto", FINAL_ALL_BELOW - 1) == "all"
     assert final_texture_mode("auto", FINAL_ALL_BELOW) == "training"
     assert final_texture_mode("training", 3) == "training" and final_texture_mode("all", 500) == "all"
+
+
+def test_photos_detail_auto_is_balanced_for_a_room_of_photos(toy_demo, toy_photos, monkeypatch, photo_result):
+    """``photos.detail`` auto: a capture of ``BALANCED_FROM`` photos or more (a room's) gets the best views' fine
+    detail at half its contrast, a smaller one the blend (the toy's 10 photos: one band)."""
+    assert detail_mode("auto", BALANCED_FROM - 1) == "blend" and detail_mode("auto", BALANCED_FROM) == "balanced"
+    assert detail_mode("sharp", 3) == "sharp" and detail_mode("blend", 500) == "blend"
+    assert "detail" not in photo_result.metrics["photos"]["texturing"]
+    monkeypatch.setattr("scantex.pipeline.enhance.BALANCED_FROM", 10)
+    room = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False), photos=toy_photos)
+    assert room.metrics["photos"]["texturing"]["detail"] == {"temperature": 0.1, "sigma_px": 4.0, "gain": 0.5}
+    assert room.metrics["geometry"]["arrays_identical"] and room.metrics["geometry"]["triangles_identical"]
+    blended, balanced = photo_result.scan.materials[0].image, room.scan.materials[0].image
+    assert blended.shape == balanced.shape and not np.array_equal(blended, balanced)
 
 
 def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, toy_photos):
@@ -341,7 +356,7 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     metrics = json.loads((out / "metrics.json").read_text())
     assert len(metrics["photos"]["held_out"]) == 2 and metrics["photos"]["alignment"] is None  # skipped
     assert metrics["photos"]["texturing"]["mode"] == "projective"
-    assert metrics["photos"]["texturing"]["detail"] == {"temperature": 0.1, "sigma_px": 4.0}  # --detail sharp
+    assert metrics["photos"]["texturing"]["detail"] == {"temperature": 0.1, "sigma_px": 4.0, "gain": 1.0}  # sharp
     tally = metrics["photos"]["texturing"]["clipped"]
     assert tally["samples"] > 0 and 0 <= tally["gave_way"] <= tally["clipped"] <= tally["samples"]
     assert metrics["photos"]["final_texture"]["photos"] == 10

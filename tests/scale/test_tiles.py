@@ -335,7 +335,11 @@ def test_a_tiled_run_says_how_its_tiles_coloured_their_texels():
     from scantex.pipeline.config import PhotosConfig
     from scantex.scale.tiles import tiled_texturing
 
-    assert tiled_texturing(PhotosConfig()) == {"mode": "projective"}
-    assert tiled_texturing(PhotosConfig(detail="sharp")) == {"mode": "projective",
-                                                             "detail": {"temperature": 0.1, "sigma_px": 4.0}}
-    assert tiled_texturing(PhotosConfig(texturing="field", detail="sharp")) == {"mode": "field"}
+    assert tiled_texturing(PhotosConfig(), 49) == {"mode": "projective"}  # auto: a small capture's blend
+    balanced = {"mode": "projective", "detail": {"temperature": 0.1, "sigma_px": 4.0, "gain": 0.5}}
+    assert tiled_texturing(PhotosConfig(), 50) == balanced  # auto: a room's
+    assert tiled_texturing(PhotosConfig(detail="balanced"), 10) == balanced
+    assert tiled_texturing(PhotosConfig(detail="sharp"), 10) == {
+        "mode": "projective", "detail": {"temperature": 0.1, "sigma_px": 4.0, "gain": 1.0}}
+    assert tiled_texturing(PhotosConfig(detail="blend"), 500) == {"mode": "projective"}
+    assert tiled_texturing(PhotosConfig(texturing="field", detail="sharp"), 10) == {"mode": "field"}
