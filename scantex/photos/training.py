@@ -13,7 +13,10 @@ A photo pixel teaches the field only where the mesh says what it sees, and only 
 - where the capture recorded a depth map, the pixel counts only when the measured depth agrees with
   the mesh's depth within ``depth_tolerance`` (relative): a person or a door that moved between the
   LiDAR scan and the photo, or a mesh that is locally wrong, is then left out. Pixels the depth map has
-  no measurement for are kept (phones drop depth on dark and shiny surfaces).
+  no measurement for are kept (phones drop depth on dark and shiny surfaces), but for a line of them
+  narrower than ``depth_gap_px`` across a map measured almost everywhere (:data:`DENSE_DEPTH`), with
+  :data:`GAP_MARGIN_PX` around it: a thin object the sensor lost, which the mesh lacks too (a lamp's
+  pole, a cable), would paint a line on the wall behind it in each photo that shows it.
 
 Held-out photos are scored by rendering a scan through their cameras and comparing it with the
 photo on the pixels that pass the same test. A held-out photo's exposure is unknown to any texture,
@@ -49,6 +52,17 @@ class VisibilitySettings:
     edge_margin_px: int = 2
     max_angle_deg: float = 75.0
     depth_tolerance: float = 0.05
+    depth_gap_px: int = 0
+    """a line of missing depth narrower than this (working pixels) in a dense depth map is left out (0: kept)"""
+
+
+#: a depth map measured on at least this share of the pixels that see the mesh is dense (a Kinect's, a phone's
+#: LiDAR's): its narrow lines of missing depth are thin objects the sensor lost. A map reprojected from a sparser
+#: camera (the bolster's: 35 % measured, in a grid of holes) tells nothing by its gaps
+DENSE_DEPTH = 0.9
+#: working pixels left out around such a line too (the colour photo's registration to the depth camera is off
+#: by a pixel or two)
+GAP_MARGIN_PX = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,8 +200,10 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
             factor = depth_factor(measured, mean_depth, clean, settings.depth_tolerance, photos.depths[i])
         measured = None if factor == 0 else measured if factor == 1 else measured * np.float32(factor)
     if measured is not None:
-        disagree = any_hit & np.isfinite(measured) & (
-            np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
+        known = np.isfinite(measured)
+        disagree = any_hit & known & (np.abs(measured - mean_depth) > settings.depth_tolerance * mean_depth)
+        if settings.depth_gap_px > 1 and any_hit.any() and known[any_hit].mean() >= DENSE_DEPTH:
+            disagree |= any_hit & depth_gaps(known, settings.depth_gap_px)
     else:
         disagree = np.zeros_like(any_hit)
 
@@ -200,6 +216,16 @@ def prepare_photo(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster, max_s
         mean_depth = np.where(hidden, np.float32(0), mean_depth)
     return PhotoView(i, cam, np.ascontiguousarray(photo[..., :3], np.uint8), centre.astype(np.int32), mean_depth,
                      valid, rejected, factor)
+
+
+def depth_gaps(known: np.ndarray, width: int) -> np.ndarray:
+    """``(H, W) bool``: the pixels of a depth map's lines of missing depth narrower than ``width`` (what closing
+    ``known`` with a ``width`` square fills; the image border counts as missing, so a band along it is no line),
+    grown by :data:`GAP_MARGIN_PX`."""
+    from scipy import ndimage
+
+    gaps = ~known & ndimage.binary_closing(known, structure=np.ones((width, width), bool), border_value=0)
+    return ndimage.binary_dilation(gaps, iterations=GAP_MARGIN_PX) if GAP_MARGIN_PX > 0 and gaps.any() else gaps
 
 
 def _footprints(caster: RayCaster, cam: Camera, s: int):

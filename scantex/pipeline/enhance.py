@@ -384,7 +384,7 @@ def visibility_settings(pc: PhotosConfig):
     from scantex.photos.training import VisibilitySettings
 
     return VisibilitySettings(supersample=2, edge_margin_px=pc.edge_margin_px, max_angle_deg=pc.max_angle_deg,
-                              depth_tolerance=pc.depth_tolerance)
+                              depth_tolerance=pc.depth_tolerance, depth_gap_px=pc.depth_gap_px)
 
 
 def flat_grey(points, normals, face_ids, bary) -> np.ndarray:

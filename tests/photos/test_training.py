@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from scantex.photos.training import (VisibilitySettings, _footprints, colour_match, halved, photo_rays,
+from scantex.photos.training import (VisibilitySettings, _footprints, colour_match, depth_gaps, halved, photo_rays,
                                      prepare_photo, resize_depth, score_photos, split_photos, taught_by_photos,
                                      texture_seen, working_camera)
 from scantex.scan import Scan
@@ -214,6 +214,42 @@ def test_depth_maps_that_disagree_in_places_reject_those_pixels(tmp_path):
     assert view.rejected["depth_map"] > 0
     assert not view.valid[:36, :48].any() or view.valid[:36, :48].sum() < 0.1 * plain.valid[:36, :48].sum()
     assert view.valid[36:, 48:].sum() >= 0.95 * plain.valid[36:, 48:].sum()
+
+
+def test_a_thin_line_of_missing_depth_in_a_dense_map_is_left_out(tmp_path):
+    """A lamp's pole that the depth sensor lost, and the mesh with it: a line of missing depth across a map measured
+    everywhere else. With ``depth_gap_px`` its pixels, and two on either side, teach nothing; without, they do (as
+    missing depth always did). A sparse map's holes (a grid: a map reprojected from a coarser depth camera) tell
+    nothing, and a band of missing depth along the image's border is no line."""
+    scan, photos = cube_set(tmp_path, depth_error=0.0)
+    caster = RayCaster(scan.positions, scan.faces)
+    gaps = VisibilitySettings(depth_gap_px=7)
+    full = np.asarray(Image.open(photos.depths[0])).astype(np.uint16)  # 48 x 36, the working size's half
+
+    def prepared(depth, settings=gaps):
+        Image.fromarray(depth).save(photos.depths[0])
+        return prepare_photo(scan, photos, 0, caster, 96, settings)
+
+    plain = prepared(full)
+    line = full.copy()
+    line[:, 24] = 0  # one map pixel wide: working columns 48 and 49
+    lost = prepared(line)
+    gone = plain.valid & ~lost.valid
+    assert gone[:, 48].sum() > 10 and lost.rejected["depth_map"] > plain.rejected["depth_map"]
+    assert not lost.valid[:, 46:52].any()  # the line and two pixels on either side
+    assert np.array_equal(lost.valid[:, :44], plain.valid[:, :44])
+    assert np.array_equal(lost.valid[:, 54:], plain.valid[:, 54:])
+    assert np.array_equal(prepared(line, VisibilitySettings()).valid, prepared(full, VisibilitySettings()).valid)
+    sparse = full.copy()
+    sparse[::2, ::2] = sparse[1::2, 1::2] = 0  # half the map missing, in a grid
+    assert np.array_equal(prepared(sparse).valid, plain.valid)
+    known = np.ones((40, 60), bool)
+    known[:, :3] = False  # a band along the left edge, where the depth camera does not reach: no line
+    known[10:30, 30] = False  # a line
+    known[5:20, 40:50] = False  # a patch wider than 7: a dark or shiny surface
+    found = depth_gaps(known, 7)
+    assert found[10:30, 28:33].all() and not found[:, :3].any() and not found[5:20, 40:50].any()
+    assert not found[:8, :35].any() and not found[32:].any()
 
 
 def test_pixels_a_surface_outside_the_scan_hides_are_rejected(tmp_path):
