@@ -153,11 +153,9 @@ def test_weights_are_smooth_between_photos(tmp_path):
     assert (green > 0.7 * 0.5 - 0.02).all() and (green < 0.5 + 0.02).all()  # between the two exposures
 
 
-def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_path):
-    """A close photo and a far one whose registration is off by half the stripes' period there (4 px): blended at the
-    default temperature, the stripes cancel; with two bands, the fine band at the detail temperature, they come
-    from the close photo alone, while the coarse colour is still both photos' (the far one's exposure shows in
-    it). Where the photos agree, the two bands give the one band's colours."""
+def close_and_far(tmp_path):
+    """The striped wall photographed from close and from farther away: ``(scan, photos, caster, views, (points,
+    normals, faces, bary) on its surface, their true colours, the points in the wall's middle both photos see)``."""
     scan = smooth_wall()
     cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480)
             for e in [(0.9, -2.0, 1.0), (1.2, -3.6, 1.1)]]
@@ -166,6 +164,17 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
     views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
     points, normals, f, b = surface_points(scan)
     truth = shade_hits(scan, f, b)
+    # the wall's middle, well inside both photos (the far one alone sees more, where it gives the detail too)
+    seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
+    return scan, photos, caster, views, (points, normals, f, b), truth, seen
+
+
+def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_path):
+    """A close photo and a far one whose registration is off by half the stripes' period there (4 px): blended at the
+    default temperature, the stripes cancel; with two bands, the fine band at the detail temperature, they come
+    from the close photo alone, while the coarse colour is still both photos' (the far one's exposure shows in
+    it). Where the photos agree, the two bands give the one band's colours."""
+    scan, photos, caster, views, (points, normals, f, b), truth, seen = close_and_far(tmp_path)
     sharp_settings = ProjectiveSettings(detail_temperature=0.1)
 
     def colours(settings, photos=photos, views=views):
@@ -175,8 +184,6 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
     agreeing, _ = colours(ProjectiveSettings())
     agreeing_sharp, report = colours(sharp_settings)
     assert report["detail"] == {"temperature": 0.1, "sigma_px": 4.0, "gain": 1.0}
-    # the wall's middle, well inside both photos (the far one alone sees more, where it gives the detail too)
-    seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
     assert seen.mean() > 0.1 and (np.abs(agreeing[seen] - 0.5).max(axis=1) > 1e-6).all()
     assert np.abs(agreeing_sharp[seen] - agreeing[seen]).mean() < 0.01
     shifted = np.roll(np.asarray(Image.open(photos.images[1])).astype(np.float32), 4, axis=1) * 0.8
@@ -200,15 +207,7 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
 def test_the_detail_gain_scales_the_best_views_fine_band_alone(tmp_path):
     """Balanced detail (``detail_gain`` 0.5) is the coarse blend plus half the best views' fine band: halfway between
     the coarse band alone (gain 0) and sharp detail (gain 1) at every point, its stripes at half their contrast."""
-    scan = smooth_wall()
-    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=55, width=640, height=480)
-            for e in [(0.9, -2.0, 1.0), (1.2, -3.6, 1.1)]]
-    photos = photograph(scan, cams, tmp_path)
-    caster = RayCaster(scan.positions, scan.faces)
-    views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
-    points, normals, f, b = surface_points(scan)
-    truth = shade_hits(scan, f, b)
-    seen = (np.abs(points[:, 0] - 1.0) < 0.6) & (np.abs(points[:, 2] - 1.0) < 0.45) & (truth.max(axis=1) < 0.95)
+    _, photos, _, views, (points, normals, f, b), _, seen = close_and_far(tmp_path)
 
     def colours(gain):
         colour, report = projective_colour(photos, views, [0, 1], None, grey,
