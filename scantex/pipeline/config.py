@@ -169,7 +169,7 @@ class PhotosConfig:
     refine_iterations: int = 1
     """refine_poses consensus: rounds of aligning every photo to the others"""
     detail: str = "auto"
-    """projective texturing's fine detail: blend (every photo's, as their colour: a room's many photos, whose registration differs by a few pixels, blur into one another, each edge in several faint copies), sharp (colour and exposure from every photo, detail finer than a Gaussian of 4 working pixels from the best views: as sharp as the input on a real apartment, at a lower held-out score through photos that are themselves a few pixels off), balanced (the best views' detail at half its contrast: one clean copy of each edge, at nearly the blend's held-out score), or auto (balanced from 50 photos, blend below: a few photos, aligned by default, blend into a sharp texture) (bench/RESULTS.md, "sharp detail")"""
+    """projective texturing's fine detail: blend (every photo's, as their colour: a room's many photos, whose registration differs by a few pixels, blur into one another, each edge in several faint copies), sharp (colour and exposure from every photo, detail finer than a Gaussian of 4 working pixels from the best views: as sharp as the input on a real apartment, at a lower held-out score through photos that are themselves a few pixels off), balanced (the best views' detail at half its contrast: one clean copy of each edge, at nearly the blend's held-out score), or auto (balanced from 50 photos, blend below: a few photos, aligned by default, blend into a sharp texture) (bench/RESULTS.md, "sharp detail" and "balanced detail")"""
     texturing: str = "projective"
     """texel colours: projective (sampled from the photos that see them, at full resolution, blended smoothly; the input's texels, or the field when it is trained, fill the rest) or field (the field's colour everywhere)"""
     final: str = "auto"
@@ -385,7 +385,8 @@ RANGES: dict[str, tuple] = {
     "bake.texture_size": (0, 16384), "bake.source": ("input", "field"), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
-    "photos.depth_tolerance": (0.0, 1e9), "photos.depth_gap_px": (0, 1024), "photos.canonical": ("input", "photos"),
+    "photos.depth_tolerance": (0.0, 1e9), "photos.depth_gap_px": (0, 1024),
+    "photos.canonical": ("input", "photos"),
     "photos.texturing": ("projective", "field"), "photos.detail": ("auto", "blend", "balanced", "sharp"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),

@@ -189,8 +189,8 @@ REFINE_BELOW = 50
 SHARP_DETAIL_TEMPERATURE = 0.1
 #: ``photos.detail`` balanced: the best views' fine band at half its contrast. A room's blend of photos registered a
 #: few pixels apart smears each edge into several faint copies (a real apartment's tiles, dish rack and lamp
-#: pole); at 0.5 each edge is one clean copy at half its contrast, scoring 0.14 dB under the blend where the full
-#: detail (sharp) costs 0.58 (bench/RESULTS.md, "balanced detail")
+#: pole); at 0.5 each edge is one clean copy at half its contrast, held out 0.14 dB under the blend where the full
+#: detail (sharp) costs 0.5 (bench/RESULTS.md, "balanced detail")
 BALANCED_DETAIL_GAIN = 0.5
 #: ``photos.detail`` auto: balanced from this many photos (a room's video frames, blended as recorded), blend
 #: below it (a few photos, aligned by default, blend into a sharp texture already; the best views' detail brings
