@@ -37,6 +37,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
     quality = np.empty(P, np.float64)
     reach_of = np.empty(P, np.float64)  # each sample's feather weight
     weight = np.empty(P, np.float64)
+    base = np.empty(P, np.float64)  # each sample's weight in the coarse band's (or the one band's) blend
     # each sample's colour (canonical and as recorded) and clipping: [0] the photo's, [1] its coarse band's
     rgbs = np.empty((2, P, 3), np.float64)
     raws = np.empty((2, P, 3), np.float64)
@@ -130,16 +131,27 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             reach = max(reach, reach_of[j])
         alpha[i] = reach
         out[i, 0] = out[i, 1] = out[i, 2] = 0.0
+        for j in range(m):
+            base[j] = reach_of[j] * np.exp((quality[j] - best) / temperature)
+        # the fine band's two blends (the photos' and their coarse band's, at the detail temperature) weigh each
+        # sample alike unless clipped samples give way or photo-consistency reweights: then the first sums both
+        shared = bands and not consistency > 0
+        for j in range(m if shared and censors else 0):
+            if clips[0, j] or clips[1, j]:
+                shared = False
+                break
         # one band: the photos' blend. Two: their coarse band's blend at the temperature, plus the fine band's at the
         # detail temperature (by linearity, the photos' blend there less their coarse band's) times the detail gain
         for blend_pass in range(3 if bands else 1):
+            if blend_pass == 2 and shared:
+                break  # summed with the first
             band = 0 if blend_pass == 1 or not bands else 1
             sign = -detail_gain if blend_pass == 2 else detail_gain if blend_pass == 1 else 1.0
             rgb, clipped = rgbs[band], clips[band]
             t = temperature if blend_pass == 0 else detail_temperature
             any_clipped = False
             for j in range(m):
-                weight[j] = reach_of[j] * np.exp((quality[j] - best) / t)
+                weight[j] = base[j] if blend_pass == 0 else reach_of[j] * np.exp((quality[j] - best) / t)
                 any_clipped = any_clipped or clipped[j]
                 if blend_pass > 0 and detail_consistency > 0:
                     # the fine band from photos whose coarse band agrees with what most photos' say (see below)
@@ -169,12 +181,17 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
                             if scale < 0.5 and blend_pass == 0:  # the sample keeps less than half its weight
                                 tally[2] += 1
                             weight[j] *= scale
-            support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
+            both = blend_pass == 1 and shared
+            support, s0, s1, s2, c0, c1, c2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             for j in range(m):
                 support += weight[j]
                 s0 += weight[j] * rgb[j, 0]
                 s1 += weight[j] * rgb[j, 1]
                 s2 += weight[j] * rgb[j, 2]
+                if both:  # the coarse band's at the same weights: the second of the fine band's blends
+                    c0 += weight[j] * rgbs[1, j, 0]
+                    c1 += weight[j] * rgbs[1, j, 1]
+                    c2 += weight[j] * rgbs[1, j, 2]
             if blend_pass == 0:
                 total[i] = support
             norm = max(support, 1e-12)
@@ -195,6 +212,10 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             out[i, 0] += sign * o0
             out[i, 1] += sign * o1
             out[i, 2] += sign * o2
+            if both:
+                out[i, 0] += -detail_gain * (c0 / norm)
+                out[i, 1] += -detail_gain * (c1 / norm)
+                out[i, 2] += -detail_gain * (c2 / norm)
             if blend_pass == 0 and bands and detail_consistency > 0:
                 # what most photos' coarse bands say: robust (Cauchy) rounds from the coarse blend, so that a photo
                 # that saw an occluder or a highlight stands out from it
@@ -204,7 +225,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
                     support, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0
                     for j in range(m):
                         r = (rgbs[1, j, 0] - low0) ** 2 + (rgbs[1, j, 1] - low1) ** 2 + (rgbs[1, j, 2] - low2) ** 2
-                        robust = reach_of[j] * np.exp((quality[j] - best) / temperature) / (1.0 + inv_scale * r)
+                        robust = base[j] / (1.0 + inv_scale * r)
                         support += robust
                         s0 += robust * rgbs[1, j, 0]
                         s1 += robust * rgbs[1, j, 1]
