@@ -155,11 +155,15 @@ class PhotosConfig:
     """photo pixels seeing the surface more obliquely than this teach nothing"""
     depth_tolerance: float = 0.05
     """with capture depth maps: relative disagreement with the mesh beyond which a pixel teaches nothing"""
-    depth_gap_px: int = 7
+    depth_gaps: str = "auto"
     """with dense capture depth maps (measured on 90 % of the mesh's pixels): a line of missing depth narrower than
-    this (working pixels), and 2 pixels around it, teaches nothing and is not scored: a thin object the sensor lost,
-    and the mesh with it (a lamp's pole), which each photo showing it would paint on the wall behind (0: missing
-    depth always teaches; bench/RESULTS.md "depth gaps")"""
+    depth_gap_px, and 2 pixels around it, teaches nothing and is not scored: a thin object the sensor lost, and the
+    mesh with it (a lamp's pole), which each photo showing it would paint on the wall behind: on, off (missing depth
+    always teaches), or auto (on from 50 photos, where many photos paint it in many places; a few photos, each
+    pixel of which counts for more, lost 0.02-0.08 dB by it on parts of a real apartment; bench/RESULTS.md "depth
+    gaps")"""
+    depth_gap_px: int = 7
+    """depth_gaps: the widest line of missing depth taken for a thin object (working pixels)"""
     check_alignment: bool = True
     """refuse to train when the mesh is clearly not in the photos' frame, and leave out a photo that does not show
     what its camera sees (stored upside down, cropped; checked against a textured scan's texture, an untextured
@@ -385,7 +389,8 @@ RANGES: dict[str, tuple] = {
     "bake.texture_size": (0, 16384), "bake.source": ("input", "field"), "bake.chunk": (1, 1 << 26), "bake.detail": (0.0, 10.0),
     "photos.holdout": (0.0, 1e9), "photos.max_side": (16, 16384), "photos.synthetic_weight": (0.0, 1e9),
     "photos.edge_margin_px": (0, 1024), "photos.max_angle_deg": (0.0, 90.0),
-    "photos.depth_tolerance": (0.0, 1e9), "photos.depth_gap_px": (0, 1024),
+    "photos.depth_tolerance": (0.0, 1e9), "photos.depth_gaps": ("auto", "on", "off"),
+    "photos.depth_gap_px": (0, 1024),
     "photos.canonical": ("input", "photos"),
     "photos.texturing": ("projective", "field"), "photos.detail": ("auto", "blend", "balanced", "sharp"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),

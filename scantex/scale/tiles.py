@@ -236,12 +236,14 @@ class TilePhotos:
 
     def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
         """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here, the
-        fine detail chosen for the whole capture (a tile sees a part of its photos)."""
-        from scantex.pipeline.enhance import detail_mode
+        fine detail and the depth gaps chosen for the whole capture (a tile sees a part of its photos)."""
+        from scantex.pipeline.enhance import depth_gaps_mode, detail_mode
 
+        n = len(self.photos)
         return config.override(photos__holdout=0, photos__check_alignment=False, photos__final="training",
                                photos__refine_poses="consensus" if self.pose_mode == "consensus" else "off",
-                               photos__detail=detail_mode(config.photos.detail, len(self.photos)))
+                               photos__detail=detail_mode(config.photos.detail, n),
+                               photos__depth_gaps=depth_gaps_mode(config.photos.depth_gaps, n))
 
 
 def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: EnhanceConfig, caster,
@@ -730,7 +732,8 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
         "texturing": tiled_texturing(pc, len(photos.photos)),
     }}
     if len(photos.held_out):
-        held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side, visibility_settings(pc))
+        held = prepare_photos(scan, photos.photos, photos.held_out, caster, pc.max_side,
+                              visibility_settings(pc, len(photos.photos)))
         both = {"input": scan, "enhanced": enhanced}
         out["held_out_photos"] = score_photos(both, held, caster, images=images, align=photos.pose_mode != "off")
         if ground_truth is not None:

@@ -12,9 +12,10 @@ import pytest
 
 from scantex.errors import ScanError
 from scantex.io import save_scan
-from scantex.photos import load_photos
+from scantex.photos import PhotoSet, load_photos
 from scantex.pipeline.enhance import (
-    BALANCED_FROM, FINAL_ALL_BELOW, REFINE_BELOW, detail_mode, enhance, final_texture_mode, pose_refinement_mode)
+    BALANCED_FROM, FINAL_ALL_BELOW, GAPS_FROM, REFINE_BELOW, depth_gaps_mode, detail_mode, enhance, final_texture_mode,
+    pose_refinement_mode, visibility_settings)
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
 from scantex.views.render import render
@@ -84,7 +85,7 @@ def test_each_texture_is_aligned_from_the_others_aligned_poses_too(toy_demo, toy
     pc = TOY.photos
     caster = RayCaster(toy_demo.scan.positions, toy_demo.scan.faces)
     views = prepare_photos(toy_demo.scan, toy_photos, photo_result.metrics["photos"]["held_out"], caster, pc.max_side,
-                           visibility_settings(pc))
+                           visibility_settings(pc, len(toy_photos)))
     both = score_photos({"input": toy_demo.scan, "enhanced": photo_result.scan}, views, caster, align=True)
     alone = score_photos({"enhanced": photo_result.scan}, views, caster, align=True)
     assert both["enhanced"]["psnr_aligned"] >= alone["enhanced"]["psnr_aligned"]
@@ -153,6 +154,26 @@ def test_photos_detail_auto_is_balanced_for_a_room_of_photos(toy_demo, toy_photo
     assert room.metrics["geometry"]["arrays_identical"] and room.metrics["geometry"]["triangles_identical"]
     blended, balanced = photo_result.scan.materials[0].image, room.scan.materials[0].image
     assert blended.shape == balanced.shape and not np.array_equal(blended, balanced)
+
+
+def test_depth_gaps_auto_are_on_for_a_room_of_photos():
+    """``photos.depth_gaps`` auto: lines of missing depth left out from ``GAPS_FROM`` photos (many photos paint a lost
+    thin object in many places), not below (each photo's pixels count for more); a tile takes the whole capture's."""
+    from scantex.pipeline.config import EnhanceConfig, PhotosConfig
+    from scantex.scale.tiles import TilePhotos
+
+    assert depth_gaps_mode("auto", GAPS_FROM - 1) == "off" and depth_gaps_mode("auto", GAPS_FROM) == "on"
+    assert depth_gaps_mode("on", 3) == "on" and depth_gaps_mode("off", 500) == "off"
+    pc = PhotosConfig()
+    assert visibility_settings(pc, GAPS_FROM - 1).depth_gap_px == 0
+    assert visibility_settings(pc, GAPS_FROM).depth_gap_px == pc.depth_gap_px == 7
+    assert visibility_settings(PhotosConfig(depth_gaps="on", depth_gap_px=5), 3).depth_gap_px == 5
+    room = PhotoSet(images=tuple(f"{i}.png" for i in range(GAPS_FROM)), cameras=(None,) * GAPS_FROM, source=".",
+                    format="cameras.json")
+    tiles = TilePhotos(room, np.arange(GAPS_FROM), np.zeros(0, int), [], [], {}, "off", [], None)
+    tile = tiles.tile_config(EnhanceConfig()).photos  # a tile sees some of them: the whole capture's choice
+    assert (tile.depth_gaps, tile.detail) == ("on", "balanced")
+    assert visibility_settings(tile, 3).depth_gap_px == 7
 
 
 def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, toy_photos):
