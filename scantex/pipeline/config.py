@@ -189,8 +189,10 @@ class PhotosConfig:
     all 17.12 and 22.12 whatever the draw, for 6-20 s more (bench/RESULTS.md, "real photos final")"""
     temperature: float = 5.0
     """projective texturing: softmax temperature on the view quality (log units). High (the default, 5) blends every photo that sees a texel almost equally: noise, occluders and the poses' errors average out; low (0.15) lets the best view dominate: sharper where poses are exact, ghosted where they are not"""
+    pairs: str = "auto"
+    """closed-form colour transforms (a textured scan, no field): also level the photos' exposures against one another where they see the same surface (pair_weight), not only each against the input texture's charts: on, off, or auto (on from 50 photos: without them a synthetic room of 110 photos scored 27.26 dB against 28.16; on 12-photo captures they gained nothing and on one part of a real apartment drew a hard exposure step across a white wall that clips, 25.83 against 26.39 dB; bench/RESULTS.md "photo pairs")"""
     pair_weight: float = 4.0
-    """closed-form colour transforms (a textured scan, no field): weight of what photos seeing the same surface say of their exposures relative to one another, against what each says relative to the input texture's charts (0: the texture's charts alone, which a capture app's patchwork atlas misleads: on the facade the photos then still disagreed by 7 % in exposure, 0.6 % with 4; held-out scores unchanged)"""
+    """pairs: weight of what photos seeing the same surface say of their exposures relative to one another, against what each says relative to the input texture's charts (the texture's charts alone, which a capture app's patchwork atlas misleads, left the facade's photos disagreeing by 7 % in exposure, 0.6 % with 4; its held-out score the same)"""
     consistency: float = 0.0
     """projective texturing: photo-consistency scale (RGB distance, 0-1 units). A photo's sample this far from what the others say of the same point keeps half its weight (occluders the mesh lacks, highlights, misregistered edges); 0 blends every sample by its view quality alone"""
     clip_overshoot: float = 0.1
@@ -395,7 +397,7 @@ RANGES: dict[str, tuple] = {
     "photos.texturing": ("projective", "field"), "photos.detail": ("auto", "blend", "balanced", "sharp"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
-    "photos.pair_weight": (0.0, 1e6), "photos.clip_overshoot": (0.0, 10.0), "photos.sample_memory_mb": (0.0, 1e9),
+    "photos.pair_weight": (0.0, 1e6), "photos.pairs": ("auto", "on", "off"), "photos.clip_overshoot": (0.0, 10.0), "photos.sample_memory_mb": (0.0, 1e9),
     "refine.model": ("tiny", "small", "base"), "refine.patch": (1, 256), "refine.crop": (1, 4096),
     "refine.steps": (0, BIG), "refine.batch": (1, 4096), "refine.lr": (1e-12, 100.0),
     "refine.mask_share": (0.0, 0.95), "refine.mask_weight": (0.0, 1e9), "refine.cross_view_weight": (0.0, 1e9),

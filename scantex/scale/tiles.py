@@ -236,14 +236,16 @@ class TilePhotos:
 
     def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
         """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here, the
-        fine detail and the depth gaps chosen for the whole capture (a tile sees a part of its photos)."""
-        from scantex.pipeline.enhance import depth_gaps_mode, detail_mode
+        fine detail, the depth gaps and the photo pairs chosen for the whole capture (a tile sees a part of its
+        photos)."""
+        from scantex.pipeline.enhance import depth_gaps_mode, detail_mode, pairs_mode
 
         n = len(self.photos)
         return config.override(photos__holdout=0, photos__check_alignment=False, photos__final="training",
                                photos__refine_poses="consensus" if self.pose_mode == "consensus" else "off",
                                photos__detail=detail_mode(config.photos.detail, n),
-                               photos__depth_gaps=depth_gaps_mode(config.photos.depth_gaps, n))
+                               photos__depth_gaps=depth_gaps_mode(config.photos.depth_gaps, n),
+                               photos__pairs=pairs_mode(config.photos.pairs, n))
 
 
 def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: EnhanceConfig, caster,

@@ -14,8 +14,8 @@ from scantex.errors import ScanError
 from scantex.io import save_scan
 from scantex.photos import PhotoSet, load_photos
 from scantex.pipeline.enhance import (
-    BALANCED_FROM, FINAL_ALL_BELOW, GAPS_FROM, REFINE_BELOW, depth_gaps_mode, detail_mode, enhance, final_texture_mode,
-    pose_refinement_mode, visibility_settings)
+    BALANCED_FROM, FINAL_ALL_BELOW, GAPS_FROM, PAIRS_FROM, REFINE_BELOW, depth_gaps_mode, detail_mode, enhance,
+    final_texture_mode, pair_weight, pairs_mode, pose_refinement_mode, visibility_settings)
 from scantex.scan import Scan
 from scantex.synth.photos import PhotoCapture, capture_photos
 from scantex.views.render import render
@@ -156,6 +156,17 @@ def test_photos_detail_auto_is_balanced_for_a_room_of_photos(toy_demo, toy_photo
     assert blended.shape == balanced.shape and not np.array_equal(blended, balanced)
 
 
+def test_photo_pairs_auto_level_a_room_of_photos_only():
+    """``photos.pairs`` auto: the closed-form colour fit levels the photos against one another from ``PAIRS_FROM``
+    photos (a room's patchwork of exposures), against the input texture alone below."""
+    from scantex.pipeline.config import PhotosConfig
+
+    assert pairs_mode("auto", PAIRS_FROM - 1) == "off" and pairs_mode("auto", PAIRS_FROM) == "on"
+    assert pair_weight(PhotosConfig(), PAIRS_FROM - 1) == 0.0 and pair_weight(PhotosConfig(), PAIRS_FROM) == 4.0
+    assert pair_weight(PhotosConfig(pairs="on", pair_weight=2.0), 3) == 2.0
+    assert pair_weight(PhotosConfig(pairs="off"), 500) == 0.0
+
+
 def test_depth_gaps_auto_are_on_for_a_room_of_photos():
     """``photos.depth_gaps`` auto: lines of missing depth left out from ``GAPS_FROM`` photos (many photos paint a lost
     thin object in many places), not below (each photo's pixels count for more); a tile takes the whole capture's."""
@@ -172,8 +183,8 @@ def test_depth_gaps_auto_are_on_for_a_room_of_photos():
                     format="cameras.json")
     tiles = TilePhotos(room, np.arange(GAPS_FROM), np.zeros(0, int), [], [], {}, "off", [], None)
     tile = tiles.tile_config(EnhanceConfig()).photos  # a tile sees some of them: the whole capture's choice
-    assert (tile.depth_gaps, tile.detail) == ("on", "balanced")
-    assert visibility_settings(tile, 3).depth_gap_px == 7
+    assert (tile.depth_gaps, tile.detail, tile.pairs) == ("on", "balanced", "on")
+    assert visibility_settings(tile, 3).depth_gap_px == 7 and pair_weight(tile, 3) == 4.0
 
 
 def test_photos_final_all_aligns_the_held_out_photos_to_refined_poses(toy_demo, toy_photos):
