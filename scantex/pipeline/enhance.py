@@ -206,6 +206,14 @@ GAPS_FROM = 50
 PAIRS_FROM = 50
 
 
+def by_capture_size(setting: str, n_photos: int, at_least: int, room: str, below: str) -> str:
+    """A photo setting as a run applies it: ``auto`` is ``room`` for a capture of ``at_least`` photos or more,
+    ``below`` for a smaller one; any other value is itself."""
+    if setting != "auto":
+        return setting
+    return room if n_photos >= at_least else below
+
+
 def pair_weight(pc: PhotosConfig, n_photos: int) -> float:
     """The closed-form colour fit's weight of the photo pairs for ``photos.pairs`` (auto: from ``PAIRS_FROM``)."""
     return pc.pair_weight if pairs_mode(pc.pairs, n_photos) == "on" else 0.0
@@ -213,17 +221,13 @@ def pair_weight(pc: PhotosConfig, n_photos: int) -> float:
 
 def pairs_mode(pairs: str, n_photos: int) -> str:
     """``photos.pairs`` as a run applies it: ``on`` or ``off`` (``auto``: on from ``PAIRS_FROM`` photos)."""
-    if pairs == "auto":
-        return "on" if n_photos >= PAIRS_FROM else "off"
-    return pairs
+    return by_capture_size(pairs, n_photos, PAIRS_FROM, "on", "off")
 
 
 def detail_mode(detail: str, n_photos: int) -> str:
     """``photos.detail`` as a run applies it: ``blend``, ``balanced`` or ``sharp`` (``auto``: balanced from
     ``BALANCED_FROM`` photos, blend below)."""
-    if detail == "auto":
-        return "balanced" if n_photos >= BALANCED_FROM else "blend"
-    return detail
+    return by_capture_size(detail, n_photos, BALANCED_FROM, "balanced", "blend")
 
 
 def detail_settings(detail: str, n_photos: int) -> dict:
@@ -402,9 +406,7 @@ def judged(photos: PhotoSet, views) -> PhotoSet:
 
 def depth_gaps_mode(depth_gaps: str, n_photos: int) -> str:
     """``photos.depth_gaps`` as a run applies it: ``on`` or ``off`` (``auto``: on from ``GAPS_FROM`` photos)."""
-    if depth_gaps == "auto":
-        return "on" if n_photos >= GAPS_FROM else "off"
-    return depth_gaps
+    return by_capture_size(depth_gaps, n_photos, GAPS_FROM, "on", "off")
 
 
 def visibility_settings(pc: PhotosConfig, n_photos: int):
@@ -639,9 +641,7 @@ def pose_refinement_mode(refine_poses: str, scan: Scan, n_photos: int) -> str:
 def final_texture_mode(final: str, n_photos: int) -> str:
     """``photos.final`` as a run applies it: ``training`` or ``all`` (``auto``: all below ``FINAL_ALL_BELOW``
     photos)."""
-    if final == "auto":
-        return "all" if n_photos < FINAL_ALL_BELOW else "training"
-    return final
+    return by_capture_size(final, n_photos, FINAL_ALL_BELOW, "training", "all")
 
 
 def faces_in_view(scan: Scan, views, rings: int = 2) -> np.ndarray:
