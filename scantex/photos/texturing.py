@@ -59,6 +59,7 @@ import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -926,7 +927,8 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | Callable[[int], np.nd
         pair_weight = pair_weight or 1.0
     elif not rows:
         return out
-    pairs = _photo_pairs(views, blurred, min_pixels) if pair_weight > 0 else []
+    pairs = (_photo_pairs(views, blurred, min_pixels, partial(_median_ratio, min_pixels=min_pixels))
+             if pair_weight > 0 else [])
     if not rows and not pairs:
         return out
     n, m = len(rows), len(pairs)
@@ -963,15 +965,21 @@ def fit_photo_transforms(reference: Sequence[np.ndarray] | Callable[[int], np.nd
 
 
 def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_pixels: int,
-                 per_photo: int = 4000, depth_tolerance: float = 0.02, seed: int = 0
-                 ) -> list[tuple[int, int, np.ndarray, float]]:
-    """``(k, l, median log(photo_l / photo_k) (3,), sqrt(points))`` for every ordered pair of photos that
-    see at least ``min_pixels`` of the same surface points: up to ``per_photo`` of photo ``k``'s usable
-    pixels, unprojected with their G-buffer depth, looked up in photo ``l`` where it sees the same point
-    (usable pixel, depth within ``depth_tolerance``); ``blurred``: each photo's working image, blurred
-    (robust to the poses' few pixels of error). Pairs whose faces do not overlap are not projected."""
+                 reduce: Callable[[np.ndarray, np.ndarray], tuple | None] | None = None,
+                 usable: Sequence[np.ndarray] | None = None, neighbours: int = 0, per_photo: int = 4000,
+                 depth_tolerance: float = 0.02, seed: int = 0) -> list[tuple]:
+    """``(k, l, value, weight)`` for every ordered pair of photos that see at least ``min_pixels`` of the same
+    surface points: up to ``per_photo`` of photo ``k``'s usable pixels, unprojected with their G-buffer depth,
+    looked up in photo ``l`` where it sees the same point (usable pixel, depth within ``depth_tolerance``);
+    ``blurred``: each photo's working image, blurred (robust to the poses' few pixels of error). ``reduce(a, b)``
+    makes a pair's ``(value, weight)`` (or ``None``: no row) of the two photos' colours ``(n, 3)`` at those points
+    (default: ``median log(photo_l / photo_k) (3,)`` over the points neither dark nor clipped in either, weight
+    ``sqrt(points)``); ``usable``: per photo, ``(h, w) bool`` the pixels a pair may use besides the views' own
+    (default: all); ``neighbours``: photo ``k`` is paired with the photos that see the most faces it sees, this many
+    (0: every photo it shares a face with). Pairs whose faces do not overlap are not projected."""
     from scipy import sparse
 
+    reduce = reduce or _median_ratio
     rng = np.random.default_rng(seed)
     P = len(views)
     seen = [np.unique(v.face_id[v.valid & (v.face_id >= 0)]) for v in views]
@@ -982,14 +990,14 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
     shared = (sees @ sees.T).toarray()  # (P, P) faces both see
     # each photo's sample of its pixels, drawn in photo order (the same draws however the photos are spread)
     picked = []
-    for v in views:
-        ys, xs = np.nonzero(v.valid)
+    for k, v in enumerate(views):
+        ys, xs = np.nonzero(v.valid if usable is None else v.valid & usable[k])
         if len(ys) >= min_pixels:
             pick = rng.choice(len(ys), min(per_photo, len(ys)), replace=False)
             ys, xs = ys[pick], xs[pick]
         picked.append((ys, xs))
 
-    def pairs_of(k: int) -> list[tuple[int, int, np.ndarray, float]]:
+    def pairs_of(k: int) -> list[tuple]:
         """The pairs (k, l) of photo ``k``."""
         v, (ys, xs) = views[k], picked[k]
         if len(ys) < min_pixels:
@@ -998,20 +1006,28 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
         rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
         points = (rays * v.depth[ys, xs, None] - v.camera.t) @ v.camera.R  # camera -> world
         own = blurred[k][ys, xs]
+        partners = [l for l in np.argsort(-shared[k], kind="stable") if l != k and shared[k, l] >= 1]
         out = []
-        for l, u in enumerate(views):
-            if l == k or shared[k, l] < 1:
-                continue
+        for l in sorted(partners[:neighbours] if neighbours else partners):
+            u = views[l]
             ok, x, y = _seen_in(u.valid, u.depth, *u.camera.project(points), depth_tolerance)
-            a, b = own[ok], blurred[l][y, x]
-            good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)  # neither dark nor clipped
-            if good.sum() >= min_pixels:
-                ratio = np.median(np.log(b[good]) - np.log(a[good]), axis=0)
-                out.append((k, l, ratio, float(np.sqrt(good.sum()))))
+            if usable is not None:
+                keep = usable[l][y, x]
+                ok, x, y = ok[keep], x[keep], y[keep]
+            if len(ok) >= min_pixels and (row := reduce(own[ok], blurred[l][y, x])) is not None:
+                out.append((k, l, *row))
         return out
 
     # the photos side by side (numpy releases the interpreter lock)
     return [pair for photo in side_by_side(pairs_of, range(P)) for pair in photo]
+
+
+def _median_ratio(a: np.ndarray, b: np.ndarray, min_pixels: int = 50) -> tuple[np.ndarray, float] | None:
+    """``(median log(b / a) (3,), sqrt(points))`` over the points ``(n, 3)`` neither dark nor clipped in either."""
+    good = ((a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)).all(axis=1)
+    if good.sum() < min_pixels:
+        return None
+    return np.median(np.log(b[good]) - np.log(a[good]), axis=0), float(np.sqrt(good.sum()))
 
 
 def inverse_transforms(transforms: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
