@@ -196,6 +196,8 @@ class PhotoSet:
             read: :func:`scantex.photos.training.depth_factor`) or the factor that judgement gave on the whole
             scan (a tile sees too little of a photo's view to judge its map) or at another pose, applied as
             it is (0: the map is not of the photo's view, and is not used).
+        tones: ``(N,)`` per photo, ``None`` or its gamma (a float): :meth:`load_image` brings the photo to the
+            capture's common tone curve (:mod:`scantex.photos.tones`).
     """
 
     cameras: tuple[Camera, ...]
@@ -208,6 +210,7 @@ class PhotoSet:
     image_cache: ImageCache = dataclasses.field(default_factory=ImageCache, repr=False)
     hidden: tuple[np.ndarray | None, ...] = dataclasses.field(default=(), repr=False)
     depth_factors: tuple[float | None, ...] = ()
+    tones: tuple[float | None, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -218,8 +221,9 @@ class PhotoSet:
         set_(self, "distortions", tuple(self.distortions) or (None,) * n)
         set_(self, "hidden", tuple(self.hidden) or (None,) * n)
         set_(self, "depth_factors", tuple(self.depth_factors) or (None,) * n)
+        set_(self, "tones", tuple(self.tones) or (None,) * n)
         set_(self, "source", Path(self.source))
-        for name in ("images", "depths", "distortions", "hidden", "depth_factors"):
+        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
 
@@ -238,11 +242,13 @@ class PhotoSet:
                                    depths=tuple(self.depths[i] for i in idx),
                                    distortions=tuple(self.distortions[i] for i in idx),
                                    hidden=tuple(self.hidden[i] for i in idx),
-                                   depth_factors=tuple(self.depth_factors[i] for i in idx))
+                                   depth_factors=tuple(self.depth_factors[i] for i in idx),
+                                   tones=tuple(self.tones[i] for i in idx))
 
     def load_image(self, i: int) -> np.ndarray:
         """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras
-        describe the sensor's pixel grid); read-only (it may be :attr:`image_cache`'s copy).
+        describe the sensor's pixel grid), or brought to the common tone curve where :attr:`tones` gives the
+        photo's; read-only (it may be :attr:`image_cache`'s copy).
 
         Raises:
             ScanError: the file is missing, not an image, or not of its camera's size.
@@ -262,6 +268,10 @@ class PhotoSet:
         if image.shape[:2] != (cam.height, cam.width):  # decoded for a set whose camera says another size
             raise ScanError(path, f"photo is {image.shape[1]}x{image.shape[0]} but its camera is "
                                   f"{cam.width}x{cam.height}")
+        if self.tones[i] is not None:
+            from scantex.photos.tones import toned
+
+            image = toned(image, self.tones[i])
         image.flags.writeable = False
         return image
 

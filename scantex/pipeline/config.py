@@ -193,6 +193,8 @@ class PhotosConfig:
     """closed-form colour transforms (a textured scan, no field): also level the photos' exposures against one another where they see the same surface (pair_weight), not only each against the input texture's charts: on, off, or auto (on from 50 photos: without them a synthetic room of 110 photos scored 27.26 dB against 28.16; on 12-photo captures they gained nothing and on one part of a real apartment drew a hard exposure step across a white wall that clips, 25.83 against 26.39 dB; bench/RESULTS.md "photo pairs")"""
     pair_weight: float = 4.0
     """pairs: weight of what photos seeing the same surface say of their exposures relative to one another, against what each says relative to the input texture's charts (the texture's charts alone, which a capture app's patchwork atlas misleads, left the facade's photos disagreeing by 7 % in exposure, 0.6 % with 4; its held-out score the same)"""
+    tones: bool = True
+    """closed-form colour transforms: first bring the photos to one tone curve (a gamma per photo, levelled against the others where they see the same flat surface), then fit each photo's gains: an auto-exposure lifts a photo's mid-tones and shadows but not a near-white wall, which one gain cannot follow, and draws an exposure step across the wall where that photo's frame ends (bench/RESULTS.md "photo tones")"""
     consistency: float = 0.0
     """projective texturing: photo-consistency scale (RGB distance, 0-1 units). A photo's sample this far from what the others say of the same point keeps half its weight (occluders the mesh lacks, highlights, misregistered edges); 0 blends every sample by its view quality alone"""
     clip_overshoot: float = 0.1

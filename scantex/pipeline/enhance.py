@@ -425,17 +425,21 @@ def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
 
 
 def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray,
-                           pair_weight: float = 0.0):
+                           pair_weight: float = 0.0, tones: np.ndarray | None = None):
     """``(canonicalise, transforms)``: each photo's colour transform onto the input texture's appearance,
     fitted in closed form (:func:`scantex.photos.texturing.fit_photo_transforms`; ``charts``: the input
-    atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
-    function that undoes it. An untextured scan's photos are brought to their average appearance, from
+    atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another; ``tones``:
+    ``(P,)`` the views' gammas, :func:`photo_tones`: their colours brought to the common tone curve first),
+    and the function that undoes it. An untextured scan's photos are brought to their average appearance, from
     their overlaps alone."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
+    from scantex.photos.tones import toned_view
     from scantex.photos.training import halved, texture_seen
 
     # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
     small = [halved(view) for view in views]
+    if tones is not None:
+        small = [toned_view(view, gamma) for view, gamma in zip(small, tones)]
     # each photo's view of the input texture, rendered when the fit asks for it (the photos side by side: Embree
     # and numpy release the interpreter lock), not all held at once (a room's 400 photos: 0.4 GB)
     references = (lambda k: texture_seen(scan, small[k], caster)) if scan.is_textured else None
@@ -443,6 +447,20 @@ def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: n
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       blur_px=0.5, pair_weight=pair_weight)
     return inverse_transforms(transforms), transforms
+
+
+def photo_tones(photos: PhotoSet, views: list) -> tuple[PhotoSet, np.ndarray]:
+    """``(photos, tones)``: the views' photos' tone curves levelled against one another
+    (:func:`scantex.photos.tones.fit_photo_tones`, at half the working resolution, as the gains): ``tones``
+    ``(P,)`` each view's gamma, ``photos`` the set that reads those photos on the common curve."""
+    from scantex.photos.tones import fit_photo_tones
+    from scantex.photos.training import halved
+
+    tones = fit_photo_tones([halved(view) for view in views])
+    per_photo = list(photos.tones)
+    for view, gamma in zip(views, tones):
+        per_photo[view.index] = float(gamma)
+    return dataclasses.replace(photos, tones=tuple(per_photo)), tones
 
 
 def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
@@ -499,10 +517,14 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     from scantex.photos.texturing import ProjectiveSettings, loose_fragments, projective_colour, recorded_transforms
 
     report: dict = {}
-    recorded = transforms = None
+    recorded = transforms = tones = None
+    photos = photo.photos
     if fitted is None:
+        if pc.tones:
+            photos, tones = photo_tones(photos, photo.train)
+            report["photo_tones"] = [round(float(gamma), 3) for gamma in tones]
         canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts,
-                                                          pair_weight(pc, len(photo.photos)))
+                                                          pair_weight(pc, len(photo.photos)), tones)
         recorded = recorded_transforms(transforms)
         report["colour_transforms"] = ("closed form, against the input texture" if scan.is_textured else
                                        "closed form, from the photos' overlaps")
@@ -539,7 +561,7 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     welded = scan.welded[scan.faces]
     through = loose_fragments(welded)
     report["loose_fragment_faces"] = int(through.sum()) if through is not None else 0
-    colour, sampled = projective_colour(photo.photos, photo.train, range(len(photo.train)), canonicalise,
+    colour, sampled = projective_colour(photos, photo.train, range(len(photo.train)), canonicalise,
                                         levelled if level else fallback, settings, faces=welded,
                                         recorded=recorded, threads=threads, through=through, transforms=transforms,
                                         release=release)

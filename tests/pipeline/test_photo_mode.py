@@ -156,6 +156,19 @@ def test_photos_detail_auto_is_balanced_for_a_room_of_photos(toy_demo, toy_photo
     assert blended.shape == balanced.shape and not np.array_equal(blended, balanced)
 
 
+def test_photo_mode_levels_the_photos_tones_unless_asked_not_to(toy_demo, toy_photos, photo_result):
+    """The closed-form colour fit brings every photo it blends to one tone curve first and reports each photo's
+    gamma (the toy's 9 training photos: the texture scored); ``photos.tones`` false leaves the photos' values as
+    recorded, another texture on the same geometry."""
+    texturing = photo_result.metrics["photos"]["texturing"]
+    tones = texturing["photo_tones"]
+    assert len(tones) == 9 and all(0.5 <= g <= 2.0 for g in tones) and len(set(tones)) > 1
+    plain = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__tones=False), photos=toy_photos)
+    assert "photo_tones" not in plain.metrics["photos"]["texturing"]
+    assert plain.metrics["geometry"]["arrays_identical"] and plain.metrics["geometry"]["triangles_identical"]
+    assert not np.array_equal(plain.scan.materials[0].image, photo_result.scan.materials[0].image)
+
+
 def test_photo_pairs_auto_level_a_room_of_photos_only():
     """``photos.pairs`` auto: the closed-form colour fit levels the photos against one another from ``PAIRS_FROM``
     photos (a room's patchwork of exposures), against the input texture alone below."""
