@@ -846,11 +846,12 @@ def _enhance(scan: Scan, config: EnhanceConfig, *, ground_truth: Scan | None, ph
                 f"field could not change a texel (set train.always to train it all the same)")
             log.info("field %s", field_skipped)
     if photos_need_no_field(scan, config, photos):
-        field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to the "
-                         + ("input texture's colours by a transform fitted in closed form; the input's own texels "
-                            "fill what no photo sees" if scan.is_textured else
-                            "photos' average colours by a transform fitted in closed form from their overlaps; "
-                            "what no photo sees takes the photos' colours around it")
+        curve = "one tone curve and " if config.photos.tones else ""
+        field_skipped = ("not trained: projective texturing samples the photos themselves, each brought to "
+                         + (f"{curve}the input texture's colours by transforms fitted in closed form; the input's "
+                            "own texels fill what no photo sees" if scan.is_textured else
+                            f"{curve}the photos' average colours by transforms fitted in closed form from their "
+                            "overlaps; what no photo sees takes the photos' colours around it")
                          + " (set train.always to train it all the same)")
         log.info("field %s", field_skipped)
     fitted = None

@@ -163,8 +163,10 @@ def test_photo_mode_levels_the_photos_tones_unless_asked_not_to(toy_demo, toy_ph
     texturing = photo_result.metrics["photos"]["texturing"]
     tones = texturing["photo_tones"]
     assert len(tones) == 9 and all(0.5 <= g <= 2.0 for g in tones) and len(set(tones)) > 1
+    assert "one tone curve" in photo_result.metrics["field"]["why"]  # the summary says how the photos were brought
     plain = enhance(toy_demo.scan, TOY.override(photos__check_alignment=False, photos__tones=False), photos=toy_photos)
     assert "photo_tones" not in plain.metrics["photos"]["texturing"]
+    assert "tone curve" not in plain.metrics["field"]["why"]
     assert plain.metrics["geometry"]["arrays_identical"] and plain.metrics["geometry"]["triangles_identical"]
     assert not np.array_equal(plain.scan.materials[0].image, photo_result.scan.materials[0].image)
 
