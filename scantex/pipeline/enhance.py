@@ -365,8 +365,8 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
         from scantex.photos.poses import consensus_poses
 
         if scan.is_textured:
-            canonicalise, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan),
-                                                     pair_weight(pc, len(photos)))
+            canonicalise, _, _ = closed_form_transforms(scan, train_views, caster, uv_shells(scan),
+                                                        pair_weight(pc, len(photos)))
 
             def input_colour(points, normals, face_ids, bary):
                 return shade_hits(scan, face_ids, bary)
@@ -425,42 +425,39 @@ def flat_grey(points, normals, face_ids, bary) -> np.ndarray:
 
 
 def closed_form_transforms(scan: Scan, views: list, caster: RayCaster, charts: np.ndarray,
-                           pair_weight: float = 0.0, tones: np.ndarray | None = None):
-    """``(canonicalise, transforms)``: each photo's colour transform onto the input texture's appearance,
+                           pair_weight: float = 0.0, tones: bool = False):
+    """``(canonicalise, transforms, gammas)``: each photo's colour transform onto the input texture's appearance,
     fitted in closed form (:func:`scantex.photos.texturing.fit_photo_transforms`; ``charts``: the input
-    atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another; ``tones``:
-    ``(P,)`` the views' gammas, :func:`photo_tones`: their colours brought to the common tone curve first),
-    and the function that undoes it. An untextured scan's photos are brought to their average appearance, from
-    their overlaps alone."""
+    atlas's chart of each face; ``pair_weight``: the weight of the photos' ratios to one another), and the
+    function that undoes it. An untextured scan's photos are brought to their average appearance, from
+    their overlaps alone. ``tones``: the views' photos are first brought to one tone curve
+    (:func:`scantex.photos.tones.fit_photo_tones`), ``gammas`` ``(P,)`` each view's (``None`` without)."""
     from scantex.photos.texturing import fit_photo_transforms, inverse_transforms
-    from scantex.photos.tones import toned_view
+    from scantex.photos.tones import fit_photo_tones, toned_view
     from scantex.photos.training import halved, texture_seen
 
     # exposure is a few numbers a photo: half the working resolution has pixels enough, at a quarter the cost
     small = [halved(view) for view in views]
-    if tones is not None:
-        small = [toned_view(view, gamma) for view, gamma in zip(small, tones)]
+    gammas = None
+    if tones:
+        gammas = fit_photo_tones(small)
+        small = [toned_view(view, gamma) for view, gamma in zip(small, gammas)]
     # each photo's view of the input texture, rendered when the fit asks for it (the photos side by side: Embree
     # and numpy release the interpreter lock), not all held at once (a room's 400 photos: 0.4 GB)
     references = (lambda k: texture_seen(scan, small[k], caster)) if scan.is_textured else None
     transforms = fit_photo_transforms(references, small, charts,
                                       np.bincount(charts, scan.face_areas, int(charts.max()) + 1),
                                       blur_px=0.5, pair_weight=pair_weight)
-    return inverse_transforms(transforms), transforms
+    return inverse_transforms(transforms), transforms, gammas
 
 
-def photo_tones(photos: PhotoSet, views: list) -> tuple[PhotoSet, np.ndarray]:
-    """``(photos, tones)``: the views' photos' tone curves levelled against one another
-    (:func:`scantex.photos.tones.fit_photo_tones`, at half the working resolution, as the gains): ``tones``
-    ``(P,)`` each view's gamma, ``photos`` the set that reads those photos on the common curve."""
-    from scantex.photos.tones import fit_photo_tones
-    from scantex.photos.training import halved
-
-    tones = fit_photo_tones([halved(view) for view in views])
+def with_tones(photos: PhotoSet, views: list, gammas: np.ndarray) -> PhotoSet:
+    """``photos`` reading the views' photos on the common tone curve (``gammas`` ``(P,)``: each view's, from
+    :func:`closed_form_transforms`)."""
     per_photo = list(photos.tones)
-    for view, gamma in zip(views, tones):
+    for view, gamma in zip(views, gammas):
         per_photo[view.index] = float(gamma)
-    return dataclasses.replace(photos, tones=tuple(per_photo)), tones
+    return dataclasses.replace(photos, tones=tuple(per_photo))
 
 
 def photo_mode_rays(synthetic, photo: PhotoData, n_charts: int, synthetic_weight: float,
@@ -517,14 +514,14 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
     from scantex.photos.texturing import ProjectiveSettings, loose_fragments, projective_colour, recorded_transforms
 
     report: dict = {}
-    recorded = transforms = tones = None
+    recorded = transforms = None
     photos = photo.photos
     if fitted is None:
-        if pc.tones:
-            photos, tones = photo_tones(photos, photo.train)
-            report["photo_tones"] = [round(float(gamma), 3) for gamma in tones]
-        canonicalise, transforms = closed_form_transforms(scan, photo.train, caster, charts,
-                                                          pair_weight(pc, len(photo.photos)), tones)
+        canonicalise, transforms, gammas = closed_form_transforms(scan, photo.train, caster, charts,
+                                                                  pair_weight(pc, len(photo.photos)), pc.tones)
+        if gammas is not None:
+            photos = with_tones(photos, photo.train, gammas)
+            report["photo_tones"] = [round(float(gamma), 3) for gamma in gammas]
         recorded = recorded_transforms(transforms)
         report["colour_transforms"] = ("closed form, against the input texture" if scan.is_textured else
                                        "closed form, from the photos' overlaps")

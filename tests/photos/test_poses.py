@@ -134,7 +134,7 @@ def test_consensus_poses_cut_the_reprojection_error(capture8):
         return prepare_photos(scan, p, indices, caster, 480, VisibilitySettings(supersample=1))
 
     views = prepare(photos)
-    canonicalise, _ = closed_form_transforms(scan, views, caster, uv_shells(scan))
+    canonicalise, _, _ = closed_form_transforms(scan, views, caster, uv_shells(scan))
     refined, new_views, corrections = consensus_poses(
         scan, photos, views, canonicalise, caster, lambda p, n, f, b: shade_hits(scan, f, b), iterations=2,
         prepare=prepare)
@@ -168,7 +168,7 @@ def test_a_photo_held_out_of_a_consensus_joins_its_frame(capture8):
         return shade_hits(scan, f, b)
 
     views = prepare(photos)
-    canonicalise, _ = closed_form_transforms(scan, views, caster, uv_shells(scan))
+    canonicalise, _, _ = closed_form_transforms(scan, views, caster, uv_shells(scan))
     refined, views, _ = consensus_poses(scan, photos, views, canonicalise, caster, fallback, prepare=prepare)
     joined, corrections = align_to_consensus(scan, refined, held, views, canonicalise, caster, fallback)
     assert [c.index for c in corrections] == held and corrections[0].applied
