@@ -16,6 +16,7 @@ from scipy import ndimage
 
 from scantex.synth.mesh import PanelMesh
 from scantex.synth.procedural import Panel
+from scantex.uv.pack import shelves
 
 log = logging.getLogger(__name__)
 
@@ -169,15 +170,8 @@ def _shelf_pack(extent: np.ndarray, size: int, gutter: int, order_seed: np.ndarr
     for _ in range(400):
         boxes = np.ceil(extent * scale).astype(np.int64) + 2 * gutter  # [n, 2] (width, height)
         order = order_seed[np.argsort(-boxes[order_seed, 1], kind="stable")]
-        corner = np.zeros((len(extent), 2), dtype=np.int64)
-        x = y = shelf = 0
-        for c in order:
-            if x + boxes[c, 0] > size:
-                x, y, shelf = 0, y + shelf, 0
-            corner[c] = (x, y)
-            x += boxes[c, 0]
-            shelf = max(shelf, boxes[c, 1])
-        if y + shelf <= size and boxes[:, 0].max() <= size:
+        corner = shelves(boxes, order, size)
+        if corner is not None and boxes[:, 0].max() <= size:
             return scale, corner
         scale *= 0.98
     raise ValueError(f"{len(extent)} charts do not fit a {size}² atlas with {gutter}-texel gutters")

@@ -64,6 +64,20 @@ def min_area_rotation(points: np.ndarray) -> np.ndarray:
     return best
 
 
+def shelves(boxes: np.ndarray, order: np.ndarray, size: int) -> np.ndarray | None:
+    """``(n, 2)`` top-left corners of boxes ``(n, 2)`` (width, height) put on shelves of a ``size``-wide square
+    in ``order``, each shelf as tall as its tallest box; ``None`` when they do not fit its height."""
+    corner = np.zeros((len(boxes), 2), dtype=np.int64)
+    x = y = shelf = 0
+    for c in order:
+        if x + boxes[c, 0] > size:
+            x, y, shelf = 0, y + shelf, 0
+        corner[c] = (x, y)
+        x += boxes[c, 0]
+        shelf = max(shelf, boxes[c, 1])
+    return corner if y + shelf <= size else None
+
+
 def shelf_pack(extent: np.ndarray, size: int, gutter: int) -> tuple[float, np.ndarray]:
     """The largest scale (texels per unit) at which boxes of ``extent (n, 2)`` fit ``size``² on shelves.
 
@@ -76,15 +90,7 @@ def shelf_pack(extent: np.ndarray, size: int, gutter: int) -> tuple[float, np.nd
         boxes = np.ceil(extent * scale).astype(np.int64) + 2 * gutter
         if boxes[:, 0].max() > size:
             return None
-        corner = np.zeros((n, 2), dtype=np.int64)
-        x = y = shelf = 0
-        for c in order:
-            if x + boxes[c, 0] > size:
-                x, y, shelf = 0, y + shelf, 0
-            corner[c] = (x, y)
-            x += boxes[c, 0]
-            shelf = max(shelf, boxes[c, 1])
-        return corner if y + shelf <= size else None
+        return shelves(boxes, order, size)
 
     # shelf packing is nearly monotone in the scale
     scale, best = _largest_scale(place, 0.0, _scale_bound(extent, size), steps=40, rtol=1e-4)
