@@ -726,8 +726,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(the paper's setting), the input's own texels are kept: exposure seams "
                                    "levelled, holes filled, UV seams blended (a radiance field and a Vision "
                                    "Transformer refiner are there on request). With the capture's posed "
-                                   "photos, each texel is sampled from the photos that see it best (a small "
-                                   "capture's poses refined first), brought to one exposure, and held-out photos "
+                                   "photos, each texel is sampled from the photos that see it, brought to one "
+                                   "exposure and blended (a room's many photos with the best views' fine detail "
+                                   "added; a small capture's poses refined first), and held-out photos "
                                    "score the result. The texture is baked into the scan's own UV layout; vertex "
                                    "positions and faces are written back unchanged.")
     p.add_argument("mesh", type=Path, metavar="PATH",
@@ -743,7 +744,7 @@ def build_parser() -> argparse.ArgumentParser:
     settings.add_argument("--config", type=Path,
                           help="a config.json from an earlier run, in place of --preset (it names its own)")
     p.add_argument("--texture-size", type=whole(16, 16384),
-                   help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake and photo mode; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
+                   help="output atlas size (default: the input's when its texels are kept, the default bake; 2x the input, at most 8192, for the field bake, and for photo mode when the photos resolve the surface at least twice as finely as the input's texels, else the input's; an untextured mesh with photos: 2048 or 4096, as fine as its photos)")
     p.add_argument("--uv", choices=["keep", "optimize", "unwrap"],
                    help="texture layout: keep the input's (default; faces it gives no texture space, every UV "
                         "corner on one point, get a small chart each in free atlas space), optimize it (flatten "

@@ -115,8 +115,9 @@ class UVConfig:
 class BakeConfig:
     texture_size: int = 0
     """output atlas size in texels (0: the input atlas's size when bake.source is input on the input's UVs,
-    so its texels are kept exactly; otherwise twice it, at most 8192; an untextured mesh with photos: 2048 or
-    4096, as fine as its photos)"""
+    so its texels are kept exactly; the field bake twice it, at most 8192; photo mode twice it where the photos
+    resolve the surface at least twice as finely as the input's texels, else its size; an untextured mesh with
+    photos: 2048 or 4096, as fine as its photos)"""
     chunk: int = 65536
     """texels coloured per call (bounded memory; photo mode samples the photos about 20 % faster than at
     16384)"""
