@@ -977,17 +977,10 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
     ``sqrt(points)``); ``usable``: per photo, ``(h, w) bool`` the pixels a pair may use besides the views' own
     (default: all); ``neighbours``: photo ``k`` is paired with the photos that see the most faces it sees, this many
     (0: every photo it shares a face with). Pairs whose faces do not overlap are not projected."""
-    from scipy import sparse
-
     reduce = reduce or _median_ratio
     rng = np.random.default_rng(seed)
     P = len(views)
-    seen = [np.unique(v.face_id[v.valid & (v.face_id >= 0)]) for v in views]
-    n_faces = max((int(f[-1]) + 1 for f in seen if f.size), default=0)
-    sees = sparse.csr_matrix((np.ones(sum(f.size for f in seen), np.float32),
-                              (np.repeat(np.arange(P), [f.size for f in seen]), np.concatenate(seen or [[]]))),
-                             shape=(P, n_faces))
-    shared = (sees @ sees.T).toarray()  # (P, P) faces both see
+    shared = photo_overlaps(views)
     # each photo's sample of its pixels, drawn in photo order (the same draws however the photos are spread)
     picked = []
     for k, v in enumerate(views):
@@ -1020,6 +1013,19 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
 
     # the photos side by side (numpy releases the interpreter lock)
     return [pair for photo in side_by_side(pairs_of, range(P)) for pair in photo]
+
+
+def photo_overlaps(views: Sequence[PhotoView]) -> np.ndarray:
+    """``(P, P)``: how many faces each two views both see with a usable pixel."""
+    from scipy import sparse
+
+    P = len(views)
+    seen = [np.unique(v.face_id[v.valid & (v.face_id >= 0)]) for v in views]
+    n_faces = max((int(f[-1]) + 1 for f in seen if f.size), default=0)
+    sees = sparse.csr_matrix((np.ones(sum(f.size for f in seen), np.float32),
+                              (np.repeat(np.arange(P), [f.size for f in seen]), np.concatenate(seen or [[]]))),
+                             shape=(P, n_faces))
+    return (sees @ sees.T).toarray()
 
 
 def _median_ratio(a: np.ndarray, b: np.ndarray, min_pixels: int = 50) -> tuple[np.ndarray, float] | None:

@@ -316,6 +316,9 @@ class PhotoData:
     left_out: list = field(default_factory=list)
     """the photos left out as not showing what their cameras see
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
+    blurred: list = field(default_factory=list)
+    """the photos with under a third of the fine detail (along one axis) of the photos that see the same surface
+    (:func:`scantex.photos.sharpness.blurred_photos`, with ``image`` and ``left_out``: ``photos.leave_out_blurred``)"""
 
 
 def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
@@ -360,6 +363,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     settings = visibility_settings(pc, len(photos))
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings,
                            lambda done, total: update(refined + done, refined + total))
+    views, train, held, blurred = judge_detail(photos, views, train, held, pc.leave_out_blurred)
     train_views, held_views = views[:len(train)], views[len(train):]
     if mode == "consensus" and len(train) > 1:
         from scantex.photos.poses import consensus_poses
@@ -394,7 +398,31 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
                                                 pc.temperature, memory_mb=pc.sample_memory_mb)
         final = aligned, prepare_photos(scan, judged(aligned, held_views), held, caster, pc.max_side, settings), moved
-    return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out)
+    return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out, blurred)
+
+
+def judge_detail(photos: PhotoSet, views: list, train, held, leave_out: bool) -> tuple[list, list, list, list[dict]]:
+    """``(views, train, held, blurred)``: the photos (``views`` of ``train`` then ``held``) whose fine detail is
+    under a third of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and left out
+    of the three lists when ``leave_out`` asks (a training photo is kept when it would leave none)."""
+    from scantex.photos.sharpness import blurred_photos
+
+    found = blurred_photos(views)
+    if not found:
+        return views, train, held, []
+    gone = {d["photo"] for d in found} if leave_out else set()
+    if gone >= {int(i) for i in train}:
+        gone = set()
+    for d in found:
+        log.warning("%s: photo %d has %.0f %% of the fine detail of the photos that see the same surface (shaken, out "
+                    "of focus or washed out?)%s", photos.images[d["photo"]], d["photo"], 100 * d["detail"],
+                    ": left out" if d["photo"] in gone else "")
+    blurred = [{**d, "image": str(photos.images[d["photo"]]), "left_out": d["photo"] in gone} for d in found]
+    if gone:
+        views = [v for v in views if v.index not in gone]
+        train = np.array([i for i in train if int(i) not in gone], dtype=np.asarray(train).dtype)
+        held = np.array([i for i in held if int(i) not in gone], dtype=np.asarray(held).dtype)
+    return views, train, held, blurred
 
 
 def judged(photos: PhotoSet, views) -> PhotoSet:
@@ -1113,6 +1141,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": alignment_metrics(photo.alignment),
         "left_out": photo.left_out,
+        "blurred": photo.blurred,
     }}
     if photo.held_out:
         # where the training photos' poses were refined, each held-out photo's pose is aligned too, to each texture

@@ -542,3 +542,29 @@ def test_photo_mode_without_numba_makes_the_same_texture(toy_demo, toy_photos, p
     assert slow.shape == fast.shape and (np.abs(slow - fast).max(axis=2) > 2).mean() < 0.01
     assert [c["applied"] for c in result.metrics["photos"]["pose_corrections"]] == \
         [c["applied"] for c in photo_result.metrics["photos"]["pose_corrections"]]
+
+
+def test_a_shaken_photo_is_named_and_left_out(tmp_path, toy_demo, toy_photos):
+    """Blended like the others it smears the texture: it is left out of the texture and the score, and named in
+    the summary; ``photos.leave_out_blurred`` false (``--keep-blurred``) blends it in, named all the same."""
+    from PIL import Image
+    from scipy import ndimage
+
+    from scantex.cli import enhance_summary
+
+    smeared = tmp_path / "smeared.png"
+    image = np.asarray(Image.open(toy_photos.images[3])).astype(np.float64)
+    Image.fromarray(np.round(ndimage.uniform_filter1d(image, 7, axis=1)).astype(np.uint8)).save(smeared)
+    photos = dataclasses.replace(toy_photos, images=(*toy_photos.images[:3], smeared, *toy_photos.images[4:]))
+    config = TOY.override(photos__check_alignment=False)  # as photo_result: the toy misleads the check
+    m = enhance(toy_demo.scan, config, photos=photos).metrics
+    assert [d["photo"] for d in m["photos"]["blurred"]] == [3] and m["photos"]["blurred"][0]["left_out"]
+    assert 3 not in m["photos"]["train"] + m["photos"]["held_out"]
+    assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
+    assert "blurred photos: 3 (" in enhance_summary(m) and "left out, the texture made sharp" in enhance_summary(m)
+    m = enhance(toy_demo.scan, config.override(photos__leave_out_blurred=False), photos=photos).metrics
+    assert [d["photo"] for d in m["photos"]["blurred"]] == [3] and not m["photos"]["blurred"][0]["left_out"]
+    assert 3 in m["photos"]["train"] + m["photos"]["held_out"]
+    assert "blended like the others" in enhance_summary(m)
+    # the sharp photos alone: none named
+    assert enhance(toy_demo.scan, config, photos=toy_photos).metrics["photos"]["blurred"] == []

@@ -1,0 +1,201 @@
+"""Each photo's fine detail against the photos that see the same surface: shaken or out-of-focus frames named.
+
+A handheld capture has frames smeared by the hand's motion. Photo mode blends every photo that sees a point
+nearly alike (the held-out photos' own poses, a few pixels off, favour that), so three shaken photos of nine
+smear the whole texture sideways, where the input's best view per texel stays sharp: measured on the bolster's
+9-photo draws (``bench/bench_few_photos.py --motion-blur 21``), the held-out score is the same (mean +0.99 dB)
+and the texture visibly smeared (bench/RESULTS.md, "shaken photos").
+
+One number a photo says how sharp it is, but a photo's own detail says more of what it shows (a printed
+cushion, a white wall) than of its focus. Two photos compared at the same surface points say it directly: at
+each of photo ``k``'s sampled pixels and its four neighbours (unprojected with its G-buffer depth), the grey
+image's second difference along the photo's rows, and along its columns, divided by the brightness there
+(exposure cancels), is measured in ``k`` and, carried through the mesh, in photo ``l``, whose pixels are read
+bilinearly at those five surface points. Half the log of their mean squares' ratio is ``log d_l - log d_k``
+(``d``: a photo's detail along that axis); the rows of every photo and its most overlapping partners are solved
+for every photo's ``log d`` at once by least squares, their mean held at 0. A photo is then judged against its
+partners: its ``log d`` less their median, along its weaker axis (a shaken photo is smeared along the hand's
+motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (about a third of its
+partners' detail) is called blurred.
+
+Reading ``l`` between its pixels softens it a little; where two photos resolve the surface alike, both ``(k, l)``
+and ``(l, k)`` are measured, their errors alike and opposite, and the solve cancels them. A photo further from
+the surface resolves less of it and would measure softer for it: a pair is measured on the coarser photo's pixels
+only (where ``l``'s footprint on the surface is larger than ``k``'s by more than :data:`COARSER`, only ``(l,
+k)``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from scantex.photos.training import PhotoView
+
+#: a photo whose detail along its weaker axis is under exp(BLURRED) of its partners' median is called blurred:
+#: 0.37. Measured (bench/RESULTS.md "shaken photos"): sharp photos at -0.77 to +1.27 against their partners (the
+#: bolster's, the facade's, a real apartment's 197 Kinect frames, the synthetic demo's), photos smeared sideways
+#: by 7 working pixels at -1.36 to -1.8
+BLURRED = -1.0
+#: each photo compared with the photos that see the most of the faces it sees, this many
+NEIGHBOURS = 8
+#: pixels of each photo (with their four neighbours) looked up in its partners, at most
+POINTS = 3000
+#: a pair's row needs this many points that both see, neither dark nor clipped
+MIN_POINTS = 200
+#: a pair is measured on the pixels of photo ``k`` unless photo ``l``'s are coarser there by more than this
+#: (its pixel's footprint on the surface larger)
+COARSER = 1.25
+#: a pixel's four neighbours must lie on the same surface: their depth within this share of its own
+DEPTH_STEP = 0.02
+_STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0))  # (dy, dx): along the rows, then the columns
+
+
+def photo_detail(views: Sequence[PhotoView], shared: np.ndarray | None = None, depth_tolerance: float = 0.02,
+                 seed: int = 0) -> np.ndarray:
+    """``(P, 2)`` each view's ``log d`` along its image's rows and along its columns (its fine detail at the
+    surface points it shares with its partners, each axis's mean held at 0), ``nan`` for a view no pair measures.
+    ``shared``: :func:`photo_overlaps` of the views."""
+    from scipy import sparse
+    from scipy.sparse.linalg import lsqr
+
+    from scantex.photos.texturing import photo_overlaps
+    from scantex.threads import side_by_side
+
+    P = len(views)
+    shared = photo_overlaps(views) if shared is None else shared
+    greys = [_grey(view) for view in views]  # float16: a room's 219 views hold 135 MB of them, not 270
+    rng = np.random.default_rng(seed)
+    picks = [_pick(view, rng) for view in views]
+
+    def rows_of(k: int) -> list[tuple[int, int, float, float, float]]:
+        """Photo ``k``'s rows ``(k, l, log d_l - log d_k along k's rows, the same along its columns, weight)``."""
+        view, (ys, xs) = views[k], picks[k]
+        if len(ys) < MIN_POINTS:
+            return []
+        grey = greys[k].astype(np.float32)
+        centre = _unprojected(view, xs, ys)
+        around = [_unprojected(view, xs + dx, ys + dy) for dy, dx in _STEPS]
+        own = grey[ys, xs]
+        # second differences along the rows (the first two steps) and along the columns (the last two)
+        own_second = [grey[ys + dy, xs + dx] + grey[ys - dy, xs - dx] - 2 * own for dy, dx in _STEPS[::2]]
+        partners = [l for l in np.argsort(-shared[k], kind="stable") if l != k and shared[k, l] >= 1]
+        out = []
+        for l in sorted(partners[:NEIGHBOURS]):
+            u = views[l]
+            seen, _, _ = _seen_in_view(u, centre, depth_tolerance)
+            if len(seen) < MIN_POINTS:
+                continue
+            # measured on the coarser photo's pixels: a photo further from the surface is not called soft for it
+            # (the pair's other direction measures it where this photo is the coarser)
+            z = u.camera.project(centre[seen])[1]
+            coarser = np.median(z / u.camera.K[0, 0]) / np.median(view.depth[ys[seen], xs[seen]] / view.camera.K[0, 0])
+            if coarser > COARSER:
+                continue
+            other_grey = greys[l].astype(np.float32)
+            theirs = _bilinear_grey(other_grey, u, centre[seen])
+            read = [_bilinear_grey(other_grey, u, points[seen]) for points in around]
+            second = [read[0] + read[1] - 2 * theirs, read[2] + read[3] - 2 * theirs]
+            a, b = own[seen], theirs
+            good = (a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)
+            if good.sum() < MIN_POINTS:
+                continue
+            ratios = []
+            for mine, other in zip(own_second, second):
+                mine = np.mean(np.square(mine[seen][good] / a[good]))
+                other = np.mean(np.square(other[good] / b[good]))
+                ratios.append(0.5 * float(np.log(other / mine)) if mine > 0 and other > 0 else np.nan)
+            if np.isfinite(ratios).all():
+                out.append((k, int(l), *ratios, float(np.sqrt(good.sum()))))
+        return out
+
+    rows = [row for photo in side_by_side(rows_of, range(P)) for row in photo]
+    detail = np.full((P, 2), np.nan)
+    if not rows:
+        return detail
+    k = np.array([row[0] for row in rows])
+    l = np.array([row[1] for row in rows])
+    w = np.array([row[4] for row in rows])
+    measured = np.zeros(P, bool)
+    measured[k] = measured[l] = True
+    n, r = len(rows), np.arange(len(rows))
+    # unknowns: log d per photo; rows: log d_l - log d_k = the pair's ratio; the measured photos' mean held at 0
+    A = sparse.vstack([sparse.csr_matrix((np.r_[w, -w], (np.r_[r, r], np.r_[l, k])), shape=(n, P)),
+                       sparse.csr_matrix((np.full(measured.sum(), 100.0 * w.sum() / P),
+                                          (np.zeros(measured.sum(), int), np.flatnonzero(measured))), shape=(1, P)),
+                       1e-6 * sparse.identity(P, format="csr")]).tocsr()
+    for axis in range(2):
+        value = np.array([row[2 + axis] for row in rows])
+        solution = lsqr(A, np.r_[w * value, 0.0, np.zeros(P)], atol=1e-10, btol=1e-10)[0]
+        detail[measured, axis] = solution[measured]
+    return detail
+
+
+def relative_detail(shared: np.ndarray, detail: np.ndarray) -> np.ndarray:
+    """``(P,)`` each photo's ``log d`` less the median of its :data:`NEIGHBOURS` partners' (``shared``: the views'
+    :func:`photo_overlaps`; ``nan`` where either is unmeasured)."""
+    out = np.full(len(detail), np.nan)
+    for k in range(len(detail)):
+        partners = [l for l in np.argsort(-shared[k], kind="stable")
+                    if l != k and shared[k, l] >= 1 and np.isfinite(detail[l])][:NEIGHBOURS]
+        if partners and np.isfinite(detail[k]):
+            out[k] = detail[k] - float(np.median(detail[partners]))
+    return out
+
+
+def blurred_photos(views: Sequence[PhotoView]) -> list[dict]:
+    """The views whose detail along their weaker axis is under :data:`BLURRED` of their partners': ``{"photo":
+    index, "detail": the share of their partners' detail}`` each, the least detailed first."""
+    from scantex.photos.texturing import photo_overlaps
+
+    shared = photo_overlaps(views)
+    detail = photo_detail(views, shared)
+    # a shaken photo is smeared along the hand's motion: its weaker axis says it
+    relative = np.fmin(relative_detail(shared, detail[:, 0]), relative_detail(shared, detail[:, 1]))
+    found = [(float(relative[k]), int(view.index)) for k, view in enumerate(views)
+             if np.isfinite(relative[k]) and relative[k] < BLURRED]
+    return [{"photo": i, "detail": round(float(np.exp(r)), 2)} for r, i in sorted(found)]
+
+
+def _grey(view: PhotoView) -> np.ndarray:
+    """``(H, W) float16`` luma of the view's image."""
+    return (view.image @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.float16)
+
+
+def _pick(view: PhotoView, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Up to :data:`POINTS` usable pixels of the view whose four neighbours are usable on the same surface."""
+    ok = view.valid.copy()
+    ok[[0, -1], :] = False
+    ok[:, [0, -1]] = False
+    depth = view.depth
+    for dy, dx in _STEPS:
+        near = np.roll(view.valid, (-dy, -dx), axis=(0, 1))
+        step = np.abs(np.roll(depth, (-dy, -dx), axis=(0, 1)) - depth)
+        ok &= near & (step < DEPTH_STEP * depth)
+    ys, xs = np.nonzero(ok)
+    if len(ys) > POINTS:
+        keep = rng.choice(len(ys), POINTS, replace=False)
+        ys, xs = ys[keep], xs[keep]
+    return ys, xs
+
+
+def _unprojected(view: PhotoView, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` world points of the view's pixels ``(xs, ys)`` at their G-buffer depth."""
+    K = view.camera.K
+    rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
+    return (rays * view.depth[ys, xs, None] - view.camera.t) @ view.camera.R
+
+
+def _seen_in_view(view: PhotoView, points: np.ndarray, depth_tolerance: float):
+    from scantex.photos.texturing import _seen_in
+
+    return _seen_in(view.valid, view.depth, *view.camera.project(points), depth_tolerance)
+
+
+def _bilinear_grey(grey: np.ndarray, view: PhotoView, points: np.ndarray) -> np.ndarray:
+    """The grey image read bilinearly at the world points' pixels (clamped to the image)."""
+    from scipy.ndimage import map_coordinates
+
+    pix, _ = view.camera.project(points)
+    return map_coordinates(grey, [pix[:, 1], pix[:, 0]], order=1, mode="nearest")

@@ -1,0 +1,78 @@
+"""Each photo's fine detail against the photos that see the same surface: a shaken frame named, a far one not."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from PIL import Image
+from scipy import ndimage
+
+from scantex.photos.sharpness import blurred_photos, photo_detail, relative_detail
+from scantex.photos.texturing import photo_overlaps
+from scantex.photos.training import prepare_photos
+from scantex.views.camera import Camera
+from scantex.views.raycast import RayCaster
+from tests.conftest import grid_wall
+from tests.photos.test_alignment import photograph
+
+
+def speckled_wall():
+    """A 2 m wall printed with random blocks of 3 cm, in colour: detail at every photo's scale."""
+    rng = np.random.default_rng(4)
+    image = np.kron(rng.uniform(0.1, 0.9, (64, 64, 3)), np.ones((8, 8, 1)))
+    wall = grid_wall()
+    return dataclasses.replace(wall, materials=(dataclasses.replace(wall.materials[0], image=(
+        255 * image).astype(np.uint8)),))
+
+
+def photos_of(tmp_path, scan, eyes, smeared=(), length=9):
+    """Photos of the wall from ``eyes`` (320x240), those of ``smeared`` blurred by a horizontal box of ``length``
+    pixels (a shaken frame), and their working views (160 px)."""
+    tmp_path.mkdir(exist_ok=True)
+    cams = [Camera.look_at(e, (1.0, 0.0, 1.0), fov_deg=60, width=320, height=240) for e in eyes]
+    photos = photograph(scan, cams, tmp_path)
+    for k in smeared:
+        im = np.asarray(Image.open(photos.images[k])).astype(np.float64)
+        Image.fromarray(np.round(ndimage.uniform_filter1d(im, length, axis=1)).astype(np.uint8)).save(photos.images[k])
+    caster = RayCaster(scan.positions, scan.faces)
+    return photos, prepare_photos(scan, photos, range(len(photos)), caster, 160)
+
+
+EYES = [(0.7, -2.2, 1.0), (1.0, -2.1, 1.1), (1.3, -2.2, 0.9), (0.9, -2.3, 0.8), (1.2, -2.0, 1.2)]
+
+
+def test_a_shaken_photo_is_named_and_the_others_are_not(tmp_path):
+    scan = speckled_wall()
+    _, sharp = photos_of(tmp_path / "sharp", scan, EYES)
+    assert blurred_photos(sharp) == []
+    detail = photo_detail(sharp)
+    assert detail.shape == (5, 2) and np.abs(detail).max() < 0.3  # the same wall from alike distances, in focus
+    _, views = photos_of(tmp_path / "shaken", scan, EYES, smeared=[2])
+    found = blurred_photos(views)
+    assert [d["photo"] for d in found] == [2]
+    assert found[0]["detail"] < 0.37
+    detail = photo_detail(views)
+    # smeared along its rows: its detail along them is the least, and less than across them
+    assert np.argmin(detail[:, 0]) == 2 and detail[2, 0] < -1.0 and detail[2, 1] > detail[2, 0] + 0.5
+    np.testing.assert_allclose(detail.mean(axis=0), 0.0, atol=1e-6)
+
+
+def test_a_photo_from_further_away_is_not_called_blurred(tmp_path):
+    """It resolves less of the wall, and read at the closer photos' pixels it would look soft: a pair is measured
+    on the coarser photo's pixels."""
+    scan = speckled_wall()
+    eyes = [*EYES[:4], (1.0, -4.4, 1.0)]  # twice as far
+    _, views = photos_of(tmp_path, scan, eyes)
+    assert blurred_photos(views) == []
+    shared = photo_overlaps(views)
+    assert shared[4, :4].min() > 0
+    detail = photo_detail(views, shared)
+    relative = np.fmin(relative_detail(shared, detail[:, 0]), relative_detail(shared, detail[:, 1]))
+    assert np.abs(relative).max() < 0.3  # read on the near photos' pixels, it measured -0.57
+
+
+def test_photos_that_share_no_surface_are_not_measured(tmp_path):
+    scan = speckled_wall()
+    _, views = photos_of(tmp_path, scan, EYES[:1])
+    assert np.isnan(photo_detail(views)).all() and blurred_photos(views) == []
