@@ -789,7 +789,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "a mesh moved or turned out of the cameras' frame) and the check that each photo shows "
                         "what its camera sees (it leaves out a photo stored upside down or cropped)")
     p.add_argument("--keep-blurred", action="store_true",
-                   help="with --photos: blend in the photos with under a third of the fine detail of the photos "
+                   help="with --photos: blend in the photos with under 30 %% of the fine detail of the photos "
                         "that see the same surface (shaken or out of focus), which are left out by default: they "
                         "soften the texture, at a held-out score no lower (untiled runs)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,

@@ -8,15 +8,16 @@ and the texture visibly smeared (bench/RESULTS.md, "shaken photos").
 
 One number a photo says how sharp it is, but a photo's own detail says more of what it shows (a printed
 cushion, a white wall) than of its focus. Two photos compared at the same surface points say it directly: at
-each of photo ``k``'s sampled pixels and its four neighbours (unprojected with its G-buffer depth), the grey
+each of photo ``k``'s textured pixels (:data:`TEXTURED`: a blank wall's finest detail is its photo's noise, which
+an over-exposed photo has clipped away) and its four neighbours (unprojected with its G-buffer depth), the grey
 image's second difference along the photo's rows, and along its columns, divided by the brightness there
 (exposure cancels), is measured in ``k`` and, carried through the mesh, in photo ``l``, whose pixels are read
 bilinearly at those five surface points. Half the log of their mean squares' ratio is ``log d_l - log d_k``
 (``d``: a photo's detail along that axis); the rows of every photo and its most overlapping partners are solved
 for every photo's ``log d`` at once by least squares, their mean held at 0. A photo is then judged against its
 partners: its ``log d`` less their median, along its weaker axis (a shaken photo is smeared along the hand's
-motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (about a third of its
-partners' detail) is called blurred.
+motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (30 % of its partners'
+detail) is called blurred.
 
 Reading ``l`` between its pixels softens it a little; where two photos resolve the surface alike, both ``(k, l)``
 and ``(l, k)`` are measured, their errors alike and opposite, and the solve cancels them. A photo further from
@@ -34,16 +35,19 @@ import numpy as np
 from scantex.photos.training import PhotoView
 
 #: a photo whose detail along its weaker axis is under exp(BLURRED) of its partners' median is called blurred:
-#: 0.37. Measured (bench/RESULTS.md "shaken photos"): sharp photos at -0.77 to +1.27 against their partners (the
-#: bolster's, the facade's, a real apartment's 197 Kinect frames, the synthetic demo's), photos smeared sideways
-#: by 7 working pixels at -1.36 to -1.8
-BLURRED = -1.0
+#: 0.30. Measured (bench/RESULTS.md "shaken photos"): sharp photos at -0.83 to +1.05 against their partners (the
+#: bolster's, the facade's, a real apartment's 197 Kinect frames and three 12-frame parts of it, the synthetic demo
+#: wall's 24 photos), -1.05 in a synthetic room's 110 of blank walls; photos smeared sideways by 7 working pixels
+#: at -1.44 and below
+BLURRED = -1.2
 #: each photo compared with the photos that see the most of the faces it sees, this many
 NEIGHBOURS = 8
 #: pixels of each photo (with their four neighbours) looked up in its partners, at most
-POINTS = 3000
+POINTS = 6000
+#: the share of a photo's sampled pixels measured: those of the most contrast over a Gaussian of TEXTURE_PX
+TEXTURED, TEXTURE_PX = 0.3, 3.0
 #: a pair's row needs this many points that both see, neither dark nor clipped
-MIN_POINTS = 200
+MIN_POINTS = 150
 #: a pair is measured on the pixels of photo ``k`` unless photo ``l``'s are coarser there by more than this
 #: (its pixel's footprint on the surface larger)
 COARSER = 1.25
@@ -75,6 +79,7 @@ def photo_detail(views: Sequence[PhotoView], shared: np.ndarray | None = None, d
         if len(ys) < MIN_POINTS:
             return []
         grey = greys[k].astype(np.float32)
+        ys, xs = _textured(grey, ys, xs)
         centre = _unprojected(view, xs, ys)
         around = [_unprojected(view, xs + dx, ys + dy) for dy, dx in _STEPS]
         own = grey[ys, xs]
@@ -156,6 +161,17 @@ def blurred_photos(views: Sequence[PhotoView]) -> list[dict]:
     found = [(float(relative[k]), int(view.index)) for k, view in enumerate(views)
              if np.isfinite(relative[k]) and relative[k] < BLURRED]
     return [{"photo": i, "detail": round(float(np.exp(r)), 2)} for r, i in sorted(found)]
+
+
+def _textured(grey: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels among ``(ys, xs)`` where the surface has texture: the grey's contrast over the Gaussian of
+    :data:`TEXTURE_PX` about them in the top :data:`TEXTURED` share. A blank wall's finest detail is its photo's
+    noise, which an over-exposed photo has clipped away; blur smooths texture at that scale barely."""
+    from scipy import ndimage
+
+    contrast = ndimage.gaussian_gradient_magnitude(grey, TEXTURE_PX)[ys, xs]
+    keep = contrast >= np.quantile(contrast, 1 - TEXTURED) if len(contrast) else np.zeros(0, bool)
+    return ys[keep], xs[keep]
 
 
 def _grey(view: PhotoView) -> np.ndarray:

@@ -170,7 +170,7 @@ class PhotosConfig:
     what its camera sees (stored upside down, cropped; checked against a textured scan's texture, an untextured
     scan's photos against one another)"""
     leave_out_blurred: bool = True
-    """leave out the photos with under a third of the fine detail of the photos that see the same surface, along one
+    """leave out the photos with under 30 % of the fine detail of the photos that see the same surface, along one
     axis at least (shaken or out of focus: scantex.photos.sharpness; named in the summary either way). Blended like
     the others they smear the texture, visibly softer than the input's best views, though the held-out photos, a
     few pixels off themselves, score it no lower: three of nine photos smeared by 7 pixels, kept +0.99 dB over the

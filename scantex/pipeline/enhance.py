@@ -317,7 +317,7 @@ class PhotoData:
     """the photos left out as not showing what their cameras see
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
     blurred: list = field(default_factory=list)
-    """the photos with under a third of the fine detail (along one axis) of the photos that see the same surface
+    """the photos with under 30 % of the fine detail (along one axis) of the photos that see the same surface
     (:func:`scantex.photos.sharpness.blurred_photos`, with ``image`` and ``left_out``: ``photos.leave_out_blurred``)"""
 
 
@@ -403,7 +403,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
 
 def judge_detail(photos: PhotoSet, views: list, train, held, leave_out: bool) -> tuple[list, list, list, list[dict]]:
     """``(views, train, held, blurred)``: the photos (``views`` of ``train`` then ``held``) whose fine detail is
-    under a third of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and left out
+    under 30 % of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and left out
     of the three lists when ``leave_out`` asks (a training photo is kept when it would leave none)."""
     from scantex.photos.sharpness import blurred_photos
 
