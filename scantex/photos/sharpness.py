@@ -46,6 +46,8 @@ NEIGHBOURS = 8
 POINTS = 6000
 #: the share of a photo's sampled pixels measured: those of the most contrast over a Gaussian of TEXTURE_PX
 TEXTURED, TEXTURE_PX = 0.3, 3.0
+#: a photo is judged from this many pairs at least
+MIN_PAIRS = 2
 #: a pair's row needs this many points that both see, neither dark nor clipped
 MIN_POINTS = 150
 #: a pair is measured on the pixels of photo ``k`` unless photo ``l``'s are coarser there by more than this
@@ -56,14 +58,11 @@ DEPTH_STEP = 0.02
 _STEPS = ((0, 1), (0, -1), (1, 0), (-1, 0))  # (dy, dx): along the rows, then the columns
 
 
-def photo_detail(views: Sequence[PhotoView], shared: np.ndarray | None = None, depth_tolerance: float = 0.02,
-                 seed: int = 0) -> np.ndarray:
-    """``(P, 2)`` each view's ``log d`` along its image's rows and along its columns (its fine detail at the
-    surface points it shares with its partners, each axis's mean held at 0), ``nan`` for a view no pair measures.
-    ``shared``: :func:`photo_overlaps` of the views."""
-    from scipy import sparse
-    from scipy.sparse.linalg import lsqr
-
+def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, depth_tolerance: float = 0.02,
+              seed: int = 0) -> np.ndarray:
+    """``(n, 5)``: a row ``(k, l, log d_l - log d_k along k's rows, the same along its columns, weight)`` for each
+    photo ``k`` and each of its :data:`NEIGHBOURS` most-overlapping partners ``l`` that it measures against (``d``:
+    a photo's fine detail at the surface points both see). ``shared``: :func:`photo_overlaps` of the views."""
     from scantex.photos.texturing import photo_overlaps
     from scantex.threads import side_by_side
 
@@ -116,12 +115,20 @@ def photo_detail(views: Sequence[PhotoView], shared: np.ndarray | None = None, d
         return out
 
     rows = [row for photo in side_by_side(rows_of, range(P)) for row in photo]
+    return np.array(rows, np.float64).reshape(-1, 5)
+
+
+def photo_detail(P: int, rows: np.ndarray) -> np.ndarray:
+    """``(P, 2)`` each photo's ``log d`` along its image's rows and along its columns, solved from all the
+    :func:`pair_rows` at once by least squares (each axis's mean over the measured photos held at 0); ``nan`` for a
+    photo no row measures."""
+    from scipy import sparse
+    from scipy.sparse.linalg import lsqr
+
     detail = np.full((P, 2), np.nan)
-    if not rows:
+    if not len(rows):
         return detail
-    k = np.array([row[0] for row in rows])
-    l = np.array([row[1] for row in rows])
-    w = np.array([row[4] for row in rows])
+    k, l, w = rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 4]
     measured = np.zeros(P, bool)
     measured[k] = measured[l] = True
     n, r = len(rows), np.arange(len(rows))
@@ -131,33 +138,28 @@ def photo_detail(views: Sequence[PhotoView], shared: np.ndarray | None = None, d
                                           (np.zeros(measured.sum(), int), np.flatnonzero(measured))), shape=(1, P)),
                        1e-6 * sparse.identity(P, format="csr")]).tocsr()
     for axis in range(2):
-        value = np.array([row[2 + axis] for row in rows])
-        solution = lsqr(A, np.r_[w * value, 0.0, np.zeros(P)], atol=1e-10, btol=1e-10)[0]
+        solution = lsqr(A, np.r_[w * rows[:, 2 + axis], 0.0, np.zeros(P)], atol=1e-10, btol=1e-10)[0]
         detail[measured, axis] = solution[measured]
     return detail
 
 
-def relative_detail(shared: np.ndarray, detail: np.ndarray) -> np.ndarray:
-    """``(P,)`` each photo's ``log d`` less the median of its :data:`NEIGHBOURS` partners' (``shared``: the views'
-    :func:`photo_overlaps`; ``nan`` where either is unmeasured)."""
-    out = np.full(len(detail), np.nan)
-    for k in range(len(detail)):
-        partners = [l for l in np.argsort(-shared[k], kind="stable")
-                    if l != k and shared[k, l] >= 1 and np.isfinite(detail[l])][:NEIGHBOURS]
-        if partners and np.isfinite(detail[k]):
-            out[k] = detail[k] - float(np.median(detail[partners]))
+def relative_detail(P: int, rows: np.ndarray) -> np.ndarray:
+    """``(P, 2)`` each photo's ``log d`` against its partners', along each axis: the median over the pairs it is in
+    (a pair whose few textured points mislead moves a median little), ``nan`` with fewer than
+    :data:`MIN_PAIRS`."""
+    out = np.full((P, 2), np.nan)
+    for p in range(P):
+        mine = np.r_[-rows[rows[:, 0] == p, 2:4].reshape(-1, 2), rows[rows[:, 1] == p, 2:4].reshape(-1, 2)]
+        if len(mine) >= MIN_PAIRS:
+            out[p] = np.median(mine, axis=0)
     return out
 
 
 def blurred_photos(views: Sequence[PhotoView]) -> list[dict]:
     """The views whose detail along their weaker axis is under :data:`BLURRED` of their partners': ``{"photo":
     index, "detail": the share of their partners' detail}`` each, the least detailed first."""
-    from scantex.photos.texturing import photo_overlaps
-
-    shared = photo_overlaps(views)
-    detail = photo_detail(views, shared)
     # a shaken photo is smeared along the hand's motion: its weaker axis says it
-    relative = np.fmin(relative_detail(shared, detail[:, 0]), relative_detail(shared, detail[:, 1]))
+    relative = relative_detail(len(views), pair_rows(views)).min(axis=1)
     found = [(float(relative[k]), int(view.index)) for k, view in enumerate(views)
              if np.isfinite(relative[k]) and relative[k] < BLURRED]
     return [{"photo": i, "detail": round(float(np.exp(r)), 2)} for r, i in sorted(found)]
