@@ -2,9 +2,10 @@
 
 A handheld capture has frames smeared by the hand's motion. Photo mode blends every photo that sees a point
 nearly alike (the held-out photos' own poses, a few pixels off, favour that), so three shaken photos of nine
-smear the whole texture sideways, where the input's best view per texel stays sharp: measured on the bolster's
-9-photo draws (``bench/bench_few_photos.py --motion-blur 21``), the held-out score is the same (mean +0.99 dB)
-and the texture visibly smeared (bench/RESULTS.md, "shaken photos").
+smear the whole texture sideways, visibly softer than the input's best view per texel, at the same held-out
+score (the bolster's 9-photo draws, ``bench/bench_few_photos.py --motion-blur 21``: +0.99 dB over the input
+either way; bench/RESULTS.md, "shaken photos"). Such photos are found here and left out
+(``photos.leave_out_blurred``): the texture is then as sharp as the sharp photos (+0.75 dB).
 
 One number a photo says how sharp it is, but a photo's own detail says more of what it shows (a printed
 cushion, a white wall) than of its focus. Two photos compared at the same surface points say it directly: at
@@ -13,17 +14,17 @@ an over-exposed photo has clipped away) and its four neighbours (unprojected wit
 image's second difference along the photo's rows, and along its columns, divided by the brightness there
 (exposure cancels), is measured in ``k`` and, carried through the mesh, in photo ``l``, whose pixels are read
 bilinearly at those five surface points. Half the log of their mean squares' ratio is ``log d_l - log d_k``
-(``d``: a photo's detail along that axis); the rows of every photo and its most overlapping partners are solved
-for every photo's ``log d`` at once by least squares, their mean held at 0. A photo is then judged against its
-partners: its ``log d`` less their median, along its weaker axis (a shaken photo is smeared along the hand's
-motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (30 % of its partners'
-detail) is called blurred.
+(``d``: a photo's detail along that axis), a row for each photo and each of its most overlapping partners
+(:func:`pair_rows`). A photo is judged by the median of its rows against its partners (:func:`relative_detail`:
+a pair whose few textured points mislead moves it little), along its weaker axis (a shaken photo is smeared
+along the hand's motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (30 %
+of its partners' detail) is called blurred. :func:`photo_detail` solves every photo's ``log d`` from all the
+rows at once, for a report.
 
-Reading ``l`` between its pixels softens it a little; where two photos resolve the surface alike, both ``(k, l)``
-and ``(l, k)`` are measured, their errors alike and opposite, and the solve cancels them. A photo further from
-the surface resolves less of it and would measure softer for it: a pair is measured on the coarser photo's pixels
-only (where ``l``'s footprint on the surface is larger than ``k``'s by more than :data:`COARSER`, only ``(l,
-k)``).
+Reading ``l`` between its pixels softens it a little, and ``k``'s own pixels are read as they are; a photo
+further from the surface resolves less of it and would measure softer for it: a pair is measured on the coarser
+photo's pixels only (where ``l``'s footprint on the surface is larger than ``k``'s by more than :data:`COARSER`,
+only as ``(l, k)``).
 """
 
 from __future__ import annotations
@@ -34,11 +35,11 @@ import numpy as np
 
 from scantex.photos.training import PhotoView
 
-#: a photo whose detail along its weaker axis is under exp(BLURRED) of its partners' median is called blurred:
-#: 0.30. Measured (bench/RESULTS.md "shaken photos"): sharp photos at -0.83 to +1.05 against their partners (the
-#: bolster's, the facade's, a real apartment's 197 Kinect frames and three 12-frame parts of it, the synthetic demo
-#: wall's 24 photos), -1.05 in a synthetic room's 110 of blank walls; photos smeared sideways by 7 working pixels
-#: at -1.44 and below
+#: a photo whose detail along its weaker axis is under exp(BLURRED) of its partners' is called blurred: 0.30.
+#: Measured (bench/RESULTS.md "shaken photos"): the sharp photos of real captures at -0.94 and above (the
+#: bolster's, the facade's, a real apartment's 197 Kinect frames and three 12-frame parts of it), the synthetic
+#: demo wall's at -0.46; photos smeared sideways by 7 working pixels at -1.43 and below; one pale photo of a
+#: blank wall in a synthetic room at -1.35
 BLURRED = -1.2
 #: each photo compared with the photos that see the most of the faces it sees, this many
 NEIGHBOURS = 8
