@@ -69,9 +69,9 @@ def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, dept
 
     P = len(views)
     shared = photo_overlaps(views) if shared is None else shared
-    greys = [_grey(view) for view in views]  # float16: a room's 219 views hold 135 MB of them, not 270
+    greys = list(side_by_side(_grey, views))  # float16: a room's 219 views hold 135 MB of them, not 270
     rng = np.random.default_rng(seed)
-    picks = [_pick(view, rng) for view in views]
+    picks = [_drawn(candidates, rng) for candidates in side_by_side(_candidates, views)]  # drawn in photo order
 
     def rows_of(k: int) -> list[tuple[int, int, float, float, float]]:
         """Photo ``k``'s rows ``(k, l, log d_l - log d_k along k's rows, the same along its columns, weight)``."""
@@ -182,8 +182,8 @@ def _grey(view: PhotoView) -> np.ndarray:
     return (view.image @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.float16)
 
 
-def _pick(view: PhotoView, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Up to :data:`POINTS` usable pixels of the view whose four neighbours are usable on the same surface."""
+def _candidates(view: PhotoView) -> tuple[np.ndarray, np.ndarray]:
+    """The view's usable pixels whose four neighbours are usable on the same surface."""
     ok = view.valid.copy()
     ok[[0, -1], :] = False
     ok[:, [0, -1]] = False
@@ -192,7 +192,12 @@ def _pick(view: PhotoView, rng: np.random.Generator) -> tuple[np.ndarray, np.nda
         near = np.roll(view.valid, (-dy, -dx), axis=(0, 1))
         step = np.abs(np.roll(depth, (-dy, -dx), axis=(0, 1)) - depth)
         ok &= near & (step < DEPTH_STEP * depth)
-    ys, xs = np.nonzero(ok)
+    return np.nonzero(ok)
+
+
+def _drawn(candidates: tuple[np.ndarray, np.ndarray], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Up to :data:`POINTS` of the ``(ys, xs)`` candidates, drawn at random."""
+    ys, xs = candidates
     if len(ys) > POINTS:
         keep = rng.choice(len(ys), POINTS, replace=False)
         ys, xs = ys[keep], xs[keep]
