@@ -18,8 +18,7 @@ bilinearly at those five surface points. Half the log of their mean squares' rat
 (:func:`pair_rows`). A photo is judged by the median of its rows against its partners (:func:`relative_detail`:
 a pair whose few textured points mislead moves it little), along its weaker axis (a shaken photo is smeared
 along the hand's motion, and a texture's detail may lie mostly across it), and one under :data:`BLURRED` (30 %
-of its partners' detail) is called blurred. :func:`photo_detail` solves every photo's ``log d`` from all the
-rows at once, for a report.
+of its partners' detail) is called blurred.
 
 Reading ``l`` between its pixels softens it a little, and ``k``'s own pixels are read as they are; a photo
 further from the surface resolves less of it and would measure softer for it: a pair is measured on the coarser
@@ -119,31 +118,6 @@ def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, dept
     return np.array(rows, np.float64).reshape(-1, 5)
 
 
-def photo_detail(P: int, rows: np.ndarray) -> np.ndarray:
-    """``(P, 2)`` each photo's ``log d`` along its image's rows and along its columns, solved from all the
-    :func:`pair_rows` at once by least squares (each axis's mean over the measured photos held at 0); ``nan`` for a
-    photo no row measures."""
-    from scipy import sparse
-    from scipy.sparse.linalg import lsqr
-
-    detail = np.full((P, 2), np.nan)
-    if not len(rows):
-        return detail
-    k, l, w = rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 4]
-    measured = np.zeros(P, bool)
-    measured[k] = measured[l] = True
-    n, r = len(rows), np.arange(len(rows))
-    # unknowns: log d per photo; rows: log d_l - log d_k = the pair's ratio; the measured photos' mean held at 0
-    A = sparse.vstack([sparse.csr_matrix((np.r_[w, -w], (np.r_[r, r], np.r_[l, k])), shape=(n, P)),
-                       sparse.csr_matrix((np.full(measured.sum(), 100.0 * w.sum() / P),
-                                          (np.zeros(measured.sum(), int), np.flatnonzero(measured))), shape=(1, P)),
-                       1e-6 * sparse.identity(P, format="csr")]).tocsr()
-    for axis in range(2):
-        solution = lsqr(A, np.r_[w * rows[:, 2 + axis], 0.0, np.zeros(P)], atol=1e-10, btol=1e-10)[0]
-        detail[measured, axis] = solution[measured]
-    return detail
-
-
 def relative_detail(P: int, rows: np.ndarray) -> np.ndarray:
     """``(P, 2)`` each photo's ``log d`` against its partners', along each axis: the median over the pairs it is in
     (a pair whose few textured points mislead moves a median little), ``nan`` with fewer than
@@ -169,7 +143,8 @@ def blurred_photos(views: Sequence[PhotoView]) -> list[dict]:
 def _textured(grey: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The pixels among ``(ys, xs)`` where the surface has texture: the grey's contrast over the Gaussian of
     :data:`TEXTURE_PX` about them in the top :data:`TEXTURED` share. A blank wall's finest detail is its photo's
-    noise, which an over-exposed photo has clipped away; blur smooths texture at that scale barely."""
+    noise, which an over-exposed photo has clipped away; a smear of a few pixels lowers that contrast far less than
+    the finest detail."""
     from scipy import ndimage
 
     contrast = ndimage.gaussian_gradient_magnitude(grey, TEXTURE_PX)[ys, xs]
