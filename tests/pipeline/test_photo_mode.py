@@ -393,10 +393,12 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
-           str(tmp_path / "config.json"), "--no-alignment-check", "--holdout", "2", "--refine-poses", "consensus",
-           "--final-texture", "all", "--detail", "sharp", "--photos", str(toy_photos.source), "-o", str(out)]
+           str(tmp_path / "config.json"), "--no-alignment-check", "--keep-blurred", "--holdout", "2",
+           "--refine-poses", "consensus", "--final-texture", "all", "--detail", "sharp",
+           "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
+    assert json.loads((out / "config.json").read_text())["photos"]["leave_out_blurred"] is False
     assert "2 held-out photos" in run.stdout and "made from all 10 photos" in run.stdout
     assert "held out from the result only" in run.stdout  # the input's texture may have seen them
     assert "each held-out photo's pose aligned to each texture" in run.stdout  # the poses were refined
