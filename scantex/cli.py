@@ -209,7 +209,7 @@ def cmd_enhance(args) -> int:
                                       photos__final=args.final_texture, photos__detail=args.detail,
                                       refine__enabled=refine, refine__over_input=refine,
                                       photos__check_alignment=False if args.no_alignment_check else None,
-                                      photos__leave_out_blurred=False if args.keep_blurred else None,
+                                      photos__blurred=args.blurred,
                                       refine__diffusion=True if args.diffusion else None,
                                       tiling__tiles=None if args.tiles is None else 0 if args.tiles == "auto"
                                       else args.tiles, tiling__max_faces=args.tile_faces,
@@ -504,9 +504,10 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     if blurred:
         named = ", ".join(f"{d['photo']} ({100 * d['detail']:.0f} %)" for d in blurred)
         if all(d.get("left_out") for d in blurred):
-            then = "left out, the texture made sharp from the other photos where they see the surface (--keep-blurred)"
+            then = "left out, the texture made sharp from the other photos where they see the surface (--blurred keep)"
         else:
-            then = "blended like the others (--keep-blurred, or every training photo blurred): they soften the texture"
+            then = ("blended like the others, they soften the texture a little (--blurred leave-out leaves them out; "
+                    "auto does when they are a quarter of the training photos or more)")
         lines.append(f"blurred photos: {named} of the fine detail of the photos that see the same surface (shaken, "
                      f"out of focus or washed out?): {then}")
     clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
@@ -788,10 +789,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame) and the check that each photo shows "
                         "what its camera sees (it leaves out a photo stored upside down or cropped)")
-    p.add_argument("--keep-blurred", action="store_true",
-                   help="with --photos: blend in the photos with under 30 %% of the fine detail of the photos "
-                        "that see the same surface (shaken or out of focus), which are left out by default: they "
-                        "soften the texture, at a held-out score no lower (untiled runs)")
+    p.add_argument("--blurred", choices=("auto", "leave-out", "keep"), default=None,
+                   help="with --photos: what becomes of the photos with under 30 %% of the fine detail of the photos "
+                        "that see the same surface (shaken or out of focus; named in the summary either way): "
+                        "leave-out (a sharper texture, the photos beside them painting what they saw), keep (blended "
+                        "in, they soften it), or auto (the default: left out when they are a quarter of the training "
+                        "photos or more; untiled runs)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "

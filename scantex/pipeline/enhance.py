@@ -318,7 +318,7 @@ class PhotoData:
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
     blurred: list = field(default_factory=list)
     """the photos with under 30 % of the fine detail (along one axis) of the photos that see the same surface
-    (:func:`scantex.photos.sharpness.blurred_photos`, with ``image`` and ``left_out``: ``photos.leave_out_blurred``)"""
+    (:func:`scantex.photos.sharpness.blurred_photos`, with ``image`` and ``left_out``: ``photos.blurred``)"""
 
 
 def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
@@ -363,7 +363,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     settings = visibility_settings(pc, len(photos))
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings,
                            lambda done, total: update(refined + done, refined + total))
-    views, train, held, blurred = judge_detail(photos, views, train, held, pc.leave_out_blurred)
+    views, train, held, blurred = judge_detail(photos, views, train, held, pc.blurred)
     train_views, held_views = views[:len(train)], views[len(train):]
     if mode == "consensus" and len(train) > 1:
         from scantex.photos.poses import consensus_poses
@@ -401,17 +401,21 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out, blurred)
 
 
-def judge_detail(photos: PhotoSet, views: list, train, held, leave_out: bool) -> tuple[list, list, list, list[dict]]:
+def judge_detail(photos: PhotoSet, views: list, train, held, mode: str) -> tuple[list, list, list, list[dict]]:
     """``(views, train, held, blurred)``: the photos (``views`` of ``train`` then ``held``) whose fine detail is
     under 30 % of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and left out
-    of the three lists when ``leave_out`` asks (a training photo is kept when it would leave none)."""
-    from scantex.photos.sharpness import blurred_photos
+    of the three lists as ``photos.blurred`` ``mode`` says (auto: when they are
+    :data:`scantex.photos.sharpness.LEAVE_OUT_SHARE` of the training photos or more; a training photo is kept when
+    it would leave none)."""
+    from scantex.photos.sharpness import LEAVE_OUT_SHARE, blurred_photos
 
     found = blurred_photos(views)
     if not found:
         return views, train, held, []
-    gone = {d["photo"] for d in found} if leave_out else set()
-    if gone >= {int(i) for i in train}:
+    named, training = {d["photo"] for d in found}, {int(i) for i in train}
+    many = len(named & training) >= LEAVE_OUT_SHARE * len(training)
+    gone = named if mode == "leave-out" or (mode == "auto" and many) else set()
+    if gone >= training:
         gone = set()
     for d in found:
         log.warning("%s: photo %d has %.0f %% of the fine detail of the photos that see the same surface (shaken, out "

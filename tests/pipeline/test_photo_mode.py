@@ -393,12 +393,12 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
-           str(tmp_path / "config.json"), "--no-alignment-check", "--keep-blurred", "--holdout", "2",
+           str(tmp_path / "config.json"), "--no-alignment-check", "--blurred", "keep", "--holdout", "2",
            "--refine-poses", "consensus", "--final-texture", "all", "--detail", "sharp",
            "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert json.loads((out / "config.json").read_text())["photos"]["leave_out_blurred"] is False
+    assert json.loads((out / "config.json").read_text())["photos"]["blurred"] == "keep"
     assert "2 held-out photos" in run.stdout and "made from all 10 photos" in run.stdout
     assert "held out from the result only" in run.stdout  # the input's texture may have seen them
     assert "each held-out photo's pose aligned to each texture" in run.stdout  # the poses were refined
@@ -546,27 +546,59 @@ def test_photo_mode_without_numba_makes_the_same_texture(toy_demo, toy_photos, p
         [c["applied"] for c in photo_result.metrics["photos"]["pose_corrections"]]
 
 
-def test_a_shaken_photo_is_named_and_left_out(tmp_path, toy_demo, toy_photos):
-    """Blended like the others it smears the texture: it is left out of the texture and the score, and named in
-    the summary; ``photos.leave_out_blurred`` false (``--keep-blurred``) blends it in, named all the same."""
+def test_a_shaken_photo_is_named_and_left_out_when_asked(tmp_path, toy_demo, toy_photos):
+    """One shaken photo of ten is named and blended in (auto: its partners would paint what it saw from further
+    off); ``photos.blurred`` leave-out leaves it out of the texture and the score."""
     from PIL import Image
     from scipy import ndimage
 
     from scantex.cli import enhance_summary
 
-    smeared = tmp_path / "smeared.png"
-    image = np.asarray(Image.open(toy_photos.images[3])).astype(np.float64)
-    Image.fromarray(np.round(ndimage.uniform_filter1d(image, 7, axis=1)).astype(np.uint8)).save(smeared)
-    photos = dataclasses.replace(toy_photos, images=(*toy_photos.images[:3], smeared, *toy_photos.images[4:]))
+    def smeared(k):
+        path = tmp_path / f"smeared_{k}.png"
+        image = np.asarray(Image.open(toy_photos.images[k])).astype(np.float64)
+        Image.fromarray(np.round(ndimage.uniform_filter1d(image, 7, axis=1)).astype(np.uint8)).save(path)
+        return path
+
+    one = dataclasses.replace(toy_photos, images=(*toy_photos.images[:3], smeared(3), *toy_photos.images[4:]))
     config = TOY.override(photos__check_alignment=False)  # as photo_result: the toy misleads the check
-    m = enhance(toy_demo.scan, config, photos=photos).metrics
-    assert [d["photo"] for d in m["photos"]["blurred"]] == [3] and m["photos"]["blurred"][0]["left_out"]
-    assert 3 not in m["photos"]["train"] + m["photos"]["held_out"]
-    assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
-    assert "blurred photos: 3 (" in enhance_summary(m) and "left out, the texture made sharp" in enhance_summary(m)
-    m = enhance(toy_demo.scan, config.override(photos__leave_out_blurred=False), photos=photos).metrics
+    m = enhance(toy_demo.scan, config, photos=one).metrics
     assert [d["photo"] for d in m["photos"]["blurred"]] == [3] and not m["photos"]["blurred"][0]["left_out"]
     assert 3 in m["photos"]["train"] + m["photos"]["held_out"]
-    assert "blended like the others" in enhance_summary(m)
+    assert "blurred photos: 3 (" in enhance_summary(m) and "--blurred leave-out leaves them out" in enhance_summary(m)
+    m = enhance(toy_demo.scan, config.override(photos__blurred="leave-out"), photos=one).metrics
+    assert m["photos"]["blurred"][0]["left_out"] and 3 not in m["photos"]["train"] + m["photos"]["held_out"]
+    assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
+    assert "left out, the texture made sharp" in enhance_summary(m)
     # the sharp photos alone: none named
     assert enhance(toy_demo.scan, config, photos=toy_photos).metrics["photos"]["blurred"] == []
+
+
+def test_blurred_photos_are_left_out_when_they_are_a_quarter_of_the_training_photos(monkeypatch):
+    """auto: one of nine blended in (its partners would paint what it saw from further off), three of nine left out
+    (they would smear the texture); leave-out and keep whatever their share; a training photo kept when none would
+    be left."""
+    import scantex.photos.sharpness as sharpness
+    from scantex.pipeline.enhance import judge_detail
+
+    photos = PhotoSet(cameras=(None,) * 10, images=tuple(f"p{i}.png" for i in range(10)), source=".", format="test")
+    train, held = np.array([0, 1, 2, 3, 4, 6, 7, 8, 9]), np.array([5])
+    views = [_FakeView(int(i)) for i in (*train, *held)]  # the training photos' views, then the held-out ones'
+
+    def judged(named, mode):
+        monkeypatch.setattr(sharpness, "blurred_photos", lambda v: [{"photo": i, "detail": 0.2} for i in named])
+        kept, t, h, found = judge_detail(photos, views, train, held, mode)
+        assert [v.index for v in kept] == [*t, *h]
+        return sorted(set(range(10)) - {v.index for v in kept}), [d["left_out"] for d in found]
+
+    assert judged([3], "auto") == ([], [False])
+    assert judged([3, 5], "auto") == ([], [False, False])  # one training photo of nine
+    assert judged([1, 3, 7], "auto") == ([1, 3, 7], [True] * 3)
+    assert judged([3], "leave-out") == ([3], [True])
+    assert judged([1, 3, 7], "keep") == ([], [False] * 3)
+    assert judged(list(range(10)), "leave-out") == ([], [False] * 10)  # none would be left to train on
+
+
+@dataclasses.dataclass
+class _FakeView:
+    index: int = 0
