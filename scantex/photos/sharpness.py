@@ -69,7 +69,7 @@ def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, dept
     """``(n, 5)``: a row ``(k, l, log d_l - log d_k along k's rows, the same along its columns, weight)`` for each
     photo ``k`` and each of its :data:`NEIGHBOURS` most-overlapping partners ``l`` that it measures against (``d``:
     a photo's fine detail at the surface points both see). ``shared``: :func:`photo_overlaps` of the views."""
-    from scantex.photos.texturing import photo_overlaps
+    from scantex.photos.texturing import _seen_in, photo_overlaps, view_points
     from scantex.threads import side_by_side
 
     P = len(views)
@@ -85,8 +85,8 @@ def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, dept
             return []
         grey = greys[k].astype(np.float32)
         ys, xs = _textured(grey, ys, xs)
-        centre = _unprojected(view, xs, ys)
-        around = [_unprojected(view, xs + dx, ys + dy) for dy, dx in _STEPS]
+        centre = view_points(view, xs, ys)
+        around = [view_points(view, xs + dx, ys + dy) for dy, dx in _STEPS]
         own = grey[ys, xs]
         # second differences along the rows (the first two steps) and along the columns (the last two)
         own_second = [grey[ys + dy, xs + dx] + grey[ys - dy, xs - dx] - 2 * own for dy, dx in _STEPS[::2]]
@@ -94,18 +94,19 @@ def pair_rows(views: Sequence[PhotoView], shared: np.ndarray | None = None, dept
         out = []
         for l in sorted(partners[:NEIGHBOURS]):
             u = views[l]
-            seen, _, _ = _seen_in_view(u, centre, depth_tolerance)
+            pix, z = u.camera.project(centre)
+            seen, _, _ = _seen_in(u.valid, u.depth, pix, z, depth_tolerance)
             if len(seen) < MIN_POINTS:
                 continue
             # measured on the coarser photo's pixels: a photo further from the surface is not called soft for it
             # (the pair's other direction measures it where this photo is the coarser)
-            z = u.camera.project(centre[seen])[1]
-            coarser = np.median(z / u.camera.K[0, 0]) / np.median(view.depth[ys[seen], xs[seen]] / view.camera.K[0, 0])
+            coarser = np.median(z[seen] / u.camera.K[0, 0]) / np.median(view.depth[ys[seen], xs[seen]]
+                                                                        / view.camera.K[0, 0])
             if coarser > COARSER:
                 continue
             other_grey = greys[l].astype(np.float32)
-            theirs = _bilinear_grey(other_grey, u, centre[seen])
-            read = [_bilinear_grey(other_grey, u, points[seen]) for points in around]
+            theirs = _bilinear(other_grey, pix[seen])
+            read = [_bilinear(other_grey, u.camera.project(points[seen])[0]) for points in around]
             second = [read[0] + read[1] - 2 * theirs, read[2] + read[3] - 2 * theirs]
             a, b = own[seen], theirs
             good = (a > 0.03) & (a < 0.97) & (b > 0.03) & (b < 0.97)
@@ -185,22 +186,8 @@ def _drawn(candidates: tuple[np.ndarray, np.ndarray], rng: np.random.Generator) 
     return ys, xs
 
 
-def _unprojected(view: PhotoView, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-    """``(n, 3)`` world points of the view's pixels ``(xs, ys)`` at their G-buffer depth."""
-    K = view.camera.K
-    rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
-    return (rays * view.depth[ys, xs, None] - view.camera.t) @ view.camera.R
-
-
-def _seen_in_view(view: PhotoView, points: np.ndarray, depth_tolerance: float):
-    from scantex.photos.texturing import _seen_in
-
-    return _seen_in(view.valid, view.depth, *view.camera.project(points), depth_tolerance)
-
-
-def _bilinear_grey(grey: np.ndarray, view: PhotoView, points: np.ndarray) -> np.ndarray:
-    """The grey image read bilinearly at the world points' pixels (clamped to the image)."""
+def _bilinear(grey: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """The grey image read bilinearly at pixels ``pix (n, 2)`` (clamped to the image)."""
     from scipy.ndimage import map_coordinates
 
-    pix, _ = view.camera.project(points)
     return map_coordinates(grey, [pix[:, 1], pix[:, 0]], order=1, mode="nearest")

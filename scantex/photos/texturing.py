@@ -995,9 +995,7 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
         v, (ys, xs) = views[k], picked[k]
         if len(ys) < min_pixels:
             return []
-        K = v.camera.K
-        rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
-        points = (rays * v.depth[ys, xs, None] - v.camera.t) @ v.camera.R  # camera -> world
+        points = view_points(v, xs, ys)
         own = blurred[k][ys, xs]
         partners = [l for l in np.argsort(-shared[k], kind="stable") if l != k and shared[k, l] >= 1]
         out = []
@@ -1013,6 +1011,13 @@ def _photo_pairs(views: Sequence[PhotoView], blurred: Sequence[np.ndarray], min_
 
     # the photos side by side (numpy releases the interpreter lock)
     return [pair for photo in side_by_side(pairs_of, range(P)) for pair in photo]
+
+
+def view_points(view: PhotoView, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` world points of the view's pixels ``(xs, ys)``, unprojected at their G-buffer depth."""
+    K = view.camera.K
+    rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones(len(xs))], axis=1)
+    return (rays * view.depth[ys, xs, None] - view.camera.t) @ view.camera.R  # camera -> world
 
 
 def photo_overlaps(views: Sequence[PhotoView]) -> np.ndarray:
