@@ -504,10 +504,15 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     if blurred:
         named = ", ".join(f"{d['photo']} ({100 * d['detail']:.0f} %)" for d in blurred)
         if all(d.get("left_out") for d in blurred):
-            then = "left out, the texture made sharp from the other photos where they see the surface (--blurred keep)"
+            then = ("left out, the texture made sharp from the other photos where they see the surface (--blurred "
+                    "keep blends them in; soften keeps their colour)")
+        elif any(d.get("softened") for d in blurred):
+            then = ("their colour blended with the others', their fine detail left to the sharp photos (--blurred "
+                    "keep blends them in whole: a softer texture)")
         else:
-            then = ("blended like the others, they soften the texture a little (--blurred leave-out leaves them out; "
-                    "auto does when they are a quarter of the training photos or more)")
+            then = ("blended like the others, they soften the texture a little (--blurred leave-out leaves them out, "
+                    "soften leaves their detail to the sharp photos; auto leaves them out when they are a quarter of "
+                    "the training photos or more)")
         lines.append(f"blurred photos: {named} of the fine detail of the photos that see the same surface (shaken, "
                      f"out of focus or washed out?): {then}")
     clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
@@ -789,12 +794,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --photos: skip the check that the mesh sits where the photos see it (it refuses "
                         "a mesh moved or turned out of the cameras' frame) and the check that each photo shows "
                         "what its camera sees (it leaves out a photo stored upside down or cropped)")
-    p.add_argument("--blurred", choices=("auto", "leave-out", "keep"), default=None,
+    p.add_argument("--blurred", choices=("auto", "leave-out", "keep", "soften"), default=None,
                    help="with --photos: what becomes of the photos with under 30 %% of the fine detail of the photos "
                         "that see the same surface (shaken or out of focus; named in the summary either way): "
                         "leave-out (a sharper texture, the photos beside them painting what they saw), keep (blended "
-                        "in, they soften it), or auto (the default: left out when they are a quarter of the training "
-                        "photos or more; untiled runs)")
+                        "in, they soften it), soften (their colour blended with the others', their fine detail left "
+                        "to the sharp photos where any sees the surface: sharper than keep), or auto (the default: "
+                        "left out when they are a quarter of the training photos or more; untiled runs)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "

@@ -27,10 +27,10 @@ DETAIL_ROUNDS = 3
 
 
 def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsics_t, to_view, centre, focal,
-           log_sharpness, photo_group, pixel_start, widths, heights, pixels, coarse, view_start, view_widths,
-           view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature, detail_temperature,
-           detail_gain, detail_consistency, clip_level, overshoot, consistency, rounds, without, censors, canonical,
-           out, total, alpha, tally):
+           log_sharpness, fine_weight, photo_group, pixel_start, widths, heights, pixels, coarse, view_start,
+           view_widths, view_heights, depth, feather, inverse, offset, gain, depth_tolerance, temperature,
+           detail_temperature, detail_gain, detail_consistency, clip_level, overshoot, consistency, rounds, without,
+           censors, canonical, out, total, alpha, tally):
     """The kernel (compiled by :func:`_kernel`): :func:`blend`'s arguments unpacked, its outputs filled in."""
     n, P = len(local), len(rotation_t)
     bands = len(coarse) > 0
@@ -43,6 +43,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
     raws = np.empty((2, P, 3), np.float64)
     clips = np.empty((2, P), np.bool_)
     group = np.empty(P, np.int64)
+    fine_of = np.empty(P, np.float64)  # each sample's photo's factor on its weight in the fine band's blend
     for i in range(n):
         f = face_ids[i]
         m = 0  # samples of point i
@@ -87,6 +88,7 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             corner = pixel_start[p] + y0 * W + x0
             g = photo_group[p]
             group[m] = g
+            fine_of[m] = fine_weight[p]
             for band in range(2 if bands else 1):  # indexed in full: a view a sample costs the loop time
                 if band == 0:
                     a, b, c, d = pixels[corner], pixels[corner + 1], pixels[corner + W], pixels[corner + W + 1]
@@ -151,7 +153,10 @@ def _blend(local, unit, face_ids, seen_faces, rotation_t, translation, intrinsic
             t = temperature if blend_pass == 0 else detail_temperature
             any_clipped = False
             for j in range(m):
-                weight[j] = base[j] if blend_pass == 0 else reach_of[j] * np.exp((quality[j] - best) / t)
+                if blend_pass == 0:
+                    weight[j] = base[j]
+                else:
+                    weight[j] = reach_of[j] * np.exp((quality[j] - best) / t) * fine_of[j]
                 any_clipped = any_clipped or clipped[j]
                 if blend_pass > 0 and detail_consistency > 0:
                     # the fine band from photos whose coarse band agrees with what most photos' say (see below)
@@ -259,6 +264,7 @@ class PhotoTables:
     centre: np.ndarray  # (P, 3) float64: the camera's centre, about the origin
     focal: np.ndarray  # (P,) float64: the sampling camera's focal length in pixels
     log_sharpness: np.ndarray  # (P,) float64
+    fine_weight: np.ndarray  # (P,) float64: the photo's factor on its weight in the fine band's blend (two bands)
     group: np.ndarray  # (P,) int64: the photo's colour transform
     pixel_start: np.ndarray  # (P,) int64: where its image starts in ``pixels``
     widths: np.ndarray  # (P,) int64: sampling resolution
@@ -298,9 +304,9 @@ def blend(tables: PhotoTables, local: np.ndarray, unit: np.ndarray, face_ids: np
     t = tables
     _kernel()(np.ascontiguousarray(local, np.float64), np.ascontiguousarray(unit, np.float64),
               np.ascontiguousarray(face_ids, np.int64), t.seen_faces, t.rotation_t, t.translation, t.intrinsics_t,
-              t.to_view, t.centre, t.focal, t.log_sharpness, t.group, t.pixel_start, t.widths, t.heights, t.pixels,
-              t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather, t.inverse, t.offset,
-              t.gain, float(depth_tolerance), float(temperature),
+              t.to_view, t.centre, t.focal, t.log_sharpness, t.fine_weight, t.group, t.pixel_start, t.widths,
+              t.heights, t.pixels, t.coarse, t.view_start, t.view_widths, t.view_heights, t.depth, t.feather,
+              t.inverse, t.offset, t.gain, float(depth_tolerance), float(temperature),
               float(detail_temperature or 1.0), float(detail_gain),  # read with two bands only
               float(detail_consistency), float(clip_level), float(overshoot), float(consistency), int(rounds),
               -1 if without is None else int(without), bool(censors),

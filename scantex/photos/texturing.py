@@ -124,6 +124,18 @@ class ProjectiveSettings:
     """two bands: a photo's weight in the fine band's blend is multiplied by ``exp(-(d / detail_consistency)^2)``,
     ``d`` the RGB distance of its coarse band from what most photos' coarse bands say there (0: not), so the detail
     does not come from a photo that saw an occluder or a highlight there"""
+    soft_photos: tuple[int, ...] = ()
+    """photos (indices into the photo set) whose fine band gives way to the other photos' (shaken or out of focus,
+    :mod:`scantex.photos.sharpness`): their weight in the fine band's blend is multiplied by :data:`SOFT_FINE_WEIGHT`,
+    so they give a point its colour and coverage with the others and its detail only where no sharp photo sees it.
+    With one band (``detail_temperature`` 0) they make two at the blend's own temperature: the same blend but for
+    their fine band"""
+
+
+#: a soft photo's factor on its weight in the fine band's blend (``ProjectiveSettings.soft_photos``): small enough
+#: that any sharp photo seeing the point gives its detail, not 0, so that where only soft photos see it their fine
+#: band still blends as before (normalised away) and the weights stay continuous at a sharp photo's feathered edge
+SOFT_FINE_WEIGHT = 1e-3
 
 
 #: a connected part of the mesh holding less than this share of its faces is a loose fragment (see
@@ -153,6 +165,7 @@ class _Source:
     translation: np.ndarray
     intrinsics_t: np.ndarray
     to_view_t: np.ndarray
+    fine_weight: float = 1.0  # the factor on its weight in the fine band's blend (``SOFT_FINE_WEIGHT``: a soft photo)
 
 
 def photo_sharpness(image: np.ndarray) -> float:
@@ -261,6 +274,11 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
 
     # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
     # blend reads them so, the numpy path photo by photo)
+    soft = set(settings.soft_photos) & {view.index for view in views}
+    if soft and settings.detail_temperature <= 0:
+        # one band with soft photos: two at the blend's own temperature (the blend's colours but for their detail)
+        settings = dataclasses.replace(settings, detail_temperature=settings.temperature, detail_gain=1.0,
+                                       detail_consistency=0.0)
     bands = settings.detail_temperature > 0
     cameras = within_memory([sampling_camera(view) for view in views], 8 if bands else 4, settings.memory_mb)
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
@@ -288,6 +306,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
         np.copyto(depth, view.depth)
         np.negative(depth, out=depth, where=~view.valid)
         sharpness = float(np.log(photo_sharpness(view.image) + 1e-8))
+        fine_weight = SOFT_FINE_WEIGHT if view.index in soft else 1.0
         if not np.allclose(cam.world_to_camera, view.camera.world_to_camera):
             raise ValueError(f"photo {view.index}: its working view was made at another pose")
         to_view = view.camera.K @ np.linalg.inv(cam.K)
@@ -303,7 +322,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             heap.trim()
         return _Source(cam, packed, to_view, centre, depth, feather, sharpness, int(groups[k]), seen,
                        np.ascontiguousarray(cam.R.T, np.float32), (cam.R @ origin + cam.t).astype(np.float32),
-                       np.ascontiguousarray(cam.K.T, np.float32), np.ascontiguousarray(to_view[:2, :2].T))
+                       np.ascontiguousarray(cam.K.T, np.float32), np.ascontiguousarray(to_view[:2, :2].T),
+                       fine_weight)
 
     # the photos read and prepared side by side (decoding and numpy release the interpreter lock)
     with ThreadPoolExecutor(max(1, min(_WORKERS, len(views)))) as pool:
@@ -314,6 +334,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
     report = {"photos": len(sources), "sampled_at": [[s.camera.width, s.camera.height] for s in sources],
               "temperature": settings.temperature,
               **detail_report(settings),
+              **({"soft_photos": sorted(soft)} if soft else {}),
               "photo_memory_mb": round((pixels.nbytes + (coarse.nbytes if bands else 0)) / 2**20, 1),
               # filled in as the bake samples (the dict is shared by the report's copies)
               "clipped": {"samples": 0, "clipped": 0, "gave_way": 0}}
@@ -391,11 +412,12 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             return [x for x in map(job, asked) if x is not None]
 
         def numpy_blend(among: list[_Source], temperature: float, tally_it: bool,
-                        gates: list[np.ndarray] | None = None
+                        gates: list[np.ndarray] | None = None, fine_band: bool = False
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[_Samples]]:
             """The blend of the photos ``among`` at ``temperature`` in numpy, photo by photo: ``(colour (n, 3),
             total weight (n,), largest feather (n,), the samples)``; ``tally_it``: count its samples in the report;
-            ``gates``: a factor on each photo's weights (for the photos that see some point, in order)."""
+            ``gates``: a factor on each photo's weights (for the photos that see some point, in order);
+            ``fine_band``: the fine band's blend (each photo's weights times its ``fine_weight``)."""
             # first pass: each photo's samples of the points it sees, their quality and feather weight, the
             # photos side by side on the cores (numpy releases the interpreter lock in the array work)
             unit = normals.astype(np.float32)
@@ -428,7 +450,7 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                     rgb = canonicalise(rgb, np.full(len(idx), s.group))
                     if clipped.any():
                         _level_clipped_channels(rgb, recorded_rgb, clipped, settings.clip_level)
-                return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group)
+                return _Samples(idx, quality, s.feather[yi, xi], rgb, clipped, s.group, s.fine_weight)
 
             seen_by: list[_Samples] = each_photo(sample, among)
             best = np.full(n, -np.inf, np.float32)
@@ -439,7 +461,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             weights = []
             for k, x in enumerate(seen_by):
                 weights.append(np.exp((x.quality - best[x.idx]) / temperature) * x.feather
-                               * (gates[k] if gates is not None else np.float32(1)))
+                               * (gates[k] if gates is not None else np.float32(1))
+                               * np.float32(x.fine if fine_band else 1))
                 alpha[x.idx] = np.maximum(alpha[x.idx], x.feather)
             gave_way = 0
             if settings.overshoot > 0 and to_recorded is not None and any(x.clipped.any() for x in seen_by):
@@ -468,7 +491,8 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
                 td, gates = settings.detail_temperature, None
                 if settings.detail_consistency > 0:  # from photos whose coarse band agrees with most photos'
                     gates = _detail_gates(n, coarse_seen, out, settings.temperature, settings.detail_consistency)
-                fine = numpy_blend(sources, td, False, gates)[0] - numpy_blend(coarse_sources, td, False, gates)[0]
+                fine = (numpy_blend(sources, td, False, gates, fine_band=True)[0]
+                        - numpy_blend(coarse_sources, td, False, gates, fine_band=True)[0])
                 out = out + np.float32(settings.detail_gain) * fine
         # the loose fragments' points no usable pixel coloured: the photos seen through them
         loose = np.flatnonzero(through[face_ids] & (total <= 0)) if through is not None else np.zeros(0, np.intp)
@@ -656,6 +680,8 @@ class _Samples(NamedTuple):
     """``(m,)`` bool: a channel at the photo's white point"""
     group: int
     """the photo's appearance group"""
+    fine: float = 1.0
+    """the factor on its weights in the fine band's blend (:attr:`_Source.fine_weight`)"""
 
 
 def _censored_mean(n: int, seen_by: list[_Samples], weights: list[np.ndarray],
@@ -779,7 +805,8 @@ def _tables(sources: list[_Source], origin: np.ndarray, transforms: np.ndarray |
         to_view=stacked([s.to_view[:2] for s in sources]),
         centre=stacked([s.centre - origin for s in sources]),
         focal=np.array([s.camera.K[0, 0] for s in sources], np.float64),
-        log_sharpness=np.array([s.log_sharpness for s in sources], np.float64), group=groups,
+        log_sharpness=np.array([s.log_sharpness for s in sources], np.float64),
+        fine_weight=np.array([s.fine_weight for s in sources], np.float64), group=groups,
         pixel_start=pixel_start, widths=np.array([s.camera.width for s in sources], np.int64),
         heights=np.array([s.camera.height for s in sources], np.int64), pixels=pixels,
         coarse=coarse if coarse is not None else np.empty(0, np.uint32),

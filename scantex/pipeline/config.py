@@ -172,12 +172,15 @@ class PhotosConfig:
     blurred: str = "auto"
     """photos with under 30 % of the fine detail of the photos that see the same surface, along one axis at least
     (shaken or out of focus: scantex.photos.sharpness; named in the summary whatever this says): leave-out (left out
-    of the texture and the score), keep (blended like the others), or auto (left out when they are a quarter of the
-    training photos or more). Three smeared photos of nine, blended in, smeared the bolster's texture visibly at the
-    same held-out score (+0.99 dB over the input), left out it was sharp (+0.75); one of nine, blended in, softened
-    a real capture's texture slightly, and left out, the photos beside it painted what it saw from further off
-    (+0.85 kept, +0.41 left out; bench/RESULTS.md "shaken photos"). No sharp photo of the captures measured was
-    called blurred. Not in tiled runs"""
+    of the texture and the score), keep (blended like the others), soften (their colour and coverage blended with
+    the others', their fine detail left to the sharp photos where any sees the surface), or auto (left out when they
+    are a quarter of the training photos or more, else kept). Three smeared photos of nine, blended in, smeared the
+    bolster's texture visibly at the same held-out score (+0.99 dB over the input), left out it was sharp (+0.75;
+    softened, as sharp, +0.76); one of nine, blended in, softened a real capture's texture slightly, and left out,
+    the photos beside it painted what it saw from further off (+0.85 kept, +0.42 left out, +0.65 softened: sharper
+    than kept); three of nine smeared further (15 working pixels) there, +0.47 kept, +0.37 left out, +0.24 softened
+    (bench/RESULTS.md "shaken photos"). No sharp photo of the captures measured was called blurred. Not in tiled
+    runs"""
     refine_poses: str = "auto"
     """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), consensus (against the texture the other training photos make together, repeated refine_iterations times), or auto (for fewer than 50 photos: input for a textured scan, consensus for an untextured one; off otherwise). A correction under half a working pixel is not applied. Refined textures are as sharp as the photos where blending through poses a few pixels off doubles and blurs every edge; through held-out photos whose own recorded poses are as far off they score about the same on average (bench/RESULTS.md, "real photos")"""
     refine_iterations: int = 1
@@ -407,7 +410,7 @@ RANGES: dict[str, tuple] = {
     "photos.depth_gap_px": (0, 1024),
     "photos.canonical": ("input", "photos"),
     "photos.texturing": ("projective", "field"), "photos.detail": ("auto", "blend", "balanced", "sharp"),
-    "photos.blurred": ("auto", "leave-out", "keep"),
+    "photos.blurred": ("auto", "leave-out", "keep", "soften"),
     "photos.refine_poses": ("auto", "off", "input", "consensus"),
     "photos.refine_iterations": (1, 10), "photos.final": ("all", "training", "auto"), "photos.consistency": (0.0, 10.0),
     "photos.pair_weight": (0.0, 1e6), "photos.pairs": ("auto", "on", "off"), "photos.clip_overshoot": (0.0, 10.0), "photos.sample_memory_mb": (0.0, 1e9),

@@ -318,7 +318,8 @@ class PhotoData:
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
     blurred: list = field(default_factory=list)
     """the photos with under 30 % of the fine detail (along one axis) of the photos that see the same surface
-    (:func:`scantex.photos.sharpness.blurred_photos`, with ``image`` and ``left_out``: ``photos.blurred``)"""
+    (:func:`scantex.photos.sharpness.blurred_photos`, with ``image``, ``left_out`` and ``softened``:
+    ``photos.blurred``)"""
 
 
 def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
@@ -403,30 +404,39 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
 
 def judge_detail(photos: PhotoSet, views: list, train, held, mode: str) -> tuple[list, list, list, list[dict]]:
     """``(views, train, held, blurred)``: the photos (``views`` of ``train`` then ``held``) whose fine detail is
-    under 30 % of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and left out
-    of the three lists as ``photos.blurred`` ``mode`` says (auto: when they are
-    :data:`scantex.photos.sharpness.LEAVE_OUT_SHARE` of the training photos or more; a training photo is kept when
-    it would leave none)."""
+    under 30 % of their partners' (:func:`scantex.photos.sharpness.blurred_photos`) named in a warning, and treated
+    as ``photos.blurred`` ``mode`` says: left out of the three lists (leave-out; all kept when they would leave no
+    training photo), softened (soften: ``softened`` in their ``blurred`` entry, for :func:`soft_photos`),
+    blended in whole (keep), or auto: left out when they are :data:`scantex.photos.sharpness.LEAVE_OUT_SHARE` of the
+    training photos or more, else blended in whole."""
     from scantex.photos.sharpness import LEAVE_OUT_SHARE, blurred_photos
 
     found = blurred_photos(views)
     if not found:
         return views, train, held, []
     named, training = {d["photo"] for d in found}, {int(i) for i in train}
-    many = len(named & training) >= LEAVE_OUT_SHARE * len(training)
-    gone = named if mode == "leave-out" or (mode == "auto" and many) else set()
+    if mode == "auto":
+        mode = "leave-out" if len(named & training) >= LEAVE_OUT_SHARE * len(training) else "keep"
+    gone = named if mode == "leave-out" else set()
     if gone >= training:
-        gone = set()
+        gone, mode = set(), "keep"
+    then = {"leave-out": ": left out", "soften": ": its detail left to the sharp photos", "keep": ""}[mode]
     for d in found:
         log.warning("%s: photo %d has %.0f %% of the fine detail of the photos that see the same surface (shaken, out "
-                    "of focus or washed out?)%s", photos.images[d["photo"]], d["photo"], 100 * d["detail"],
-                    ": left out" if d["photo"] in gone else "")
-    blurred = [{**d, "image": str(photos.images[d["photo"]]), "left_out": d["photo"] in gone} for d in found]
+                    "of focus or washed out?)%s", photos.images[d["photo"]], d["photo"], 100 * d["detail"], then)
+    blurred = [{**d, "image": str(photos.images[d["photo"]]), "left_out": d["photo"] in gone,
+                "softened": mode == "soften"} for d in found]
     if gone:
         views = [v for v in views if v.index not in gone]
         train = np.array([i for i in train if int(i) not in gone], dtype=np.asarray(train).dtype)
         held = np.array([i for i in held if int(i) not in gone], dtype=np.asarray(held).dtype)
     return views, train, held, blurred
+
+
+def soft_photos(blurred: list[dict]) -> tuple[int, ...]:
+    """The shaken photos softened (``PhotoData.blurred``, ``photos.blurred`` soften): their fine band gives way to
+    the sharp photos' (``ProjectiveSettings.soft_photos``)."""
+    return tuple(d["photo"] for d in blurred if d.get("softened"))
 
 
 def judged(photos: PhotoSet, views) -> PhotoSet:
@@ -574,7 +584,8 @@ def photo_texture(scan: Scan, photo: PhotoData, fitted, fallback, pc: PhotosConf
         canonicalise = None
     settings = ProjectiveSettings(temperature=pc.temperature, texel_px_per_cm=texel_px_per_cm,
                                   consistency=pc.consistency, overshoot=pc.clip_overshoot,
-                                  memory_mb=pc.sample_memory_mb, **detail_settings(pc.detail, len(photo.photos)))
+                                  memory_mb=pc.sample_memory_mb, soft_photos=soft_photos(photo.blurred),
+                                  **detail_settings(pc.detail, len(photo.photos)))
     corner_offsets: list[np.ndarray] = []  # the fallback's levelling offsets at each face's corners, once known
 
     def levelled(points, normals, face_ids, bary):

@@ -63,9 +63,11 @@ def assert_alike(got: np.ndarray, want: np.ndarray) -> None:
 @pytest.mark.parametrize("settings", [ProjectiveSettings(), ProjectiveSettings(consistency=0.1),
                                       ProjectiveSettings(overshoot=0), ProjectiveSettings(temperature=0.15),
                                       ProjectiveSettings(detail_temperature=0.1),
-                                      ProjectiveSettings(detail_temperature=0.1, detail_gain=0.5)],
+                                      ProjectiveSettings(detail_temperature=0.1, detail_gain=0.5),
+                                      ProjectiveSettings(soft_photos=(1,)),
+                                      ProjectiveSettings(detail_temperature=0.1, soft_photos=(0, 2))],
                          ids=["default", "photo-consistency", "no-censoring", "best-view", "sharp-detail",
-                              "balanced-detail"])
+                              "balanced-detail", "a-soft-photo", "soft-photos-sharp-detail"])
 def test_the_compiled_blend_is_the_numpy_blend(capture, monkeypatch, settings):
     scan, photos, views, transforms, (points, normals, f, b) = capture
     fast, slow, fast_report, slow_report = both(

@@ -204,6 +204,37 @@ def test_sharp_detail_comes_from_the_best_view_and_colour_from_every_photo(tmp_p
     assert (blend[seen].mean(axis=0) < truth[seen].mean(axis=0) - 0.02).all()
 
 
+def test_a_shaken_photos_detail_gives_way_to_a_sharp_photos_and_its_colour_stays(tmp_path):
+    """The close photo, the best view, shaken across the stripes (smeared sideways by 15 px) and darker: blended in
+    whole it washes the stripes out; as a soft photo (``soft_photos``) its fine band gives way to the far photo's,
+    which draws them, while its colour still counts (the blend's mean as before, darker than the truth). Where the
+    soft photo alone sees the wall, its colours are the blend's: its fine band weighs nothing against no other."""
+    scan, photos, caster, views, (points, normals, f, b), truth, seen = close_and_far(tmp_path)
+    image = np.asarray(Image.open(photos.images[0])).astype(np.float32)
+    smeared = sum(np.roll(image, shift, axis=1) for shift in range(-7, 8)) / 15 * 0.8
+    Image.fromarray(smeared.astype(np.uint8)).save(tmp_path / "shaken.png")
+    photos = dataclasses.replace(photos, images=(tmp_path / "shaken.png", photos.images[1]))
+    views = prepare_photos(scan, photos, range(2), caster, 160, VisibilitySettings(supersample=2))
+
+    def colours(soft, coverage=False):
+        colour, report = projective_colour(photos, views, [0, 1], None, grey, ProjectiveSettings(soft_photos=soft))
+        assert report.get("soft_photos", []) == list(soft)
+        return colour(points, normals, f, b, coverage=coverage)
+
+    def matched_error(got):  # after a gain and offset per channel: the stripes' error, not the exposure's
+        fit = [np.polyval(np.polyfit(truth[seen, c], got[seen, c], 1), truth[seen, c]) for c in range(3)]
+        return np.abs(np.stack(fit, axis=1) - got[seen]).mean()
+
+    blend, soft = colours(()), colours((0,))
+    assert matched_error(soft) < 0.5 * matched_error(blend), (matched_error(soft), matched_error(blend))
+    assert np.abs(soft[seen].mean(axis=0) - blend[seen].mean(axis=0)).max() < 0.01
+    assert (soft[seen].mean(axis=0) < truth[seen].mean(axis=0) - 0.02).all()
+    pix, _ = photos.cameras[0].project(points)
+    alone = ((pix[:, 0] < -10) | (pix[:, 0] > 650) | (pix[:, 1] < -10) | (pix[:, 1] > 490)) & (colours((), True)[1] > 0)
+    assert alone.sum() > 100
+    np.testing.assert_allclose(colours((1,))[alone], blend[alone], atol=1e-4)
+
+
 def test_the_detail_gain_scales_the_best_views_fine_band_alone(tmp_path):
     """Balanced detail (``detail_gain`` 0.5) is the coarse blend plus half the best views' fine band: halfway between
     the coarse band alone (gain 0) and sharp detail (gain 1) at every point, its stripes at half their contrast."""

@@ -393,12 +393,12 @@ def test_cli_photos(tmp_path, toy_demo, toy_photos):
     (tmp_path / "config.json").write_text(json.dumps(TOY.to_dict()))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "scantex", "enhance", str(tmp_path / "scan.obj"), "--config",
-           str(tmp_path / "config.json"), "--no-alignment-check", "--blurred", "keep", "--holdout", "2",
+           str(tmp_path / "config.json"), "--no-alignment-check", "--blurred", "soften", "--holdout", "2",
            "--refine-poses", "consensus", "--final-texture", "all", "--detail", "sharp",
            "--photos", str(toy_photos.source), "-o", str(out)]
     run = subprocess.run(cmd, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert json.loads((out / "config.json").read_text())["photos"]["blurred"] == "keep"
+    assert json.loads((out / "config.json").read_text())["photos"]["blurred"] == "soften"
     assert "2 held-out photos" in run.stdout and "made from all 10 photos" in run.stdout
     assert "held out from the result only" in run.stdout  # the input's texture may have seen them
     assert "each held-out photo's pose aligned to each texture" in run.stdout  # the poses were refined
@@ -546,9 +546,10 @@ def test_photo_mode_without_numba_makes_the_same_texture(toy_demo, toy_photos, p
         [c["applied"] for c in photo_result.metrics["photos"]["pose_corrections"]]
 
 
-def test_a_shaken_photo_is_named_and_left_out_when_asked(tmp_path, toy_demo, toy_photos):
+def test_a_shaken_photo_is_named_and_softened_or_left_out_when_asked(tmp_path, toy_demo, toy_photos):
     """One shaken photo of ten is named and blended in (auto: its partners would paint what it saw from further
-    off); ``photos.blurred`` leave-out leaves it out of the texture and the score."""
+    off); ``photos.blurred`` soften keeps it for its colour with its detail left to the sharp photos, leave-out
+    leaves it out of the texture and the score."""
     from PIL import Image
     from scipy import ndimage
 
@@ -566,6 +567,12 @@ def test_a_shaken_photo_is_named_and_left_out_when_asked(tmp_path, toy_demo, toy
     assert [d["photo"] for d in m["photos"]["blurred"]] == [3] and not m["photos"]["blurred"][0]["left_out"]
     assert 3 in m["photos"]["train"] + m["photos"]["held_out"]
     assert "blurred photos: 3 (" in enhance_summary(m) and "--blurred leave-out leaves them out" in enhance_summary(m)
+    assert "soft_photos" not in m["photos"]["texturing"]
+    m = enhance(toy_demo.scan, config.override(photos__blurred="soften"), photos=one).metrics
+    assert m["photos"]["blurred"][0]["softened"] and not m["photos"]["blurred"][0]["left_out"]
+    assert m["photos"]["texturing"]["soft_photos"] == ([3] if 3 in m["photos"]["train"] else [])
+    assert m["photos"]["final_texture"]["texturing"]["soft_photos"] == [3]
+    assert "their fine detail left to the sharp photos" in enhance_summary(m) and m["geometry"]["arrays_identical"]
     m = enhance(toy_demo.scan, config.override(photos__blurred="leave-out"), photos=one).metrics
     assert m["photos"]["blurred"][0]["left_out"] and 3 not in m["photos"]["train"] + m["photos"]["held_out"]
     assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
@@ -576,8 +583,8 @@ def test_a_shaken_photo_is_named_and_left_out_when_asked(tmp_path, toy_demo, toy
 
 def test_blurred_photos_are_left_out_when_they_are_a_quarter_of_the_training_photos(monkeypatch):
     """auto: one of nine blended in (its partners would paint what it saw from further off), three of nine left out
-    (they would smear the texture); leave-out and keep whatever their share; a training photo kept when none would
-    be left."""
+    (they would smear the texture); leave-out, keep and soften whatever their share; a training photo kept when none
+    would be left."""
     import scantex.photos.sharpness as sharpness
     from scantex.pipeline.enhance import judge_detail
 
@@ -589,14 +596,18 @@ def test_blurred_photos_are_left_out_when_they_are_a_quarter_of_the_training_pho
         monkeypatch.setattr(sharpness, "blurred_photos", lambda v: [{"photo": i, "detail": 0.2} for i in named])
         kept, t, h, found = judge_detail(photos, views, train, held, mode)
         assert [v.index for v in kept] == [*t, *h]
-        return sorted(set(range(10)) - {v.index for v in kept}), [d["left_out"] for d in found]
+        return sorted(set(range(10)) - {v.index for v in kept}), [(d["left_out"], d["softened"]) for d in found]
 
-    assert judged([3], "auto") == ([], [False])
-    assert judged([3, 5], "auto") == ([], [False, False])  # one training photo of nine
-    assert judged([1, 3, 7], "auto") == ([1, 3, 7], [True] * 3)
-    assert judged([3], "leave-out") == ([3], [True])
-    assert judged([1, 3, 7], "keep") == ([], [False] * 3)
-    assert judged(list(range(10)), "leave-out") == ([], [False] * 10)  # none would be left to train on
+    kept, softened, gone = (False, False), (False, True), (True, False)
+    assert judged([3], "auto") == ([], [kept])
+    assert judged([3, 5], "auto") == ([], [kept, kept])  # one training photo of nine
+    assert judged([1, 3, 7], "auto") == ([1, 3, 7], [gone] * 3)
+    assert judged([3], "soften") == ([], [softened])
+    assert judged([3], "leave-out") == ([3], [gone])
+    assert judged([1, 3, 7], "leave-out") == ([1, 3, 7], [gone] * 3)
+    assert judged([1, 3, 7], "keep") == ([], [kept] * 3)
+    assert judged([1, 3, 7], "soften") == ([], [softened] * 3)
+    assert judged(list(range(10)), "leave-out") == ([], [kept] * 10)  # none would be left to train on
 
 
 @dataclasses.dataclass
