@@ -8,7 +8,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
-from scantex.photos.sharpness import blurred_photos, pair_rows, relative_detail
+from scantex.photos.sharpness import BLURRED, blurred_photos, pair_rows, relative_detail
 from scantex.photos.texturing import photo_overlaps
 from scantex.photos.training import prepare_photos
 from scantex.views.camera import Camera
@@ -56,6 +56,35 @@ def test_a_shaken_photo_is_named_and_the_others_are_not(tmp_path):
     # smeared along its rows: its detail along them is the least, and less than across them
     assert relative[2, 0] < -1.2 and relative[2, 1] > relative[2, 0] + 0.5
     assert (np.delete(relative, 2, axis=0) > -0.6).all()
+
+
+def test_where_a_third_of_the_photos_are_shaken_each_is_judged_against_the_sharp_ones(tmp_path):
+    """Three of nine photos smeared, the third less than the others: judged against all its partners, two of them
+    shaken, it passes; against the sharp ones, once the other two are named, it is named too."""
+    scan = speckled_wall()
+    eyes = [*EYES, (0.8, -2.0, 1.05), (1.1, -2.3, 0.95), (1.15, -2.15, 1.15), (0.85, -2.15, 0.9)]
+    photos, _ = photos_of(tmp_path, scan, eyes)
+    for k, length in ((1, 9), (4, 9), (6, 7)):
+        im = np.asarray(Image.open(photos.images[k])).astype(np.float64)
+        Image.fromarray(np.round(ndimage.uniform_filter1d(im, length, axis=1)).astype(np.uint8)).save(photos.images[k])
+    views = prepare_photos(scan, photos, range(9), RayCaster(scan.positions, scan.faces), 160)
+    rows = pair_rows(views)
+    first = relative_detail(9, rows).min(axis=1)
+    assert first[1] < BLURRED and first[4] < BLURRED and first[6] > BLURRED
+    assert [d["photo"] for d in blurred_photos(views)] == [1, 4, 6]
+    again = relative_detail(9, rows, blurred={1, 4}).min(axis=1)
+    assert again[6] < BLURRED and np.abs(np.delete(again, [1, 4, 6])).max() < 0.3  # the sharp ones alike
+
+
+def test_a_photo_left_with_two_sharp_partners_is_judged_on_all_its_pairs():
+    """A median of two is their mean: photo 0, paired with a named photo (1), a far-off pair (2) and a plain one (3),
+    keeps its median over the three; photo 4, with three sharp partners besides the named one, is judged on them."""
+    rows = np.array([(0, 1, -0.3, -0.3, 1), (0, 2, 3.0, 3.0, 1), (0, 3, 0.0, 0.0, 1),
+                     (4, 1, 0.5, 0.5, 1), (4, 2, 0.1, 0.1, 1), (4, 3, 0.2, 0.2, 1), (4, 5, 0.3, 0.3, 1)], float)
+    got = relative_detail(6, rows, blurred={1})
+    np.testing.assert_allclose(got[0], [0.0, 0.0])  # not -1.5, the mean of -3 and 0
+    np.testing.assert_allclose(got[4], [-0.2, -0.2])  # 0.1, 0.2, 0.3, without the named photo's 0.5
+    np.testing.assert_allclose(relative_detail(6, rows)[4], [-0.25, -0.25])
 
 
 def test_a_photo_from_further_away_is_not_called_blurred(tmp_path):
