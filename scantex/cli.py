@@ -800,7 +800,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "leave-out (a sharper texture, the photos beside them painting what they saw), keep (blended "
                         "in, they soften it), soften (their colour blended with the others', their fine detail left "
                         "to the sharp photos where any sees the surface: sharper than keep), or auto (the default: "
-                        "left out when they are a quarter of the training photos or more; untiled runs)")
+                        "left out when they are a quarter of the training photos or more; in a tiled run, of a tile's)")
     p.add_argument("--refine-poses", choices=("auto", "off", "input", "consensus"), default=None,
                    help="with --photos: refine each training photo's pose photometrically, against the input "
                         "texture or the other photos' consensus (default auto: for fewer than 50 photos, "

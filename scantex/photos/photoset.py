@@ -198,6 +198,9 @@ class PhotoSet:
             it is (0: the map is not of the photo's view, and is not used).
         tones: ``(N,)`` per photo, ``None`` or its gamma (a float): :meth:`load_image` brings the photo to the
             capture's common tone curve (:mod:`scantex.photos.tones`).
+        numbers: ``(N,)`` each photo's number in the capture it was taken from, as the messages name it (a tile's
+            photos: :meth:`scantex.scale.tiles.TilePhotos.for_tile`; a subset of numbered photos keeps theirs);
+            empty: its position here (:meth:`number`).
     """
 
     cameras: tuple[Camera, ...]
@@ -211,6 +214,7 @@ class PhotoSet:
     hidden: tuple[np.ndarray | None, ...] = dataclasses.field(default=(), repr=False)
     depth_factors: tuple[float | None, ...] = ()
     tones: tuple[float | None, ...] = ()
+    numbers: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -223,12 +227,18 @@ class PhotoSet:
         set_(self, "depth_factors", tuple(self.depth_factors) or (None,) * n)
         set_(self, "tones", tuple(self.tones) or (None,) * n)
         set_(self, "source", Path(self.source))
-        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones"):
+        set_(self, "numbers", tuple(int(i) for i in self.numbers))
+        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones") + (
+                ("numbers",) if self.numbers else ()):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
 
     def __len__(self) -> int:
         return len(self.cameras)
+
+    def number(self, i: int) -> int:
+        """Photo ``i``'s number in its capture (see :attr:`numbers`)."""
+        return self.numbers[i] if self.numbers else int(i)
 
     @property
     def has_depth(self) -> bool:
@@ -243,7 +253,8 @@ class PhotoSet:
                                    distortions=tuple(self.distortions[i] for i in idx),
                                    hidden=tuple(self.hidden[i] for i in idx),
                                    depth_factors=tuple(self.depth_factors[i] for i in idx),
-                                   tones=tuple(self.tones[i] for i in idx))
+                                   tones=tuple(self.tones[i] for i in idx),
+                                   numbers=tuple(self.numbers[i] for i in idx) if self.numbers else ())
 
     def load_image(self, i: int) -> np.ndarray:
         """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras

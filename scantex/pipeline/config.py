@@ -179,8 +179,8 @@ class PhotosConfig:
     softened, as sharp, +0.76); one of nine, blended in, softened a real capture's texture slightly, and left out,
     the photos beside it painted what it saw from further off (+0.85 kept, +0.42 left out, +0.65 softened: sharper
     than kept); three of nine smeared further (15 working pixels) there, +0.47 kept, +0.37 left out, +0.24 softened
-    (bench/RESULTS.md "shaken photos"). No sharp photo of the captures measured was called blurred. Not in tiled
-    runs"""
+    (bench/RESULTS.md "shaken photos"). No sharp photo of the captures measured was called blurred. In a tiled run
+    each tile judges and treats the training photos that see it, by their share there"""
     refine_poses: str = "auto"
     """refine each training photo's pose (small rotation, translation, focal) photometrically: off, input (against the input texture; textured scans), consensus (against the texture the other training photos make together, repeated refine_iterations times), or auto (for fewer than 50 photos: input for a textured scan, consensus for an untextured one; off otherwise). A correction under half a working pixel is not applied. Refined textures are as sharp as the photos where blending through poses a few pixels off doubles and blurs every edge; through held-out photos whose own recorded poses are as far off they score about the same on average (bench/RESULTS.md, "real photos")"""
     refine_iterations: int = 1

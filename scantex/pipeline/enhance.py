@@ -423,7 +423,8 @@ def judge_detail(photos: PhotoSet, views: list, train, held, mode: str) -> tuple
     then = {"leave-out": ": left out", "soften": ": its detail left to the sharp photos", "keep": ""}[mode]
     for d in found:
         log.warning("%s: photo %d has %.0f %% of the fine detail of the photos that see the same surface (shaken, out "
-                    "of focus or washed out?)%s", photos.images[d["photo"]], d["photo"], 100 * d["detail"], then)
+                    "of focus or washed out?)%s", photos.images[d["photo"]], photos.number(d["photo"]),
+                    100 * d["detail"], then)
     blurred = [{**d, "image": str(photos.images[d["photo"]]), "left_out": d["photo"] in gone,
                 "softened": mode == "soften"} for d in found]
     if gone:

@@ -232,7 +232,8 @@ class TilePhotos:
         # a map judged not of its photo's view is set aside (no factor); a photo without a map has none either
         factors = tuple(self.depth_factors.get(int(i)) for i in self.per_tile[tile])
         depths = tuple(None if f is None else d for f, d in zip(factors, subset.depths))
-        return dataclasses.replace(subset, hidden=tuple(masks), depths=depths, depth_factors=factors)
+        return dataclasses.replace(subset, hidden=tuple(masks), depths=depths, depth_factors=factors,
+                                   numbers=tuple(int(i) for i in self.per_tile[tile]))
 
     def tile_config(self, config: EnhanceConfig) -> EnhanceConfig:
         """``config`` as each tile applies it: nothing held out, no alignment check, the poses as refined here, the
@@ -338,7 +339,10 @@ def enhance_tile(index: int, sub: Scan, config: dict, threads: int, photos: Phot
                 "faces": sub.n_faces, "seconds": round(time.perf_counter() - t0, 2), "host": socket.gethostname(),
                 "peak_memory_gib": round(peak_memory() / GiB, 3),
                 "held_out_vs_input": m.get("held_out_vs_input", {}).get("enhanced"),
-                "photos": len(photos) if photos is not None else 0}
+                "photos": len(photos) if photos is not None else 0,
+                # the photos it named blurred, by their number in the capture
+                "blurred": [{**d, "photo": photos.number(d["photo"])}
+                            for d in m.get("photos", {}).get("blurred", [])] if photos is not None else []}
     except ScanError as e:
         return {"index": index, "error": str(e)}
     except Exception as e:
@@ -686,6 +690,7 @@ def assemble_tiles(scan: Scan, plan: TilePlan, outputs: list[dict], config: Enha
                                        photos=photos.photos if photos is not None else None, renders=shown)
         if photos is not None:
             metrics.update(tiled_photo_metrics(scan, fused, ground_truth, photos, config, caster, comparisons))
+            metrics["photos"]["blurred"] = tiled_blurred(outputs)
         update(1, 1)
     timings["metrics"] = time.perf_counter() - t
     metrics["tiles"] = {
@@ -711,6 +716,22 @@ def tiled_texturing(pc, n_photos: int) -> dict:
     if pc.texturing != "projective":
         return {"mode": pc.texturing}
     return {"mode": pc.texturing, **detail_report(ProjectiveSettings(**detail_settings(pc.detail, n_photos)))}
+
+
+def tiled_blurred(outputs: list[dict]) -> list[dict]:
+    """The photos the tiles named blurred (:func:`scantex.pipeline.enhance.judge_detail`: each tile judges the
+    training photos that see it against one another, and treats them by their share there): each photo once, with
+    the least detail a tile measured, ``left_out`` or ``softened`` where a tile did so, and the tiles that named it;
+    the least detailed first."""
+    named: dict[int, dict] = {}
+    for o in outputs:
+        for d in o.get("blurred", []):
+            entry = named.setdefault(d["photo"], {**d, "tiles": []})
+            entry["detail"] = min(entry["detail"], d["detail"])
+            entry["left_out"] = entry["left_out"] or d["left_out"]
+            entry["softened"] = entry.get("softened", False) or d.get("softened", False)
+            entry["tiles"].append(o["index"])
+    return sorted(named.values(), key=lambda d: (d["detail"], d["photo"]))
 
 
 def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photos: TilePhotos,

@@ -665,3 +665,15 @@ def test_bolster_cameras_json():
         assert (z > 0).mean() > 0.99
         good += inside.mean() > 0.9
     assert good >= 12
+
+
+def test_a_subset_of_numbered_photos_keeps_their_numbers():
+    """A photo set's subset is numbered by position unless its photos carry their numbers in the capture (a tile's
+    photos): then those, through any further subset."""
+    cam = Camera.look_at((0, -1, 0), (0, 0, 0), width=6, height=4)
+    photos = PhotoSet(cameras=(cam,) * 5, images=[Path(f"{i}.png") for i in range(5)], source=".", format="test")
+    assert [photos.subset([1, 3, 4]).number(k) for k in range(3)] == [0, 1, 2]
+    tile = dataclasses.replace(photos.subset([1, 3, 4]), numbers=(1, 3, 4))
+    assert [tile.number(k) for k in range(3)] == [1, 3, 4] and tile.subset([2, 0]).numbers == (4, 1)
+    with pytest.raises(ValueError, match="2 numbers for 3 cameras"):
+        dataclasses.replace(tile, numbers=(1, 3))

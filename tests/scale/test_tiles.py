@@ -276,6 +276,45 @@ def test_tiled_photo_mode_scores_the_fused_result_on_held_out_photos(tmp_path, t
     assert "fine detail" in run.stdout
 
 
+def test_a_tiled_run_names_the_shaken_photos_its_tiles_named_by_their_number_in_the_capture(tmp_path, toy_demo,
+                                                                                             toy_photos, capfd):
+    """Each tile judges the photos that see it, numbered in its own subset: the warnings and ``photos.blurred`` name
+    them by their number in the capture, each photo once (the least detail a tile measured, the tiles that named
+    it)."""
+    from PIL import Image
+    from scipy import ndimage
+
+    from scantex.cli import enhance_summary
+    from tests.pipeline.test_enhance import TOY
+
+    path = tmp_path / "smeared_7.png"
+    image = np.asarray(Image.open(toy_photos.images[7])).astype(np.float64)
+    Image.fromarray(np.round(ndimage.uniform_filter1d(image, 7, axis=1)).astype(np.uint8)).save(path)
+    one = dataclasses.replace(toy_photos, images=(*toy_photos.images[:7], path, *toy_photos.images[8:]))
+    config = TOY.override(photos__check_alignment=False)
+    m = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), photos=one, runner=LocalPool(workers=1)).metrics
+    held = m["photos"]["held_out"]
+    assert held == [6]  # the smeared photo is the seventh of a tile's training photos, not the eighth
+    named = m["photos"]["blurred"]
+    assert [d["photo"] for d in named] == [7] and named[0]["image"] == str(path) and named[0]["tiles"]
+    assert not named[0]["left_out"]  # one of nine: blended in
+    said = [line for line in capfd.readouterr().err.splitlines() if "fine detail" in line]  # from the tiles' workers
+    assert said and all(": photo 7 has" in text for text in said)
+    assert "blurred photos: 7 (" in enhance_summary(m)
+
+
+def test_the_tiles_verdicts_on_a_photo_are_merged():
+    from scantex.scale.tiles import tiled_blurred
+
+    outputs = [{"index": 0, "blurred": [{"photo": 7, "detail": 0.2, "left_out": False, "softened": False}]},
+               {"index": 1, "blurred": [{"photo": 7, "detail": 0.15, "left_out": True, "softened": False},
+                                        {"photo": 2, "detail": 0.25, "left_out": False, "softened": True}]},
+               {"index": 2, "blurred": []}]
+    assert tiled_blurred(outputs) == [
+        {"photo": 7, "detail": 0.15, "left_out": True, "softened": False, "tiles": [0, 1]},
+        {"photo": 2, "detail": 0.25, "left_out": False, "softened": True, "tiles": [1]}]
+
+
 def test_an_untextured_scan_is_laid_out_whole_and_tiled_with_its_photos(toy_demo, toy_photos):
     """A bare mesh with photos: one layout made for the whole scan at the atlas size the photos call for, each tile
     textured from its photos into it; as good as the untiled run on the held-out photos."""
