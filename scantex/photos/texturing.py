@@ -272,13 +272,13 @@ def projective_colour(photos: PhotoSet, views: Sequence[PhotoView], groups: Sequ
             cam = working_camera(cam, side)
         return cam
 
-    # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
-    # blend reads them so, the numpy path photo by photo)
     soft = set(settings.soft_photos) & {view.index for view in views}
     if soft and settings.detail_temperature <= 0:
         # one band with soft photos: two at the blend's own temperature (the blend's colours but for their detail)
         settings = dataclasses.replace(settings, detail_temperature=settings.temperature, detail_gain=1.0,
                                        detail_consistency=0.0)
+    # every photo's packed image and feather weights end to end, each photo's a view of its part (the compiled
+    # blend reads them so, the numpy path photo by photo)
     bands = settings.detail_temperature > 0
     cameras = within_memory([sampling_camera(view) for view in views], 8 if bands else 4, settings.memory_mb)
     pixel_sizes, view_sizes = [cam.width * cam.height for cam in cameras], [view.valid.size for view in views]
