@@ -173,7 +173,8 @@ class PhotosConfig:
     """photos with under 30 % of the fine detail of the photos that see the same surface, along one axis at least
     (shaken or out of focus: scantex.photos.sharpness; named in the summary whatever this says): leave-out (left out
     of the texture and the score), keep (blended like the others), soften (their colour and coverage blended with
-    the others', their fine detail left to the sharp photos where any sees the surface), or auto (left out when they
+    the others', their fine detail left to the sharp photos where any sees the surface; projective texturing: a
+    field's colour everywhere keeps them), or auto (left out when they
     are a quarter of the training photos or more, else kept). Three smeared photos of nine, blended in, smeared the
     bolster's texture visibly at the same held-out score (+0.99 dB over the input), left out it was sharp (+0.75;
     softened, as sharp, +0.76); one of nine, blended in, softened a real capture's texture slightly, and left out,

@@ -364,7 +364,9 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     settings = visibility_settings(pc, len(photos))
     views = prepare_photos(scan, photos, [*train, *held], caster, pc.max_side, settings,
                            lambda done, total: update(refined + done, refined + total))
-    views, train, held, blurred = judge_detail(photos, views, train, held, pc.blurred)
+    # softening is projective texturing's (a field trained on the photos takes each photo whole)
+    blurred_mode = "keep" if pc.blurred == "soften" and pc.texturing != "projective" else pc.blurred
+    views, train, held, blurred = judge_detail(photos, views, train, held, blurred_mode)
     train_views, held_views = views[:len(train)], views[len(train):]
     if mode == "consensus" and len(train) > 1:
         from scantex.photos.poses import consensus_poses

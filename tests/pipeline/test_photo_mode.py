@@ -573,6 +573,9 @@ def test_a_shaken_photo_is_named_and_softened_or_left_out_when_asked(tmp_path, t
     assert m["photos"]["texturing"]["soft_photos"] == ([3] if 3 in m["photos"]["train"] else [])
     assert m["photos"]["final_texture"]["texturing"]["soft_photos"] == [3]
     assert "their fine detail left to the sharp photos" in enhance_summary(m) and m["geometry"]["arrays_identical"]
+    # a field's colour everywhere takes each photo whole: blended in, and said so
+    m = enhance(toy_demo.scan, config.override(photos__blurred="soften", photos__texturing="field"), photos=one).metrics
+    assert not m["photos"]["blurred"][0]["softened"] and "blended like the others" in enhance_summary(m)
     m = enhance(toy_demo.scan, config.override(photos__blurred="leave-out"), photos=one).metrics
     assert m["photos"]["blurred"][0]["left_out"] and 3 not in m["photos"]["train"] + m["photos"]["held_out"]
     assert m["photos"]["final_texture"]["photos"] == 9 and m["geometry"]["arrays_identical"]
