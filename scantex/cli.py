@@ -428,7 +428,7 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
     inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
-    from scantex.report.html import fine_detail
+    from scantex.report.html import blurred_words, fine_detail, left_out_words
 
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
@@ -495,26 +495,11 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         lines.append(f"poses: {poses}")
-    left_out = m.get("photos", {}).get("left_out") or []
+    left_out, blurred = left_out_words(m), blurred_words(m)
     if left_out:
-        lines.append(f"photos left out: {len(left_out)} (" + ", ".join(str(d["photo"]) for d in left_out)
-                     + f"), not showing what {'its camera sees' if len(left_out) == 1 else 'their cameras see'}: "
-                       "upside down, cropped or another frame's (each in metrics.json photos.left_out)")
-    blurred = m.get("photos", {}).get("blurred") or []
+        lines.append(f"photos left out: {left_out}")
     if blurred:
-        named = ", ".join(f"{d['photo']} ({100 * d['detail']:.0f} %)" for d in blurred)
-        if all(d.get("left_out") for d in blurred):
-            then = ("left out, the texture made sharp from the other photos where they see the surface (--blurred "
-                    "keep blends them in; soften keeps their colour)")
-        elif any(d.get("softened") for d in blurred):
-            then = ("their colour blended with the others', their fine detail left to the sharp photos (--blurred "
-                    "keep blends them in whole: a softer texture)")
-        else:
-            then = ("blended like the others, they soften the texture a little (--blurred leave-out leaves them out, "
-                    "soften leaves their detail to the sharp photos; auto leaves them out when they are a quarter of "
-                    "the training photos or more)")
-        lines.append(f"blurred photos: {named} of the fine detail of the photos that see the same surface (shaken, "
-                     f"out of focus or washed out?): {then}")
+        lines.append(f"blurred photos: {blurred}")
     clipped = (m.get("photos", {}).get("texturing") or {}).get("clipped", {})
     if clipped.get("gave_way"):
         lines.append(f"over-exposed photos: {100 * clipped['clipped'] / max(clipped['samples'], 1):.1f} % of the "

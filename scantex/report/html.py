@@ -87,6 +87,37 @@ def fine_detail(scores: dict, texturing: dict) -> tuple[str, bool]:
     return line, soft
 
 
+def left_out_words(m: dict) -> str:
+    """The photos left out as not showing what their cameras see (``photos.left_out``), in words; ``""``: none."""
+    left_out = m.get("photos", {}).get("left_out") or []
+    if not left_out:
+        return ""
+    return (f"{len(left_out)} (" + ", ".join(str(d["photo"]) for d in left_out)
+            + f"), not showing what {'its camera sees' if len(left_out) == 1 else 'their cameras see'}: upside down, "
+              "cropped or another frame's (each in metrics.json photos.left_out)")
+
+
+def blurred_words(m: dict) -> str:
+    """The photos named shaken or out of focus (``photos.blurred``) and what became of them, in words; ``""``:
+    none."""
+    blurred = m.get("photos", {}).get("blurred") or []
+    if not blurred:
+        return ""
+    named = ", ".join(f"{d['photo']} ({100 * d['detail']:.0f} %)" for d in blurred)
+    if all(d.get("left_out") for d in blurred):
+        then = ("left out, the texture made sharp from the other photos where they see the surface (--blurred keep "
+                "blends them in; soften keeps their colour)")
+    elif any(d.get("softened") for d in blurred):
+        then = ("their colour blended with the others', their fine detail left to the sharp photos (--blurred keep "
+                "blends them in whole: a softer texture)")
+    else:
+        then = ("blended like the others, they soften the texture a little (--blurred leave-out leaves them out, "
+                "soften leaves their detail to the sharp photos; auto leaves them out when they are a quarter of the "
+                "training photos or more)")
+    return (f"{named} of the fine detail of the photos that see the same surface (shaken, out of focus or washed "
+            f"out?): {then}")
+
+
 def write_report(result, path: str | Path, *, input_scan: Scan | None = None, ground_truth: Scan | None = None,
                  metrics: dict | None = None, max_faces: int = MAX_FACES) -> Path:
     """Write the report of an enhance run to ``path`` (atomically) and return the path.
@@ -248,6 +279,9 @@ def _headline(m: dict) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         rows.append(("Poses", poses, ""))
+    for title, said in (("Photos left out", left_out_words(m)), ("Blurred photos", blurred_words(m))):
+        if said:
+            rows.append((title, said, ""))
     sv = m.get("seam_visibility")
     if sv:
         rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
