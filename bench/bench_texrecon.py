@@ -8,7 +8,7 @@ their ``elibs`` dependencies, offline from source snapshots) and pass its binary
 ``../shared/data`` or without the binary.
 
 For each capture of ``../shared/data`` (its held-out protocol): both programs get ONLY the training photos,
-texrecon as an MVE scene (the photos linked, one ``.cam`` per photo written from ``cameras.json``) and the
+texrecon as its scene folder (the photos copied, one ``.cam`` beside each: :func:`scantex.photos.write_mve`) and the
 input mesh's geometry as a PLY (texrecon makes its own UV layout; ``--keep_unseen_faces`` so that it
 returns every face), scantex as a filtered ``cameras.json`` and the input mesh (``photos.holdout`` 0): the
 app-style input, or for ``bolster_bare`` the untextured Kinect mesh (texrecon's own case; its input scores a
@@ -38,22 +38,6 @@ sys.path.insert(0, str(ROOT))
 from bench.bench_real_photos import CAPTURES, DATA, training_frames  # noqa: E402
 
 
-def mve_scene(frames: list[dict], base: Path, folder: Path) -> None:
-    """An MVE scene texrecon reads: each photo linked as ``view_NN.<ext>`` beside ``view_NN.cam``: the
-    world-to-camera translation and rotation (row by row), then the focal length over the larger image side,
-    two zero distortion terms, the pixel aspect and the principal point over the image's size (MVE counts
-    pixels from their corner, ``cameras.json`` from their centre: half a pixel apart)."""
-    folder.mkdir(parents=True)
-    for k, f in enumerate(frames):
-        image = Path(f["image"]) if Path(f["image"]).is_absolute() else base / f["image"]
-        (folder / f"view_{k:02d}{image.suffix.lower()}").symlink_to(image.resolve())
-        K, R, w, h = f["K"], f["R"], f["width"], f["height"]
-        t = [row[3] for row in f["world_to_camera"][:3]]
-        lines = [" ".join(repr(float(v)) for v in [*t, *(x for row in R for x in row)]),
-                 f"{K[0][0] / max(w, h)!r} 0 0 {K[1][1] / K[0][0]!r} {(K[0][2] + 0.5) / w!r} {(K[1][2] + 0.5) / h!r}"]
-        (folder / f"view_{k:02d}.cam").write_text("\n".join(lines) + "\n")
-
-
 def timed(command: list[str]) -> tuple[float, float]:
     """Wall seconds and peak resident MiB of ``command`` run to its end (its output thrown away)."""
     with tempfile.TemporaryFile() as errors:
@@ -78,7 +62,7 @@ def run_capture(name: str, texrecon: str, pairs: int, work: Path) -> str:
     import trimesh
 
     from scantex.io import load_scan
-    from scantex.photos import load_photos
+    from scantex.photos import load_photos, write_mve
     from scantex.photos.training import VisibilitySettings, prepare_photos, score_photos
     from scantex.views.raycast import RayCaster
 
@@ -86,7 +70,7 @@ def run_capture(name: str, texrecon: str, pairs: int, work: Path) -> str:
     cameras = DATA / cams
     train = training_frames(cameras, held)
     (work / "cameras.json").write_text(json.dumps({"frames": train}))
-    mve_scene(train, cameras.parent, work / "scene")
+    write_mve(load_photos(work / "cameras.json"), work / "scene")  # texrecon's scene folder: photos beside .cam files
     scan = load_scan(DATA / mesh)
     trimesh.Trimesh(scan.positions, scan.faces, process=False).export(work / "mesh.ply")
 

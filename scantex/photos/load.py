@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos import cameras_json, colmap, nerfstudio, polycam, scannerapp
+from scantex.photos import cameras_json, colmap, mve, nerfstudio, polycam, scannerapp
 from scantex.photos.conventions import MAX_DISTORTION_PX
 from scantex.photos.files import load_json
 from scantex.photos.photoset import PhotoSet
@@ -16,7 +16,8 @@ from scantex.photos.photoset import PhotoSet
 log = logging.getLogger(__name__)
 
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
-           "also under sparse/0), keyframes/ (Polycam raw data) or frame_*.json (3D Scanner App)")
+           "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App) or photos beside "
+           ".cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -34,6 +35,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         if name in ("cameras.txt", "images.txt", "points3d.txt", "cameras.bin", "images.bin",
                     "points3d.bin"):
             return "colmap", path
+        if path.suffix.lower() == ".cam":
+            return mve.FORMAT, path.parent
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -65,6 +68,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return polycam.FORMAT, keyframes
     if scannerapp.frame_files(path):
         return scannerapp.FORMAT, path
+    if mve.is_scene_folder(path):
+        return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 
@@ -85,7 +90,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
     fmt, target = detect_format(path)
     loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
-               scannerapp.FORMAT: scannerapp.load_3dscannerapp}
+               scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

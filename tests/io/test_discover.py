@@ -128,6 +128,18 @@ def test_polycam_zip(exports):
                                    load_photos(exports["scanner"]).cameras[0].world_to_camera, atol=1e-9)
 
 
+def test_texrecon_scene_folder_below_the_mesh(exports, tmp_path):
+    """An RGB-D texturing dataset as G2LTex and texrecon keep it: the mesh, and its photos beside .cam files in a
+    folder below it."""
+    from scantex.photos.mve import write_mve
+
+    save_scan(exports["scan"], tmp_path / "mesh.obj")
+    write_mve(photographs(exports["scan"], tmp_path / "renders"), tmp_path / "textureimages")
+    with find_capture(tmp_path) as capture:
+        assert capture.mesh.name == "mesh.obj" and capture.photo_format == "texrecon"
+        assert capture.photos == tmp_path / "textureimages" and len(load_photos(capture.photos)) == 4
+
+
 def test_gltf_with_its_buffers(exports, tmp_path):
     save_scan(exports["scan"], tmp_path / "c.glb")
     files = trimesh.load(tmp_path / "c.glb", process=False).export(file_type="gltf")

@@ -23,6 +23,7 @@ from scantex.photos import (
     write_cameras_json,
     write_colmap_binary,
     write_colmap_text,
+    write_mve,
     write_nerfstudio,
     write_polycam,
 )
@@ -81,6 +82,7 @@ WRITERS = [  # writer, format read back, keeps depth
     (write_3dscannerapp, "3dscannerapp", True),
     (write_polycam, "polycam", True),
     (write_cameras_json, "cameras.json", True),
+    (write_mve, "texrecon", False),
 ]
 
 
@@ -244,6 +246,75 @@ def test_detect_format(tmp_path, capture):
     assert detect_format(tmp_path / "p" / "keyframes" / "cameras" / "1.json")[0] == "polycam"
 
 
+def cam_file(folder: Path, name: str, line2: str | None, cam: Camera | None = None, w: int = W, h: int = H) -> Path:
+    """``name.png`` (``w`` x ``h``) beside ``name.cam``: ``cam``'s pose (the reference camera's) and ``line2``."""
+    cam = cam or reference_camera()
+    blank_png(folder / f"{name}.png", w, h)
+    pose = " ".join(str(float(v)) for v in [*cam.t, *cam.R.reshape(-1)])
+    (folder / f"{name}.cam").write_text(pose + "\n" + ("" if line2 is None else line2 + "\n"))
+    return folder / f"{name}.cam"
+
+
+def test_mve_convention(tmp_path):
+    """texrecon's .cam: the focal length over the larger side, fy = fx * paspect, the principal point over the
+    image's size from its corner; a .cam file names its folder; the photos in natural order of their names."""
+    cam_file(tmp_path, "view_10", f"{50 / W} 0 0 {40 / 50} 0.5 0.5")
+    cam_file(tmp_path, "view_2", f"{50 / W} 0 0 {40 / 50} {0.5 + 2 / W} 0.5")
+    (tmp_path / "notes.cam.txt").write_text("not a camera")
+    blank_png(tmp_path / "lone.png")  # an image without a .cam: not a photo of the set
+    assert detect_format(tmp_path / "view_10.cam") == ("texrecon", tmp_path)
+    photos = load_photos(tmp_path)
+    assert photos.format == "texrecon" and [p.name for p in photos.images] == ["view_2.png", "view_10.png"]
+    assert_reference(photos.subset([1]))
+    assert photos.cameras[0].K[0, 2] == pytest.approx((W - 1) / 2 + 2)
+
+
+def test_mve_portrait_and_defaults(tmp_path):
+    """A portrait image's focal length is over its height (fx = fy / paspect); line 2 of f alone: square pixels,
+    the principal point at the centre, no distortion."""
+    cam_file(tmp_path, "a", f"{40 / W} 0 0 {40 / 50}", w=H, h=W)  # 36 x 48: fy = 40, fx = 50
+    K = load_photos(tmp_path).cameras[0].K
+    np.testing.assert_allclose(K, [[50, 0, (H - 1) / 2], [0, 40, (W - 1) / 2], [0, 0, 1]], atol=1e-12)
+    cam_file(tmp_path, "a", "0.5")
+    photos = load_photos(tmp_path)
+    np.testing.assert_allclose(photos.cameras[0].K, [[24, 0, (W - 1) / 2], [0, 24, (H - 1) / 2], [0, 0, 1]])
+    assert photos.distortions == (None,)
+
+
+def test_mve_distortion_ignored_when_small_and_refused_when_strong(tmp_path, caplog):
+    cam_file(tmp_path, "a", "1.0 0.0005 0.0001 1 0.5 0.5")
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path)
+    assert "ignoring a small lens distortion (MVE k2k4" in caplog.text
+    assert photos.distortions[0].radial == (0.0005, 0.0001)
+    cam_file(tmp_path, "a", "1.0 -0.2 0 1 0.5 0.5")  # VisualSfM's one term: undistorts by 1 - 0.2 r^2
+    with pytest.raises(ScanError, match=r"a\.cam: line 2: lens distortion \(VisualSfM\) moves pixels by up to "):
+        load_photos(tmp_path)
+    assert load_photos(tmp_path, max_distortion_px=20).distortions[0].radial == (0.2,)
+
+
+def test_g2ltex_one_line_cam_takes_the_configuration_and_depth(tmp_path):
+    """G2LTex's .cam holds the pose alone; its intrinsics are the colour camera's in its .yml (beside the photos'
+    folder), its depth maps depth_NN.png beside color_NN.jpg."""
+    folder = tmp_path / "textureimages"
+    folder.mkdir()
+    cam_file(folder, "color_00", None)
+    Image.fromarray(np.full((H // 2, W // 2), 4000, np.uint16)).save(folder / "depth_00.png")
+    with pytest.raises(ScanError, match="color_00.cam: holds the pose alone .* add texrecon's second line"):
+        load_photos(folder)
+    (tmp_path / "config_G2LTex.yml").write_text(
+        "%YAML:1.0\n\n%Apt0\n%RGB_fx: 1\n\ndepth_fx: 25\nRGB_fx: 50\nRGB_fy: 40\n"
+        f"RGB_cx: {(W - 1) / 2}\nRGB_cy: {(H - 1) / 2}\nRGB_width: {W}\nRGB_height: {H}\n")
+    photos = load_photos(folder)
+    assert_reference(photos)
+    assert photos.load_depth(0).shape == (H // 2, W // 2) and np.nanmedian(photos.load_depth(0)) == pytest.approx(4)
+    (tmp_path / "config_G2LTex.yml").write_text("RGB_fx: 50\nRGB_fy: 40\nRGB_cx: 23.5\nRGB_cy: 17.5\n"
+                                               "RGB_width: 640\nRGB_height: 480\n")
+    with pytest.raises(ScanError, match="color_00.png is 48x36 but the G2LTex configuration's intrinsics are for "
+                                        "640x480"):
+        load_photos(folder)
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
@@ -319,6 +390,23 @@ def test_distortion_shift_against_a_direct_evaluation():
     r2 = x * x + y * y
     expected = math.hypot(50 * x * 0.01 * r2, 40 * y * 0.01 * r2)
     assert d.max_shift_px(cam) == pytest.approx(expected)
+
+
+def bad_cam_line(tmp_path):
+    blank_png(tmp_path / "a.png")
+    (tmp_path / "a.cam").write_text("0 0 4 1 0 0 0 0 -1 0 1\n1 0 0 1 0.5 0.5\n")
+    return tmp_path, "a.cam: not a .cam file: line 1 has 11 numbers, expected 12"
+
+
+def bad_cam_words(tmp_path):
+    blank_png(tmp_path / "a.png")
+    (tmp_path / "a.cam").write_text("translation 0 0 4\n")
+    return tmp_path / "a.cam", "a.cam: not a .cam file: its first two lines are not numbers"
+
+
+def bad_cam_focal(tmp_path):
+    cam_file(tmp_path, "a", "0 0 0 1 0.5 0.5")
+    return tmp_path, "a.cam: line 2: the focal length and the pixel aspect must be positive numbers"
 
 
 # ---- bad input -----------------------------------------------------------------------------------
@@ -451,7 +539,7 @@ def bad_image_path_a_folder(tmp_path):
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
        bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
-       bad_image_path_a_folder]
+       bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
@@ -665,6 +753,18 @@ def test_bolster_cameras_json():
         assert (z > 0).mean() > 0.99
         good += inside.mean() > 0.9
     assert good >= 12
+
+
+def test_bolster_texrecon_folder_is_its_cameras_json():
+    """The bolster's textureimages/ (G2LTex: one-line .cam files, the intrinsics in ../config_G2LTex.yml, depth
+    maps beside the photos) reads as the same photos, poses, intrinsics and depth maps as its cameras.json."""
+    folder = shared_scan("bolster_rgbd_posed")
+    mve, ref = load_photos(folder / "textureimages"), load_photos(folder / "cameras.json")
+    assert mve.format == "texrecon" and len(mve) == len(ref) == 14
+    for i, (a, b) in enumerate(zip(mve.cameras, ref.cameras)):
+        assert mve.images[i].resolve() == ref.images[i].resolve() and mve.depths[i].resolve() == ref.depths[i].resolve()
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_allclose(a.world_to_camera, b.world_to_camera, rtol=0, atol=1e-12)
 
 
 def test_a_subset_of_numbered_photos_keeps_their_numbers():
