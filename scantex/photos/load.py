@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos import cameras_json, colmap, mve, nerfstudio, polycam, scannerapp
+from scantex.photos import cameras_json, colmap, mve, nerfstudio, polycam, scannerapp, scannet
 from scantex.photos.conventions import MAX_DISTORTION_PX
 from scantex.photos.files import load_json
 from scantex.photos.photoset import PhotoSet
@@ -16,8 +16,8 @@ from scantex.photos.photoset import PhotoSet
 log = logging.getLogger(__name__)
 
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
-           "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App) or photos beside "
-           ".cam files (texrecon)")
+           "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
+           "intrinsic/ (ScanNet) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -37,6 +37,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return "colmap", path
         if path.suffix.lower() == ".cam":
             return mve.FORMAT, path.parent
+        if path.name == scannet.INTRINSICS.name and scannet.export_folder(path.parent) is not None:
+            return scannet.FORMAT, scannet.export_folder(path.parent)
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -68,6 +70,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return polycam.FORMAT, keyframes
     if scannerapp.frame_files(path):
         return scannerapp.FORMAT, path
+    if scannet.export_folder(path) is not None:
+        return scannet.FORMAT, scannet.export_folder(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
@@ -90,7 +94,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
     fmt, target = detect_format(path)
     loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
-               scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve}
+               scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve,
+               scannet.FORMAT: scannet.load_scannet}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

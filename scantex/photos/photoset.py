@@ -183,8 +183,8 @@ class PhotoSet:
         depth_scale: metres per depth-map unit (0.001: millimetres).
         source: the file or folder the set was read from.
         format: the format it was read from (``"nerfstudio"``, ``"colmap-text"``, ``"colmap-binary"``,
-            ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``), or any label for sets made in
-            code.
+            ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``), or any label for sets
+            made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
         image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new

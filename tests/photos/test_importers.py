@@ -315,6 +315,38 @@ def test_g2ltex_one_line_cam_takes_the_configuration_and_depth(tmp_path):
         load_photos(folder)
 
 
+def scannet_export(root: Path, numbers=(0, 2, 10), lost=()) -> Path:
+    """A ScanNet export (SensReader's layout) of the reference camera: its frames ``numbers``, those in ``lost``
+    with a pose of -inf (tracking lost), a depth map beside frame 0."""
+    for sub in ("color", "depth", "pose", "intrinsic"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    K = np.eye(4)
+    K[:3, :3] = reference_camera().K
+    np.savetxt(root / "intrinsic" / "intrinsic_color.txt", K)
+    c2w = np.linalg.inv(reference_camera().world_to_camera)
+    for n in numbers:
+        blank_png(root / "color" / f"{n}.png")
+        np.savetxt(root / "pose" / f"{n}.txt", np.full((4, 4), -np.inf) if n in lost else c2w)
+    Image.fromarray(np.full((H // 2, W // 2), 2500, np.uint16)).save(root / "depth" / "0.png")
+    return root
+
+
+def test_scannet_convention_order_lost_frames_and_depth(tmp_path, caplog):
+    """pose/N.txt camera-to-world in OpenCV's axes, K from intrinsic_color.txt; the frames in the order of their
+    numbers, those whose tracking was lost (-inf) skipped with a warning; depth/N.png the depth map."""
+    root = scannet_export(tmp_path / "scene0000_00", lost=(2,))
+    blank_png(root / "color" / "5.png")  # a photo without a pose: not a frame
+    for where in (root, root / "pose", root / "intrinsic" / "intrinsic_color.txt"):
+        assert detect_format(where) == ("scannet", root)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(root)
+    assert "1 frames have no pose (tracking lost: -inf): skipped" in caplog.text
+    assert photos.format == "scannet" and [p.name for p in photos.images] == ["0.png", "10.png"]
+    assert_reference(photos)
+    assert photos.load_depth(0).shape == (H // 2, W // 2) and np.nanmedian(photos.load_depth(0)) == pytest.approx(2.5)
+    assert photos.depths[1] is None
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
@@ -407,6 +439,17 @@ def bad_cam_words(tmp_path):
 def bad_cam_focal(tmp_path):
     cam_file(tmp_path, "a", "0 0 0 1 0.5 0.5")
     return tmp_path, "a.cam: line 2: the focal length and the pixel aspect must be positive numbers"
+
+
+def bad_scannet_pose(tmp_path):
+    scannet_export(tmp_path, numbers=(0,))
+    (tmp_path / "pose" / "0.txt").write_text("1 0 0\n0 1 0\n")
+    return tmp_path, "0.txt: not a 4x4 camera-to-world pose: 2x3 numbers, expected 4x4"
+
+
+def bad_scannet_all_lost(tmp_path):
+    scannet_export(tmp_path, numbers=(0, 1), lost=(0, 1))
+    return tmp_path, "none of its 2 pose/N.txt files has both a finite pose and its photo"
 
 
 # ---- bad input -----------------------------------------------------------------------------------
@@ -539,7 +582,7 @@ def bad_image_path_a_folder(tmp_path):
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
        bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
-       bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal]
+       bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
