@@ -25,6 +25,15 @@ def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
     return path
 
 
+def folder_of(path: Path) -> Path:
+    """The folder ``path`` is, or holds it when it is a file (one frame's file names its capture's folder); a
+    ScanError when there is none."""
+    folder = path.parent if path.is_file() else path
+    if not folder.is_dir():
+        raise ScanError(path, "no such folder")
+    return folder
+
+
 def load_frames_file(path: Path, default_name: str, what: str = "") -> tuple[Path, dict, list]:
     """The file (``default_name`` inside a folder), its JSON document and its non-empty ``frames`` list.
 

@@ -40,7 +40,7 @@ from scantex.photos.conventions import (
     check_intrinsics,
     check_pose,
 )
-from scantex.photos.files import copy_into
+from scantex.photos.files import copy_into, folder_of
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -79,10 +79,7 @@ def load_mve(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) 
         ScanError: no ``.cam`` with its image, a malformed ``.cam``, no intrinsics for a one-line ``.cam``,
             non-finite or non-rigid poses, a distortion too strong to ignore.
     """
-    path = Path(path)
-    folder = path.parent if path.is_file() else path
-    if not folder.is_dir():
-        raise ScanError(path, "no such folder")
+    folder = folder_of(Path(path))
     found = pairs(folder)
     if not found:
         raise ScanError(folder, "no .cam file beside an image of its name (color_00.cam + color_00.jpg): not a "

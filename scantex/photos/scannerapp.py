@@ -36,7 +36,7 @@ from scantex.photos.conventions import (
     opengl_camera_to_world,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import copy_into, load_json, need, write_depth
+from scantex.photos.files import copy_into, folder_of, load_json, need, write_depth
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -60,10 +60,7 @@ def load_3dscannerapp(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
     Raises:
         ScanError: no frames, no frame with an image, malformed JSON, non-finite or non-rigid poses.
     """
-    path = Path(path)
-    folder = path.parent if path.is_file() else path
-    if not folder.is_dir():
-        raise ScanError(path, "no such folder")
+    folder = folder_of(Path(path))
     jsons = frame_files(folder)
     if not jsons:
         raise ScanError(folder, "no frame_*.json files: not a 3D Scanner App 'All Data' export")
