@@ -10,13 +10,17 @@ Conventions, and what scantex does with them:
   image (``width / height * paspect >= 1``) ``fx = f width``, ``fy = fx paspect``; else ``fy = f height``,
   ``fx = fy / paspect``. The principal point is over the image's width and height, measured from its corner:
   scantex's ``cx = ppx width - 0.5``, ``cy = ppy height - 0.5``. The image size is read from the image file.
+  A line whose principal point is no share of the image (over 1) is in pixels, as G2LTex writes some of its
+  ``.cam`` files (``582.871 0 0 1 320 240``): ``fx = f``, ``fy = f paspect``, ``cx, cy`` as in its
+  configuration (below).
 - ``d0 d1``: MVE's radial distortion of the focal-normalised point, ``1 + d0 r^2 + d1 r^4`` (OpenCV's ``k1,
   k2``); with ``d1`` zero, VisualSfM's one-term model, which undistorts by ``1 + d0 r^2`` (about OpenCV's
   ``k1 = -d0``). texrecon undistorts such photos; scantex ignores a distortion that moves no pixel by more
   than ``max_distortion_px`` and refuses a larger one (undistort the photos first).
 - A ``.cam`` of one line (G2LTex writes the pose alone) takes its intrinsics from a G2LTex configuration
-  (a ``.yml`` with ``RGB_fx``, ``RGB_fy``, ``RGB_cx``, ``RGB_cy`` in pixels, OpenCV's pixel centres) in the
-  folder or the one above it, as G2LTex reads them.
+  (a ``.yml`` with ``RGB_fx``, ``RGB_fy``, ``RGB_cx``, ``RGB_cy`` in pixels, OpenCV's pixel centres), the
+  nearest in the folder, up to three above it, or a ``Config/`` beside one of them, as G2LTex reads them; one
+  for photos of another size is refused, naming the file.
 - Depth: ``depth_00.png`` beside ``color_00.jpg`` (G2LTex's names; uint16 millimetres) is the photo's depth
   map. MVE's own scene layout (``views/view_0000.mve``) is not read: texrecon's scene folder is the
   portable one.
@@ -84,20 +88,21 @@ def load_mve(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) 
     if not found:
         raise ScanError(folder, "no .cam file beside an image of its name (color_00.cam + color_00.jpg): not a "
                                 "texrecon scene folder")
-    config: dict | None = None
+    config, config_file = None, None
     cameras, images, depths, distortions = [], [], [], []
     for cam_file, image in found:
         pose, lens = _read_cam(cam_file)
         width, height = image_size(image)
         if lens is None:
             if config is None:
-                config = _g2ltex_config(folder, cam_file)
+                config, config_file = _g2ltex_config(folder, cam_file)
             K = np.array([[config["RGB_fx"], 0.0, config["RGB_cx"]], [0.0, config["RGB_fy"], config["RGB_cy"]],
                           [0.0, 0.0, 1.0]])
             size = (config.get("RGB_width", width), config.get("RGB_height", height))
             if size != (width, height):
-                raise ScanError(cam_file, f"{image.name} is {width}x{height} but the G2LTex configuration's "
-                                          f"intrinsics are for {size[0]:.0f}x{size[1]:.0f}")
+                raise ScanError(cam_file, f"{image.name} is {width}x{height} but the intrinsics of the G2LTex "
+                                          f"configuration {config_file} are for {size[0]:.0f}x{size[1]:.0f}: "
+                                          "another capture's (set its RGB_ lines to this capture's camera)")
             distortion = None
         else:
             K, distortion = _intrinsics(lens, width, height, cam_file)
@@ -141,14 +146,17 @@ def _intrinsics(lens: list[float], width: int, height: int, cam_file: Path) -> t
     if not (np.isfinite(lens).all() and f > 0 and paspect > 0):
         raise ScanError(cam_file, f"line 2: the focal length and the pixel aspect must be positive numbers, got "
                                   f"{f} and {paspect}")
-    if width / height * paspect < 1.0:  # portrait, as MVE's fill_calibration decides it
-        fy = f * height
-        fx = fy / paspect
+    if len(lens) == 6 and max(ppx, ppy) > 1.0:  # no share of the image: pixels, as G2LTex writes some
+        K = np.array([[f, 0.0, ppx], [0.0, f * paspect, ppy], [0.0, 0.0, 1.0]])
     else:
-        fx = f * width
-        fy = fx * paspect
-    K = np.array([[fx, 0.0, ppx * width - CORNER_CONVENTION], [0.0, fy, ppy * height - CORNER_CONVENTION],
-                  [0.0, 0.0, 1.0]])
+        if width / height * paspect < 1.0:  # portrait, as MVE's fill_calibration decides it
+            fy = f * height
+            fx = fy / paspect
+        else:
+            fx = f * width
+            fy = fx * paspect
+        K = np.array([[fx, 0.0, ppx * width - CORNER_CONVENTION], [0.0, fy, ppy * height - CORNER_CONVENTION],
+                      [0.0, 0.0, 1.0]])
     if d0 == 0.0 and d1 == 0.0:
         return K, None
     if d1 != 0.0:
@@ -156,13 +164,17 @@ def _intrinsics(lens: list[float], width: int, height: int, cam_file: Path) -> t
     return K, Distortion("VisualSfM", (-d0,))
 
 
-def _g2ltex_config(folder: Path, cam_file: Path) -> dict:
-    """The colour camera's intrinsics from a G2LTex ``.yml`` in ``folder`` or the one above it."""
-    for where in (folder, folder.parent):
-        for yml in sorted(where.glob("*.yml")) + sorted(where.glob("*.yaml")):
+def _g2ltex_config(folder: Path, cam_file: Path) -> tuple[dict, Path]:
+    """The colour camera's intrinsics from a G2LTex ``.yml``, and the file: the nearest in ``folder`` or up to
+    three folders above it, or in a ``Config/`` there (G2LTex's release keeps ``Config/config.yml`` beside
+    ``Data/<scene>/<scene>/``)."""
+    for where in (folder, *list(folder.parents)[:3]):
+        ymls = [p for sub in (where, where / "Config", where / "config") for pattern in ("*.yml", "*.yaml")
+                for p in sorted(sub.glob(pattern))]
+        for yml in ymls:
             values = _yml_numbers(yml)
             if all(k in values for k in G2LTEX_KEYS):
-                return values
+                return values, yml
     raise ScanError(cam_file, "holds the pose alone (one line) and no G2LTex configuration (.yml with RGB_fx, "
                               "RGB_fy, RGB_cx, RGB_cy) lies beside it or above it: add texrecon's second line, "
                               "f d0 d1 paspect ppx ppy")

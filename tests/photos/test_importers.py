@@ -270,11 +270,13 @@ def test_mve_convention(tmp_path):
 
 
 def test_mve_portrait_and_defaults(tmp_path):
-    """A portrait image's focal length is over its height (fx = fy / paspect); line 2 of f alone: square pixels,
-    the principal point at the centre, no distortion."""
+    """A portrait image's focal length is over its height (fx = fy / paspect); a line 2 in pixels (G2LTex's); line
+    2 of f alone: square pixels, the principal point at the centre, no distortion."""
     cam_file(tmp_path, "a", f"{40 / W} 0 0 {40 / 50}", w=H, h=W)  # 36 x 48: fy = 40, fx = 50
     K = load_photos(tmp_path).cameras[0].K
     np.testing.assert_allclose(K, [[50, 0, (H - 1) / 2], [0, 40, (W - 1) / 2], [0, 0, 1]], atol=1e-12)
+    cam_file(tmp_path, "a", f"50 0 0 0.8 {(W - 1) / 2} {(H - 1) / 2}")  # in pixels, as G2LTex writes some
+    assert_reference(load_photos(tmp_path))
     cam_file(tmp_path, "a", "0.5")
     photos = load_photos(tmp_path)
     np.testing.assert_allclose(photos.cameras[0].K, [[24, 0, (W - 1) / 2], [0, 24, (H - 1) / 2], [0, 0, 1]])
@@ -310,8 +312,8 @@ def test_g2ltex_one_line_cam_takes_the_configuration_and_depth(tmp_path):
     assert photos.load_depth(0).shape == (H // 2, W // 2) and np.nanmedian(photos.load_depth(0)) == pytest.approx(4)
     (tmp_path / "config_G2LTex.yml").write_text("RGB_fx: 50\nRGB_fy: 40\nRGB_cx: 23.5\nRGB_cy: 17.5\n"
                                                "RGB_width: 640\nRGB_height: 480\n")
-    with pytest.raises(ScanError, match="color_00.png is 48x36 but the G2LTex configuration's intrinsics are for "
-                                        "640x480"):
+    with pytest.raises(ScanError, match=r"color_00.png is 48x36 but the intrinsics of the G2LTex configuration "
+                                        r".*config_G2LTex.yml are for 640x480: another capture's"):
         load_photos(folder)
 
 
