@@ -428,7 +428,7 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
     inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
-    from scantex.report.html import blurred_words, fine_detail, left_out_words
+    from scantex.report.html import blurred_words, fine_detail, left_out_words, repeated_words
 
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
@@ -495,7 +495,9 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         lines.append(f"poses: {poses}")
-    left_out, blurred = left_out_words(m), blurred_words(m)
+    left_out, blurred, repeated = left_out_words(m), blurred_words(m), repeated_words(m)
+    if repeated:
+        lines.append(f"keyframes: {repeated}")
     if left_out:
         lines.append(f"photos left out: {left_out}")
     if blurred:

@@ -219,6 +219,13 @@ def pair_weight(pc: PhotosConfig, n_photos: int) -> float:
     return pc.pair_weight if pairs_mode(pc.pairs, n_photos) == "on" else 0.0
 
 
+def keyframes_mode(keyframes: str, n_photos: int) -> str:
+    """``photos.keyframes`` as a run applies it: ``on`` or ``off`` (``auto``: on from ``KEYFRAMES_FROM`` photos)."""
+    from scantex.photos.keyframes import KEYFRAMES_FROM
+
+    return by_capture_size(keyframes, n_photos, KEYFRAMES_FROM, "on", "off")
+
+
 def pairs_mode(pairs: str, n_photos: int) -> str:
     """``photos.pairs`` as a run applies it: ``on`` or ``off`` (``auto``: on from ``PAIRS_FROM`` photos)."""
     return by_capture_size(pairs, n_photos, PAIRS_FROM, "on", "off")
@@ -316,6 +323,9 @@ class PhotoData:
     left_out: list = field(default_factory=list)
     """the photos left out as not showing what their cameras see
     (:func:`scantex.photos.matching.leave_out_mismatched`)"""
+    repeated: list = field(default_factory=list)
+    """the photos given way to a sharper one whose view they repeat (``photos.keyframes``:
+    :func:`scantex.photos.keyframes.keyframes`)"""
     blurred: list = field(default_factory=list)
     """the photos with under 30 % of the fine detail (along one axis) of the photos that see the same surface
     (:func:`scantex.photos.sharpness.blurred_photos`, with ``image``, ``left_out`` and ``softened``:
@@ -323,20 +333,30 @@ class PhotoData:
 
 
 def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
-                  seed: int) -> tuple[object | None, np.ndarray, np.ndarray, list]:
-    """Photo mode's first step, whole or tiled: ``(alignment report, train, held, left_out)``. The alignment check
-    (refuses a mesh out of the cameras' frame; ``None`` when skipped), the held-out split, and the photos that do
-    not show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
+                  seed: int) -> tuple[object | None, np.ndarray, np.ndarray, list, list]:
+    """Photo mode's first step, whole or tiled: ``(alignment report, train, held, left_out, repeated)``. The
+    photos that repeat a sharper one's view set aside (``photos.keyframes``), the alignment check (refuses a mesh
+    out of the cameras' frame; ``None`` when skipped), the held-out split of the photos kept, and the photos that
+    do not show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
     from scantex.photos.alignment import require_alignment
     from scantex.photos.training import split_photos
 
-    train, held = split_photos(len(photos), pc.holdout, seed)
+    kept, repeated = np.arange(len(photos)), []
+    if keyframes_mode(pc.keyframes, len(photos)) == "on":
+        from scantex.photos.keyframes import keyframes
+
+        chosen, repeated = keyframes(photos, kept, caster)
+        kept = np.asarray(chosen, dtype=kept.dtype)
+        log.info("keyframes: %d of %d photos kept; %d repeat a sharper one's view", len(kept), len(photos),
+                 len(repeated))
+    train, held = split_photos(len(kept), pc.holdout, seed)
+    train, held = kept[train], kept[held]
     if not pc.check_alignment:
-        return None, train, held, []
+        return None, train, held, [], repeated
     from scantex.photos.matching import leave_out_mismatched
 
     report = require_alignment(scan, photos, caster=caster)  # logs its summary
-    return report, *leave_out_mismatched(scan, photos, train, held, caster)
+    return report, *leave_out_mismatched(scan, photos, train, held, caster), repeated
 
 
 def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
@@ -344,7 +364,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
     from scantex.photos.training import prepare_photos
 
-    report, train, held, left_out = checked_split(scan, photos, pc, caster, seed)
+    report, train, held, left_out, repeated = checked_split(scan, photos, pc, caster, seed)
     corrections = []
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
@@ -401,7 +421,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
             aligned, moved = align_to_consensus(scan, photos, held, train_views, canonicalise, caster, fallback,
                                                 pc.temperature, memory_mb=pc.sample_memory_mb)
         final = aligned, prepare_photos(scan, judged(aligned, held_views), held, caster, pc.max_side, settings), moved
-    return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out, blurred)
+    return PhotoData(photos, train_views, held_views, report, corrections, final, mode, left_out, repeated, blurred)
 
 
 def judge_detail(photos: PhotoSet, views: list, train, held, mode: str) -> tuple[list, list, list, list[dict]]:
@@ -1159,6 +1179,7 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "pose_corrections": [c.to_dict() for c in photo.pose_corrections],
         "alignment": alignment_metrics(photo.alignment),
         "left_out": photo.left_out,
+        "repeated": photo.repeated,
         "blurred": photo.blurred,
     }}
     if photo.held_out:

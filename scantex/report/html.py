@@ -97,6 +97,18 @@ def left_out_words(m: dict) -> str:
               "cropped or another frame's (each in metrics.json photos.left_out)")
 
 
+def repeated_words(m: dict) -> str:
+    """The photos set aside as repeating a sharper one's view (``photos.repeated``), in words; ``""``: none."""
+    photos = m.get("photos", {})
+    repeated = photos.get("repeated") or []
+    if not repeated:
+        return ""
+    total = photos.get("total", 0)
+    return (f"{total - len(repeated)} of the {total} photos kept; {len(repeated)} repeat the view of a sharper one "
+            "(centres within 3 % of the viewing distance, axes within 3 degrees) and were set aside before the "
+            "held-out split (photos.keyframes off keeps every one; each in metrics.json photos.repeated)")
+
+
 def blurred_words(m: dict) -> str:
     """The photos named shaken or out of focus (``photos.blurred``) and what became of them, in words; ``""``:
     none."""
@@ -279,7 +291,8 @@ def _headline(m: dict) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         rows.append(("Poses", poses, ""))
-    for title, said in (("Photos left out", left_out_words(m)), ("Blurred photos", blurred_words(m))):
+    for title, said in (("Keyframes", repeated_words(m)), ("Photos left out", left_out_words(m)),
+                        ("Blurred photos", blurred_words(m))):
         if said:
             rows.append((title, said, ""))
     sv = m.get("seam_visibility")

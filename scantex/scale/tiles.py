@@ -204,6 +204,7 @@ class TilePhotos:
             measure, from the ray casts of :func:`tiles_seen`).
         left_out: the photos left out as not showing what their cameras see
             (:func:`scantex.photos.matching.leave_out_mismatched`).
+        repeated: the photos given way to a sharper one whose view they repeat (``photos.keyframes``).
     """
 
     photos: PhotoSet
@@ -217,6 +218,7 @@ class TilePhotos:
     alignment: object | None
     px_per_cm: float = 0.0
     left_out: list = field(default_factory=list)
+    repeated: list = field(default_factory=list)
 
     def for_tile(self, tile: int) -> PhotoSet | None:
         """Tile ``tile``'s training photos, their pixels that other tiles hide masked (``None``: no photo sees
@@ -261,7 +263,7 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
     from scantex.views.render import shade_hits
 
     pc = config.photos
-    report, train, held, left_out = checked_split(scan, photos, pc, caster, config.seed)
+    report, train, held, left_out, repeated = checked_split(scan, photos, pc, caster, config.seed)
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))
     corrections: list = []
     # the stage's progress counts the training photos refined (input mode), then each one cast
@@ -274,7 +276,8 @@ def photos_for_tiles(scan: Scan, plan: TilePlan, photos: PhotoSet, config: Enhan
                                                     pc.depth_tolerance,
                                                     update and (lambda done, total: update(first + done, steps)))
     log.info("photos per tile: %s", [len(p) for p in per_tile])
-    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report, density, left_out)
+    return TilePhotos(photos, train, held, per_tile, hidden, factors, mode, corrections, report, density, left_out,
+                      repeated)
 
 
 def tiles_seen(scan: Scan, plan: TilePlan, photos: PhotoSet, indices, caster, max_side: int,
@@ -749,7 +752,7 @@ def tiled_photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, p
         "train": photos.train.tolist(), "held_out": photos.held_out.tolist(),
         "per_tile": [len(p) for p in photos.per_tile],
         "pose_refinement": photos.pose_mode, "pose_corrections": [c.to_dict() for c in photos.corrections],
-        "alignment": alignment_metrics(photos.alignment), "left_out": photos.left_out,
+        "alignment": alignment_metrics(photos.alignment), "left_out": photos.left_out, "repeated": photos.repeated,
         "final_texture": {"photos": len(photos.train), "mode": "training", "setting": pc.final,
                           "note": "tiles write the texture the held-out photos score: the training photos'"},
         "texturing": tiled_texturing(pc, len(photos.photos)),

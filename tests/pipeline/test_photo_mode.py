@@ -616,3 +616,35 @@ def test_blurred_photos_are_left_out_when_they_are_a_quarter_of_the_training_pho
 @dataclasses.dataclass
 class _FakeView:
     index: int = 0
+
+
+def test_repeated_views_are_thinned_before_the_split(tmp_path, toy_demo, toy_photos):
+    """Each of the ten photos given twice (a copy under another name, as a video's still camera gives): with
+    ``photos.keyframes`` on, one of each pair is kept, the split is made of those, and the summary and metrics
+    say which repeat which; auto leaves a capture this small as it is."""
+    import shutil
+
+    from scantex.cli import enhance_summary
+
+    copies = []
+    for i, image in enumerate(toy_photos.images):
+        copies.append(tmp_path / f"copy_{i}{image.suffix}")
+        shutil.copyfile(image, copies[-1])
+    twice = PhotoSet(cameras=toy_photos.cameras * 2, images=(*toy_photos.images, *copies), source=tmp_path,
+                     format="test")
+    config = TOY.override(photos__check_alignment=False, photos__keyframes="on")
+    m = enhance(toy_demo.scan, config, photos=twice).metrics
+    repeated = m["photos"]["repeated"]
+    assert sorted(d["photo"] for d in repeated) == list(range(10, 20))
+    assert all(d["repeats"] == d["photo"] - 10 for d in repeated)
+    assert sorted(m["photos"]["train"] + m["photos"]["held_out"]) == list(range(10))
+    assert len(m["photos"]["held_out"]) == 1 and m["geometry"]["arrays_identical"]
+    assert "keyframes: 10 of the 20 photos kept; 10 repeat the view of a sharper one" in enhance_summary(m)
+    from scantex.photos.keyframes import KEYFRAMES_FROM
+    from scantex.pipeline.enhance import keyframes_mode
+
+    assert keyframes_mode("auto", KEYFRAMES_FROM - 1) == "off" and keyframes_mode("auto", KEYFRAMES_FROM) == "on"
+    assert keyframes_mode("off", 10 * KEYFRAMES_FROM) == "off" and keyframes_mode("on", 2) == "on"
+    m = enhance(toy_demo.scan, config.override(photos__keyframes="auto"), photos=twice).metrics
+    assert m["photos"]["repeated"] == [] and len(m["photos"]["train"]) + len(m["photos"]["held_out"]) == 20
+    assert "keyframes" not in enhance_summary(m)

@@ -261,12 +261,14 @@ def test_the_summary_of_a_tiled_run_and_of_photos_scored_against_a_truth():
     assert report._fmt(True) == "yes" and report._fmt(False) == "no"
 
 
-def test_the_summary_names_the_photos_left_out_and_the_blurred_ones_as_the_command_line_does():
+def test_the_summary_names_the_photos_left_out_repeated_and_blurred_as_the_command_line_does():
     import scantex.report.html as report
 
-    m = {"photos": {"left_out": [{"photo": 2, "why": "upside down"}],
+    m = {"photos": {"left_out": [{"photo": 2, "why": "upside down"}], "total": 12,
+                    "repeated": [{"photo": 4, "repeats": 3}, {"photo": 9, "repeats": 8}],
                     "blurred": [{"photo": 7, "detail": 0.12, "left_out": False, "softened": True}]}}
     headline = report._headline(m)
+    assert "Keyframes" in headline and "10 of the 12 photos kept; 2 repeat the view of a sharper one" in headline
     assert "Photos left out" in headline and "1 (2), not showing what its camera sees" in headline
     assert "Blurred photos" in headline and "7 (12 %) of the fine detail" in headline
     assert "their fine detail left to the sharp photos" in headline
