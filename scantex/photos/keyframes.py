@@ -13,7 +13,9 @@ of the mesh repeats nothing.
 
 ``photos.keyframes`` auto applies it from :data:`KEYFRAMES_FROM` photos, before the held-out split (a held-out
 frame then has no training frame that repeats it, and its score says what the texture does between views); the
-real captures here are keyframes already (the apartment's 219: 9 repeat another) and are left as they are.
+real captures here are keyframes already (the apartment's 219: 9 repeat another) and are left as they are. There
+:func:`held_apart` moves a held-out photo that a training photo repeats to the nearest photo in the capture that
+nothing repeats: the apartment's split held out 16 and 66 beside their repeats 17 and 65.
 """
 
 from __future__ import annotations
@@ -106,3 +108,24 @@ def keyframes(photos: PhotoSet, indices: Sequence[int], caster) -> tuple[list[in
         else:
             repeated.append({"photo": indices[k], "repeats": indices[partner]})
     return [indices[k] for k in sorted(kept)], sorted(repeated, key=lambda d: d["photo"])
+
+
+def held_apart(photos: PhotoSet, train: np.ndarray, held: np.ndarray, caster) -> tuple[np.ndarray, np.ndarray]:
+    """``(train, held)`` with each held-out photo that another photo repeats swapped for the nearest photo in the
+    capture's order that nothing repeats (left where it is when there is none), so that every held-out photo scores
+    a view the texture was not made from again."""
+    indices = sorted(int(i) for i in (*train, *held))
+    near = repeats(photos, indices, viewing_distances(photos, indices, caster))
+    position = {i: k for k, i in enumerate(indices)}
+    chosen = {int(i) for i in held}
+    for h in sorted(chosen):
+        if not near[position[h]]:
+            continue
+        alone = [i for i in indices if i not in chosen and not near[position[i]]]
+        if alone:
+            instead = min(alone, key=lambda i: (abs(i - h), i))
+            chosen = (chosen - {h}) | {instead}
+            log.info("photo %d held out instead of photo %d, whose view photo %d repeats", instead, h,
+                     indices[min(near[position[h]])])
+    held = np.array(sorted(chosen), dtype=np.asarray(held).dtype)
+    return np.array([i for i in indices if i not in chosen], dtype=held.dtype), held

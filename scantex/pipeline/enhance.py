@@ -336,8 +336,9 @@ def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCas
                   seed: int) -> tuple[object | None, np.ndarray, np.ndarray, list, list]:
     """Photo mode's first step, whole or tiled: ``(alignment report, train, held, left_out, repeated)``. The
     photos that repeat a sharper one's view set aside (``photos.keyframes``), the alignment check (refuses a mesh
-    out of the cameras' frame; ``None`` when skipped), the held-out split of the photos kept, and the photos that
-    do not show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
+    out of the cameras' frame; ``None`` when skipped), the held-out split of the photos kept (without thinning,
+    moved off views another photo repeats: :func:`scantex.photos.keyframes.held_apart`), and the photos that do not
+    show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
     from scantex.photos.alignment import require_alignment
     from scantex.photos.training import split_photos
 
@@ -351,6 +352,10 @@ def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCas
                  len(repeated))
     train, held = split_photos(len(kept), pc.holdout, seed)
     train, held = kept[train], kept[held]
+    if len(held) and keyframes_mode(pc.keyframes, len(photos)) == "off":
+        from scantex.photos.keyframes import held_apart
+
+        train, held = held_apart(photos, train, held, caster)  # a held-out photo scores a view no photo repeats
     if not pc.check_alignment:
         return None, train, held, [], repeated
     from scantex.photos.matching import leave_out_mismatched

@@ -9,7 +9,8 @@ from PIL import Image
 from scipy import ndimage
 
 from scantex.photos import PhotoSet
-from scantex.photos.keyframes import REPEAT_ANGLE_DEG, REPEAT_DISTANCE, keyframes, repeats, viewing_distances
+from scantex.photos.keyframes import (
+    REPEAT_ANGLE_DEG, REPEAT_DISTANCE, held_apart, keyframes, repeats, viewing_distances)
 from scantex.views.camera import Camera
 from scantex.views.raycast import RayCaster
 from scantex.views.render import render, to_uint8
@@ -65,3 +66,18 @@ def test_the_sharpest_of_each_repeated_view_is_kept(tmp_path):
     twice = PhotoSet(cameras=photos.cameras * 2, images=photos.images * 2, source=tmp_path, format="test")
     kept2, _ = keyframes(twice, range(len(twice)), caster)
     assert len(kept2) == 6 and {8, 17} <= set(kept2)
+
+
+def test_a_held_out_photo_is_moved_off_a_repeated_view(tmp_path):
+    """A held-out photo whose view a training photo repeats scores what the texture was made from: it is swapped
+    for the nearest photo in the capture that nothing repeats; one alone stays; none alone: left as it is."""
+    eyes = [(2.6, -1.8, 1.9), (-1.6, -2.2, 1.4), (2.4, 2.0, 2.2), (-1.5, 2.4, 0.9)]
+    views = [Camera.look_at(e, (0.5, 0.5, 0.5), fov_deg=50, width=96, height=72) for e in eyes]
+    cams = [views[0], moved(views[0], 0.02 * views[0].R[0]), views[1], views[2], views[3]]
+    _, caster, photos = capture(tmp_path, cams)
+    train, held = held_apart(photos, np.array([0, 2, 3, 4]), np.array([1]), caster)
+    assert held.tolist() == [2] and train.tolist() == [0, 1, 3, 4]
+    train, held = held_apart(photos, np.array([0, 1, 2, 4]), np.array([3]), caster)
+    assert held.tolist() == [3] and train.tolist() == [0, 1, 2, 4]
+    pair = PhotoSet(cameras=tuple(cams[:2]), images=photos.images[:2], source=tmp_path, format="test")
+    assert [a.tolist() for a in held_apart(pair, np.array([0]), np.array([1]), caster)] == [[0], [1]]
