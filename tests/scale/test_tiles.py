@@ -295,6 +295,7 @@ def test_a_tiled_run_names_the_shaken_photos_its_tiles_named_by_their_number_in_
     m = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), photos=one, runner=LocalPool(workers=1)).metrics
     held = m["photos"]["held_out"]
     assert held == [6]  # the smeared photo is the seventh of a tile's training photos, not the eighth
+    assert m["photos"]["repeated"] == []  # ten distinct views: none set aside as repeating another
     named = m["photos"]["blurred"]
     assert [d["photo"] for d in named] == [7] and named[0]["image"] == str(path) and named[0]["tiles"]
     assert not named[0]["left_out"]  # one of nine: blended in
@@ -382,3 +383,23 @@ def test_a_tiled_run_says_how_its_tiles_coloured_their_texels():
         "mode": "projective", "detail": {"temperature": 0.1, "sigma_px": 4.0, "gain": 1.0}}
     assert tiled_texturing(PhotosConfig(detail="blend"), 500) == {"mode": "projective"}
     assert tiled_texturing(PhotosConfig(texturing="field", detail="sharp"), 10) == {"mode": "field"}
+
+
+def test_a_tiled_run_thins_repeated_views_once_for_the_capture(tmp_path, toy_demo, toy_photos):
+    """``photos.keyframes`` on: the capture's repeated views are set aside before the split, once for all the tiles,
+    and the run's metrics name them."""
+    import shutil
+
+    from scantex.photos import PhotoSet
+    from tests.pipeline.test_enhance import TOY
+
+    copies = []
+    for i, image in enumerate(toy_photos.images):
+        copies.append(tmp_path / f"copy_{i}{image.suffix}")
+        shutil.copyfile(image, copies[-1])
+    twice = PhotoSet(cameras=toy_photos.cameras * 2, images=(*toy_photos.images, *copies), source=tmp_path,
+                     format="test")
+    config = TOY.override(photos__check_alignment=False, photos__keyframes="on")
+    m = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), photos=twice, runner=LocalPool(workers=1)).metrics
+    assert sorted(d["photo"] for d in m["photos"]["repeated"]) == list(range(10, 20))
+    assert sorted(m["photos"]["train"] + m["photos"]["held_out"]) == list(range(10))
