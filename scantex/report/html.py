@@ -103,10 +103,14 @@ def repeated_words(m: dict) -> str:
     repeated = photos.get("repeated") or []
     if not repeated:
         return ""
-    total = photos.get("total", 0)
-    return (f"{total - len(repeated)} of the {total} photos kept; {len(repeated)} repeat the view of a sharper one "
-            "(centres within 3 % of the viewing distance, axes within 3 degrees) and were set aside before the "
-            "held-out split (photos.keyframes off keeps every one; each in metrics.json photos.repeated)")
+    from scantex.photos.keyframes import REPEAT_ANGLE_DEG, REPEAT_DISTANCE
+
+    total, one = photos.get("total", 0), len(repeated) == 1
+    return (f"{total - len(repeated)} of the {total} photos kept; {len(repeated)} "
+            f"{'repeats' if one else 'repeat'} the view of a sharper one (centres within {100 * REPEAT_DISTANCE:g} % "
+            f"of the viewing distance, axes within {REPEAT_ANGLE_DEG:g} degrees) and {'was' if one else 'were'} set "
+            "aside before the held-out split (photos.keyframes off keeps every one; each in metrics.json "
+            "photos.repeated)")
 
 
 def blurred_words(m: dict) -> str:
