@@ -2,6 +2,7 @@
 
     python bench/bench_detail.py MESH CAMERAS                      # every tenth photo from the fifth held out
     python bench/bench_detail.py MESH CAMERAS --app-style 4096 --override photos__temperature=0.5
+    python bench/bench_detail.py MESH CAMERAS --app-style 4096 --repeat 4 --no-variants --override photos__keyframes=off
 
 MESH is the capture's mesh with its texture (a capture app's input), or, with ``--app-style SIZE``, a mesh whose
 UV layout an app-style input is baked on from the given photos (:func:`bench.baselines.app_style_bake`: per texel
@@ -12,7 +13,9 @@ input, once a run: the default (``photos.detail`` auto: balanced from 50 photos,
 held-out photos' cameras and scored colour-matched (:func:`scantex.photos.training.score_photos`), with each
 render's fine detail (mean |Laplacian of a Gaussian of 1 px| of its grey, the photos' own beside it). Prints a
 Markdown table; bench/RESULTS.md "sharp detail" holds the real apartment's (the G2LTex ``apt0`` capture, kept
-outside the repository: its mesh fused from the depth maps).
+outside the repository: its mesh fused from the depth maps). ``--repeat N`` gives scantex each given photo N times
+over (a stand-in for a video's repeated views: ``photos.keyframes``, "photo memory" in bench/RESULTS.md), the
+app-style input still baked from them once; ``--no-variants`` runs the default and the overrides alone.
 """
 
 from __future__ import annotations
@@ -45,6 +48,10 @@ def main() -> None:
                         help="bake an app-style input of SIZE² from the given photos on MESH's UV layout")
     parser.add_argument("--override", action="append", default=[], metavar="SECTION__NAME=VALUE",
                         help="one more run with this config override (JSON value or a string); repeat for more")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="give scantex each given photo N times over (default 1)")
+    parser.add_argument("--no-variants", action="store_true",
+                        help="run the default and the overrides only, not the other photos.detail modes")
     args = parser.parse_args()
 
     everything = load_photos(args.cameras)
@@ -56,8 +63,11 @@ def main() -> None:
         scan = app_style_bake(scan, given, prepare_photos(scan, given, range(len(given)), caster, 640),
                               size=args.app_style)
     auto = detail_mode("auto", len(given))  # the default run's: not run twice
-    runs = [{}] + [{"photos__detail": mode} for mode in ("blend", "balanced", "sharp") if mode != auto]
+    runs = [{}] + [{"photos__detail": mode} for mode in ("blend", "balanced", "sharp")
+                   if mode != auto and not args.no_variants]
     runs += [parse_override(item) for item in args.override]
+    if args.repeat > 1:
+        given = given.subset(list(range(len(given))) * args.repeat)
     results, seconds = {"input": scan}, {}
     for k, override in enumerate(runs):
         name = ", ".join(f"{key.replace('__', '.')} {value}" for key, value in override.items()) or "default"
@@ -68,7 +78,8 @@ def main() -> None:
     views = prepare_photos(scan, everything, held, caster, 640, VisibilitySettings(supersample=2))
     scores = score_photos(results, views, caster)
     i = scores["input"]
-    print(f"{len(given)} photos given, {len(held)} held out; the photos' own detail {i['photo_detail']:.4f}\n")
+    times = f" ({len(given) // args.repeat} x {args.repeat})" if args.repeat > 1 else ""
+    print(f"{len(given)} photos given{times}, {len(held)} held out; the photos' own detail {i['photo_detail']:.4f}\n")
     print(f"| run | colour-matched PSNR (input -> output) | SSIM | detail (input {i['detail']:.4f}) | enhance s |")
     print("|---|---|---|---|---|")
     for name in results:

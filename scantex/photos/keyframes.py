@@ -80,15 +80,18 @@ def repeats(photos: PhotoSet, indices: Sequence[int], distances: np.ndarray) -> 
     out: list[set[int]] = [set() for _ in indices]
     if finite.sum() < 2:
         return out
-    tree = cKDTree(centres)
     cos_limit = np.cos(np.radians(REPEAT_ANGLE_DEG))
-    for a, b in tree.query_pairs(REPEAT_DISTANCE * float(np.max(distances[finite]))):
-        if not (finite[a] and finite[b]):
-            continue
-        if (np.linalg.norm(centres[a] - centres[b]) < REPEAT_DISTANCE * min(distances[a], distances[b])
-                and float(axes[a] @ axes[b]) > cos_limit):
-            out[a].add(b)
-            out[b].add(a)
+    radii = np.where(finite, REPEAT_DISTANCE * np.nan_to_num(distances), 0.0)
+    # each photo's own radius (a pair within the nearer one's is within both): a far view's wide radius does not
+    # make every photo near every other
+    for a, found in enumerate(cKDTree(centres).query_ball_point(centres, radii)):
+        for b in found:
+            if b <= a or not (finite[a] and finite[b]):
+                continue
+            if (np.linalg.norm(centres[a] - centres[b]) < REPEAT_DISTANCE * min(distances[a], distances[b])
+                    and float(axes[a] @ axes[b]) > cos_limit):
+                out[a].add(b)
+                out[b].add(a)
     return out
 
 
