@@ -618,20 +618,24 @@ class _FakeView:
     index: int = 0
 
 
+def given_twice(photos: PhotoSet, folder) -> PhotoSet:
+    """``photos`` followed by a copy of each under another name in ``folder`` (a still camera's repeated frames)."""
+    import shutil
+
+    copies = []
+    for i, image in enumerate(photos.images):
+        copies.append(folder / f"copy_{i}{image.suffix}")
+        shutil.copyfile(image, copies[-1])
+    return PhotoSet(cameras=photos.cameras * 2, images=(*photos.images, *copies), source=folder, format="test")
+
+
 def test_repeated_views_are_thinned_before_the_split(tmp_path, toy_demo, toy_photos):
     """Each of the ten photos given twice (a copy under another name, as a video's still camera gives): with
     ``photos.keyframes`` on, one of each pair is kept, the split is made of those, and the summary and metrics
     say which repeat which; auto leaves a capture this small as it is."""
-    import shutil
-
     from scantex.cli import enhance_summary
 
-    copies = []
-    for i, image in enumerate(toy_photos.images):
-        copies.append(tmp_path / f"copy_{i}{image.suffix}")
-        shutil.copyfile(image, copies[-1])
-    twice = PhotoSet(cameras=toy_photos.cameras * 2, images=(*toy_photos.images, *copies), source=tmp_path,
-                     format="test")
+    twice = given_twice(toy_photos, tmp_path)
     config = TOY.override(photos__check_alignment=False, photos__keyframes="on")
     m = enhance(toy_demo.scan, config, photos=twice).metrics
     repeated = m["photos"]["repeated"]

@@ -388,17 +388,10 @@ def test_a_tiled_run_says_how_its_tiles_coloured_their_texels():
 def test_a_tiled_run_thins_repeated_views_once_for_the_capture(tmp_path, toy_demo, toy_photos):
     """``photos.keyframes`` on: the capture's repeated views are set aside before the split, once for all the tiles,
     and the run's metrics name them."""
-    import shutil
-
-    from scantex.photos import PhotoSet
     from tests.pipeline.test_enhance import TOY
+    from tests.pipeline.test_photo_mode import given_twice
 
-    copies = []
-    for i, image in enumerate(toy_photos.images):
-        copies.append(tmp_path / f"copy_{i}{image.suffix}")
-        shutil.copyfile(image, copies[-1])
-    twice = PhotoSet(cameras=toy_photos.cameras * 2, images=(*toy_photos.images, *copies), source=tmp_path,
-                     format="test")
+    twice = given_twice(toy_photos, tmp_path)
     config = TOY.override(photos__check_alignment=False, photos__keyframes="on")
     m = enhance_tiled(toy_demo.scan, config, TilingConfig(tiles=2), photos=twice, runner=LocalPool(workers=1)).metrics
     assert sorted(d["photo"] for d in m["photos"]["repeated"]) == list(range(10, 20))
