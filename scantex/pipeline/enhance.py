@@ -343,7 +343,8 @@ def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCas
     from scantex.photos.training import split_photos
 
     kept, repeated = np.arange(len(photos)), []
-    if keyframes_mode(pc.keyframes, len(photos)) == "on":
+    thinned = keyframes_mode(pc.keyframes, len(photos)) == "on"
+    if thinned:
         from scantex.photos.keyframes import keyframes
 
         chosen, repeated = keyframes(photos, kept, caster)
@@ -352,7 +353,7 @@ def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCas
                  len(repeated))
     train, held = split_photos(len(kept), pc.holdout, seed)
     train, held = kept[train], kept[held]
-    if len(held) and keyframes_mode(pc.keyframes, len(photos)) == "off":
+    if len(held) and not thinned:
         from scantex.photos.keyframes import held_apart
 
         train, held = held_apart(photos, train, held, caster)  # a held-out photo scores a view no photo repeats
