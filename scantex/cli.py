@@ -766,7 +766,8 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--photos", type=Path, metavar="PATH",
                         help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
                              "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
-                             "or ScanNet's exported frames, or texrecon's scene folder (photos beside .cam files); "
+                             "or ScanNet's exported frames, RGB-D frame files (frame-000000.color.png + .pose.txt: "
+                             "Intrinsic3D, a .sens export), or texrecon's scene folder (photos beside .cam files); "
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
@@ -892,8 +893,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", type=Path, metavar="PATH",
                    help="the posed photos, read as 'enhance --photos' reads them: a nerfstudio transforms.json, a "
                         "COLMAP model (text or binary), a 3D Scanner App or Polycam export, a cameras.json, or a "
-                        "folder holding one, ScanNet's exported frames or texrecon's scene folder (photos beside "
-                        ".cam files): both meshes' "
+                        "folder holding one, ScanNet's exported frames, RGB-D frame files (frame-000000.color.png "
+                        "+ .pose.txt) or texrecon's scene folder (photos beside .cam files): both meshes' "
                         "renders are scored against the photos, on the pixels A covers (photos that see none of A "
                         "are left out with a warning; none seeing it is an error: A is not in the cameras' frame)")
     add_distortion_option(p, "--cameras")

@@ -9,6 +9,8 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.scannerapp` 3D Scanner App "All Data" frames,
 - :mod:`~scantex.photos.polycam` Polycam raw keyframes,
 - :mod:`~scantex.photos.scannet` ScanNet's exported frames (``color/``, ``depth/``, ``pose/``, ``intrinsic/``),
+- :mod:`~scantex.photos.rgbd_frames` RGB-D frames as files (``frame-000000.color.png``, ``.depth.png``,
+  ``.pose.txt``: Intrinsic3D, a ``.sens`` export, 3RScan, 3DMatch),
 - :mod:`~scantex.photos.mve` texrecon's scene folder (photos beside ``.cam`` files; G2LTex's too),
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
@@ -32,10 +34,12 @@ from scantex.photos.mve import load_mve, write_mve
 from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.photos.polycam import load_polycam, write_polycam
+from scantex.photos.rgbd_frames import load_rgbd_frames
 from scantex.photos.scannerapp import load_3dscannerapp, write_3dscannerapp
 from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment",
            "detect_format", "load_3dscannerapp", "load_cameras_json", "load_colmap", "load_mve", "load_nerfstudio",
-           "load_photos", "load_polycam", "load_scannet", "require_alignment", "write_3dscannerapp",
-           "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_mve", "write_nerfstudio", "write_polycam"]
+           "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment",
+           "write_3dscannerapp", "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_mve",
+           "write_nerfstudio", "write_polycam"]

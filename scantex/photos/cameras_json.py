@@ -156,9 +156,12 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
             frame = {"image": name, **cam.to_dict()}
             if depth is not None:
                 # an integer map in other units than millimetres is written as millimetres even when the photos
-                # are not copied: referred to as it is, it would be read a thousand times too near or far
+                # are not copied (referred to as it is, it would be read a thousand times too near or far), a map
+                # of a lens of its own resampled into its photo's view
+                written = (copy_images or photos.depth_scale != DEPTH_SCALE_MM
+                           or photos.depth_warps[i] is not None)
                 frame["depth"] = (write_depth(files, photos, i, out_dir / f"depth_{i:03d}", floats=True).name
-                                  if copy_images or photos.depth_scale != DEPTH_SCALE_MM else str(depth.resolve()))
+                                  if written else str(depth.resolve()))
             distortion = photos.distortions[i]
             if distortion is not None and not distortion.is_zero:
                 frame["distortion"] = {"model": distortion.model, "radial": list(distortion.radial),

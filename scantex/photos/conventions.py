@@ -124,6 +124,16 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tu
     return width, height
 
 
+def check_depth_intrinsics(K: np.ndarray, where: Path) -> np.ndarray:
+    """A depth camera's ``(3, 3)`` K (its map's size is checked when the map is read): finite, positive focal
+    lengths, of the pinhole form; a ScanError naming ``where`` otherwise."""
+    K = np.asarray(K, dtype=np.float64)
+    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise ScanError(where, f"the depth camera's intrinsics {np.round(K, 3).tolist()} are not of the form "
+                               "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with positive focal lengths")
+    return K
+
+
 def intrinsics(fx, fy, cx, cy, *, pixel_centre: float) -> np.ndarray:
     """``(3, 3)`` K in scantex's convention from a principal point given in a convention where the
     centre of the top-left pixel is ``(pixel_centre, pixel_centre)``: 0.5 for COLMAP, nerfstudio and

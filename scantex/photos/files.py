@@ -66,6 +66,19 @@ def load_json(path: Path):
         raise ScanError(path, f"cannot read the file ({e.strerror})") from None
 
 
+def read_matrix(path: Path, what: str, shapes: Sequence[tuple[int, int]] = ((4, 4),)) -> np.ndarray:
+    """A text file of rows of numbers (a pose, a K) as a ``float64`` array of one of ``shapes``; a ScanError
+    naming the file otherwise (non-finite numbers are the caller's to judge: a lost frame's pose is -inf)."""
+    try:
+        m = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except (OSError, ValueError) as e:
+        raise ScanError(path, f"not a {what}: {e}".rstrip(": ")) from None
+    if m.shape not in [tuple(s) for s in shapes]:
+        expected = " or ".join(f"{r}x{c}" for r, c in shapes)
+        raise ScanError(path, f"not a {what}: {m.shape[0]}x{m.shape[1]} numbers, expected {expected}")
+    return m
+
+
 def check_sizes(cameras: Sequence[Camera], images: Sequence[Path], where: Path) -> None:
     """Every image's header size equals its camera's (a downscaled copy would silently misalign)."""
     for i, (cam, path) in enumerate(zip(cameras, images)):
@@ -104,11 +117,14 @@ def write_depth(files, photos: PhotoSet, i: int, stem: Path, *, floats: bool) ->
     suffix; returns the path. The file is copied as it is where a reader takes it so: an integer map in
     millimetres (kept as a ``.png`` only when it is one), or a float map in metres where the format reads ``floats``.
     Any other map (a float map for a format without floats, integers in other units) is written as what every
-    format reads: a uint16 PNG of millimetres, 0 where there is no measurement or the depth is beyond 65.535 m."""
+    format reads: a uint16 PNG of millimetres, 0 where there is no measurement or the depth is beyond 65.535 m. A map
+    of a lens of its own (:attr:`PhotoSet.depth_warps`) is written resampled into its photo's view, as every
+    format reads a map."""
     src = photos.depths[i]
     stored = photos.stored_depth(i)
-    as_is = (stored.dtype.kind == "f" and floats) or (
-        stored.dtype.kind in "ui" and photos.depth_scale == DEPTH_SCALE_MM and (floats or src.suffix.lower() == ".png"))
+    millimetres = stored.dtype.kind in "ui" and photos.depth_scale == DEPTH_SCALE_MM
+    as_is = photos.depth_warps[i] is None and ((stored.dtype.kind == "f" and floats) or (
+        millimetres and (floats or src.suffix.lower() == ".png")))
     if as_is:
         dst = stem.with_name(stem.name + src.suffix.lower())
         copy_into(files, src, dst)

@@ -55,6 +55,7 @@ from scantex.photos.files import (
     need,
     number,
     resolve_file,
+    write_depth,
 )
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
@@ -175,8 +176,8 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
                      "transform_matrix": opengl_camera_to_world(cam).tolist()}
             frame.update(_distortion_keys(photos.distortions[i], i))
             if photos.depths[i] is not None:
-                frame["depth_file_path"] = f"depth/frame_{i + 1:05d}.png"
-                copy_into(files, photos.depths[i], out_dir / frame["depth_file_path"])
+                written = write_depth(files, photos, i, out_dir / "depth" / f"frame_{i + 1:05d}", floats=False)
+                frame["depth_file_path"] = written.relative_to(out_dir).as_posix()
             frames.append(frame)
         doc = {"camera_model": "OPENCV", "frames": frames}
         files.path(out_dir / "transforms.json").write_text(json.dumps(doc, indent=1))

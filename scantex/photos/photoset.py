@@ -177,14 +177,22 @@ class PhotoSet:
         depths: ``(N,)`` depth maps (uint16 PNG, ``depth_scale`` metres per unit; or float, in metres: a 32-bit
             TIFF, a ``.npy``) or ``None`` per photo.
             A depth map may have another size than its photo (phones and the Kinect record depth at a
-            lower resolution): :meth:`load_depth` returns it as stored and resizing it is the caller's
-            business (it covers the same field of view, so its intrinsics are the photo's scaled by
-            ``depth width / image width``, pixel centres kept consistent as in :meth:`Camera.scaled`).
+            lower resolution): :meth:`load_depth` returns it at its stored size and resizing it is the caller's
+            business (it covers the photo's field of view, so its intrinsics are the photo's scaled by
+            ``depth width / image width`` and ``depth height / image height``, pixel centres kept consistent
+            as in :meth:`Camera.scaled`).
+        depth_warps: ``(N,)`` per photo, ``None`` (its depth map covers the photo's view, as above) or the
+            ``(3, 3)`` affine map from a point of the photo to the same point of its depth map, each in its image's
+            share (``((u + 0.5) / width, (v + 0.5) / height)``), where the depth camera has a lens of its own (at the
+            photo camera's centre, looking its way: a capture that registered depth to colour, as ScanNet's and the
+            Structure Sensor's exports do; :func:`depth_warp` makes it from the two K): :meth:`load_depth` resamples
+            the map into the photo's view. Fixed when the photos are read: a photo's pose or focal length refined
+            later takes its map along, as it takes every map that covers its photo's view.
         depth_scale: metres per depth-map unit (0.001: millimetres).
         source: the file or folder the set was read from.
         format: the format it was read from (``"nerfstudio"``, ``"colmap-text"``, ``"colmap-binary"``,
-            ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``), or any label for sets
-            made in code.
+            ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``,
+            ``"rgbd-frames"``), or any label for sets made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
         image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new
@@ -216,6 +224,7 @@ class PhotoSet:
     depth_factors: tuple[float | None, ...] = ()
     tones: tuple[float | None, ...] = ()
     numbers: tuple[int, ...] = ()
+    depth_warps: tuple[np.ndarray | None, ...] = dataclasses.field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -227,9 +236,11 @@ class PhotoSet:
         set_(self, "hidden", tuple(self.hidden) or (None,) * n)
         set_(self, "depth_factors", tuple(self.depth_factors) or (None,) * n)
         set_(self, "tones", tuple(self.tones) or (None,) * n)
+        set_(self, "depth_warps", tuple(None if a is None else np.array(a, np.float64).reshape(3, 3)
+                                        for a in self.depth_warps) or (None,) * n)
         set_(self, "source", Path(self.source))
         set_(self, "numbers", tuple(int(i) for i in self.numbers))
-        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones") + (
+        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones", "depth_warps") + (
                 ("numbers",) if self.numbers else ()):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
@@ -255,6 +266,7 @@ class PhotoSet:
                                    hidden=tuple(self.hidden[i] for i in idx),
                                    depth_factors=tuple(self.depth_factors[i] for i in idx),
                                    tones=tuple(self.tones[i] for i in idx),
+                                   depth_warps=tuple(self.depth_warps[i] for i in idx),
                                    numbers=tuple(self.numbers[i] for i in idx) if self.numbers else ())
 
     def load_image(self, i: int) -> np.ndarray:
@@ -319,19 +331,22 @@ class PhotoSet:
 
     def load_depth(self, i: int) -> np.ndarray | None:
         """``(h, w) float32`` depth in metres of photo ``i`` (NaN where the map has no measurement, stored
-        as 0, or as NaN or a negative value in a float map), at the depth map's own size; ``None`` when the
-        photo has no depth map. An integer map is in ``depth_scale`` units, a float map (a 32-bit TIFF, a
-        ``.npy``) in metres. The map as stored is what :attr:`image_cache` keeps (16-bit integers: half the
-        size, and right for any ``depth_scale``)."""
+        as 0, or as NaN or a negative value in a float map), at the depth map's own size and covering the photo's
+        view (a map of a lens of its own resampled: :attr:`depth_warps`); ``None`` when the photo has no
+        depth map. An integer map is in ``depth_scale`` units, a float map (a 32-bit TIFF, a ``.npy``) in metres.
+        The map as stored is what :attr:`image_cache` keeps (16-bit integers: half the size, and right for any
+        ``depth_scale``)."""
         raw = self.stored_depth(i)
         if raw is None:
             return None
         if raw.dtype.kind == "f":
             depth = raw.astype(np.float32)
             depth[~(depth > 0) | ~np.isfinite(depth)] = np.nan
-            return depth
-        depth = raw.astype(np.float32) * np.float32(self.depth_scale)
-        depth[raw == 0] = np.nan
+        else:
+            depth = raw.astype(np.float32) * np.float32(self.depth_scale)
+            depth[raw == 0] = np.nan
+        if self.depth_warps[i] is not None:
+            depth = into_photo_view(depth, self.depth_warps[i])
         return depth
 
     def stored_depth(self, i: int) -> np.ndarray | None:
@@ -354,6 +369,36 @@ class PhotoSet:
             return raw
 
         return self.image_cache.get_or_decode(path, decode, "depth") if self.all_cached else decode()
+
+
+def depth_warp(K_depth: np.ndarray, depth_size: tuple[int, int], K_photo: np.ndarray,
+               photo_size: tuple[int, int]) -> np.ndarray | None:
+    """The :attr:`PhotoSet.depth_warps` entry of a depth camera (``K_depth`` for maps of ``depth_size``, ``(w,
+    h)``) registered to a photo camera (``K_photo``, ``photo_size``): at the same centre, looking the same way, so
+    a ray's pixel moves and its depth does not. ``None`` when the map covers the photo's view (the warp within a
+    thousandth of a pixel of the identity)."""
+    def share(size):  # pixel (u, v) -> ((u + 0.5) / w, (v + 0.5) / h)
+        return np.array([[1.0 / size[0], 0, 0.5 / size[0]], [0, 1.0 / size[1], 0.5 / size[1]], [0, 0, 1]])
+
+    warp = share(depth_size) @ np.asarray(K_depth, np.float64) @ np.linalg.inv(K_photo) @ np.linalg.inv(
+        share(photo_size))
+    warp[2] = (0.0, 0.0, 1.0)
+    off = np.abs(warp[:2] - np.eye(3)[:2]) * np.array([[depth_size[0]], [depth_size[1]]])
+    return None if off.max() < 1e-3 else warp
+
+
+def into_photo_view(depth: np.ndarray, warp: np.ndarray) -> np.ndarray:
+    """A depth map of a lens of its own resampled, nearest (no depth averaged across an edge), into its photo's
+    view at the map's size (``warp``: :attr:`PhotoSet.depth_warps`); NaN where the depth camera did not look."""
+    h, w = depth.shape
+    y, x = (np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w
+    qx = warp[0, 0] * x[None, :] + warp[0, 1] * y[:, None] + warp[0, 2]
+    qy = np.broadcast_to(warp[1, 1] * y[:, None] + warp[1, 2], qx.shape)
+    ud, vd = np.floor(qx * w), np.floor(qy * h)  # the pixel a share falls in: nearest sampling
+    inside = (ud >= 0) & (ud < w) & (vd >= 0) & (vd < h)
+    out = np.full((h, w), np.nan, np.float32)
+    out[inside] = depth[vd[inside].astype(np.intp), ud[inside].astype(np.intp)]
+    return out
 
 
 def _load_npy(path: Path) -> np.ndarray:

@@ -36,7 +36,7 @@ from scantex.photos.conventions import (
     principal_point,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import check_sizes, copy_into, load_json, need, number
+from scantex.photos.files import check_sizes, copy_into, load_json, need, number, write_depth
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera
 
@@ -124,5 +124,5 @@ def write_polycam(photos: PhotoSet, out_dir: str | Path) -> Path:
             copy_into(files, image, root / "images" / f"{stem}{image.suffix.lower()}")
             files.path(root / "cameras" / f"{stem}.json").write_text(json.dumps(doc, indent=1))
             if photos.depths[i] is not None:
-                copy_into(files, photos.depths[i], root / "depth" / f"{stem}.png")
+                write_depth(files, photos, i, root / "depth" / stem, floats=False)
     return root

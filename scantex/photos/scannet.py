@@ -10,10 +10,12 @@ Conventions, and what scantex does with them:
   centres), one for every frame. The image size is read from the images.
 - ``color/N.jpg`` (or ``.png``) is frame N's photo; frames are taken in the order of their numbers, those
   without a photo skipped.
-- ``depth/N.png``: uint16 millimetres, usually 640x480 beside 1296x968 photos, kept as the photo's depth map.
-  scantex takes a depth map to cover the photo's field of view; ScanNet's depth camera covers about the same
-  (its 4:3 against the photos' 1296:968 puts its rows within 0.4 % of where scantex reads them), and each
-  photo's map is judged against the mesh before it is used.
+- ``depth/N.png``: uint16 millimetres, usually 640x480 beside 1296x968 photos, kept as the photo's depth map,
+  registered to the colour camera (its centre and axes) through a lens of its own,
+  ``intrinsic/intrinsic_depth.txt`` (4x4): scantex resamples it into the photo's view
+  (:attr:`PhotoSet.depth_warps`; a scene's depth K puts its rows about 4 px at 480 px from where the
+  photo's K scaled would). Without that file the map is taken to cover the photo's view. Each photo's map is
+  judged against the mesh before it is used.
 """
 
 from __future__ import annotations
@@ -25,15 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose
-from scantex.photos.files import check_sizes
-from scantex.photos.photoset import PhotoSet, image_size
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_depth_intrinsics, check_intrinsics, check_pose
+from scantex.photos.files import check_sizes, read_matrix
+from scantex.photos.photoset import PhotoSet, depth_warp, image_size
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
 
 FORMAT = "scannet"
 INTRINSICS = Path("intrinsic") / "intrinsic_color.txt"
+DEPTH_INTRINSICS = Path("intrinsic") / "intrinsic_depth.txt"
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 NUMBERED = re.compile(r"^(\d+)$")
 
@@ -47,16 +50,6 @@ def export_folder(path: Path) -> Path | None:
     return None
 
 
-def _matrix(path: Path, what: str) -> np.ndarray:
-    try:
-        m = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except (OSError, ValueError) as e:
-        raise ScanError(path, f"not a {what}: {e}".rstrip(": ")) from None
-    if m.shape != (4, 4):
-        raise ScanError(path, f"not a {what}: {m.shape[0]}x{m.shape[1]} numbers, expected 4x4")
-    return m
-
-
 def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
     """Read a ScanNet export folder (or its ``intrinsic/``, ``pose/`` or ``color/``); conventions in the module
     docstring. ``max_distortion_px`` is accepted for symmetry: the format stores no distortion.
@@ -68,7 +61,11 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
     folder = export_folder(path)
     if folder is None:
         raise ScanError(path, f"not a ScanNet export: expected {INTRINSICS}, pose/ and color/")
-    K = _matrix(folder / INTRINSICS, "4x4 intrinsics file")[:3, :3].copy()
+    K = read_matrix(folder / INTRINSICS, "4x4 intrinsics file")[:3, :3].copy()
+    K_depth = None
+    if (folder / DEPTH_INTRINSICS).is_file():
+        K_depth = read_matrix(folder / DEPTH_INTRINSICS, "4x4 intrinsics file")[:3, :3].copy()
+        check_depth_intrinsics(K_depth, folder / DEPTH_INTRINSICS)
     photos = {}
     for p in (folder / "color").iterdir():
         if p.suffix.lower() in IMAGE_SUFFIXES and NUMBERED.match(p.stem):
@@ -81,7 +78,7 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
         image = photos.get(number)
         if image is None:
             continue
-        c2w = _matrix(pose_file, "4x4 camera-to-world pose")
+        c2w = read_matrix(pose_file, "4x4 camera-to-world pose")
         if not np.isfinite(c2w).all():
             lost += 1
             continue
@@ -98,5 +95,7 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
     if lost:
         log.warning("%s: %d frames have no pose (tracking lost: -inf): skipped", folder, lost)
     check_sizes(cameras, images, folder)
+    first = next((d for d in depths if d is not None), None)
+    warp = None if K_depth is None or first is None else depth_warp(K_depth, image_size(first), K, size)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
-                    format=FORMAT)
+                    format=FORMAT, depth_warps=tuple(None if d is None else warp for d in depths))

@@ -15,6 +15,7 @@ import pytest
 from PIL import Image
 
 from scantex.errors import ScanError
+from scantex.photos.photoset import depth_warp
 from scantex.photos import (
     PhotoSet,
     detect_format,
@@ -349,6 +350,126 @@ def test_scannet_convention_order_lost_frames_and_depth(tmp_path, caplog):
     assert photos.depths[1] is None
 
 
+def rgbd_frames_folder(root: Path, numbers=(0, 2, 10), lost=(), intrinsics="intrinsic3d", depth_units=1000,
+                       prefix="frame-", suffix=".png") -> Path:
+    """RGB-D frames as files of the reference camera (``frame-000000.color.png`` + ``.pose.txt``, a depth map
+    beside frame 0 at half size) with the intrinsics of Intrinsic3D (4x4 files), a .sens export (``_info.txt``) or
+    3DMatch (a 3x3 ``camera-intrinsics.txt`` in the folder above)."""
+    root.mkdir(parents=True, exist_ok=True)
+    K4 = np.eye(4)
+    K4[:3, :3] = reference_camera().K
+    half = reference_camera().scaled(0.5).K
+    if intrinsics == "intrinsic3d":
+        np.savetxt(root / "colorIntrinsics.txt", K4)
+        K4d = np.eye(4)
+        K4d[:3, :3] = half
+        np.savetxt(root / "depthIntrinsics.txt", K4d)
+    elif intrinsics == "sens":
+        row = " ".join
+        (root / "_info.txt").write_text(
+            f"m_versionNumber = 4\nm_sensorName = StructureSensor\nm_colorWidth = {W}\nm_colorHeight = {H}\n"
+            f"m_depthWidth = {W // 2}\nm_depthHeight = {H // 2}\nm_depthShift = {depth_units}\n"
+            f"m_calibrationColorIntrinsic = {row(map(str, K4.ravel()))} \n"
+            f"m_calibrationColorExtrinsic = {row(map(str, np.eye(4).ravel()))} \n"
+            f"m_calibrationDepthIntrinsic = {row(map(str, np.r_[half[0], 0, half[1], 0, half[2], 0, 0, 0, 0, 1]))}\n"
+            f"m_calibrationDepthExtrinsic = {row(map(str, np.eye(4).ravel()))} \nm_frames.size = {len(numbers)}\n")
+    else:
+        np.savetxt(root.parent / "camera-intrinsics.txt", reference_camera().K)
+    c2w = np.linalg.inv(reference_camera().world_to_camera)
+    for n in numbers:
+        blank_png(root / f"{prefix}{n:06d}.color{suffix}")
+        np.savetxt(root / f"{prefix}{n:06d}.pose.txt", np.full((4, 4), -np.inf) if n in lost else c2w)
+    Image.fromarray(np.full((H // 2, W // 2), round(2.5 * depth_units), np.uint16)).save(
+        root / f"{prefix}{numbers[0]:06d}.depth.png")
+    return root
+
+
+@pytest.mark.parametrize("intrinsics", ["intrinsic3d", "sens", "3dmatch"])
+def test_rgbd_frames_convention_order_lost_frames_and_depth(tmp_path, caplog, intrinsics):
+    """frame-NNNNNN.pose.txt camera-to-world in OpenCV's axes, K from Intrinsic3D's colorIntrinsics.txt, a .sens
+    export's _info.txt or 3DMatch's camera-intrinsics.txt one folder up; frames in the order of their numbers,
+    those whose tracking was lost skipped with a warning, a photo without a pose no frame; .depth.png the depth
+    map, in the units _info.txt says."""
+    root = rgbd_frames_folder(tmp_path / "seq-01", lost=(2,), intrinsics=intrinsics,
+                              depth_units=5000 if intrinsics == "sens" else 1000)
+    blank_png(root / "frame-000005.color.png")  # a photo without a pose: not a frame
+    for where in (root, root / "frame-000000.pose.txt", root / "frame-000010.color.png"):
+        assert detect_format(where) == ("rgbd-frames", root)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(root)
+    assert "1 frames have no pose (tracking lost: -inf): skipped" in caplog.text
+    assert photos.format == "rgbd-frames"
+    assert [p.name for p in photos.images] == ["frame-000000.color.png", "frame-000010.color.png"]
+    assert_reference(photos)
+    depth = photos.load_depth(0)
+    assert depth.shape == (H // 2, W // 2) and np.nanmedian(depth) == pytest.approx(2.5)
+    assert np.isfinite(depth).all()  # the depth camera's K is the photo's, halved: nothing resampled away
+    assert photos.depths[1] is None
+
+
+def test_rgbd_frames_of_another_name_and_jpeg(tmp_path):
+    """3RScan and others write a frame's files under another name than frame-, photos as JPEG."""
+    root = rgbd_frames_folder(tmp_path / "sequence", numbers=(1, 3), intrinsics="sens", prefix="scan-", suffix=".jpg")
+    photos = load_photos(root)
+    assert [p.name for p in photos.images] == ["scan-000001.color.jpg", "scan-000003.color.jpg"]
+    assert photos.depths[0].name == "scan-000001.depth.png"
+
+
+def test_a_depth_camera_with_its_own_lens_is_resampled_into_the_photo_view(tmp_path):
+    """A depth map taken through a lens of its own (another focal length, principal point and size, at the colour
+    camera's centre, looking its way) is read into the photo's view: it matches the depth the photo's camera sees,
+    where read as if it covered the photo's view it does not. Written through each writer, it is written resampled."""
+    scan = textured_cube()
+    caster = RayCaster(scan.positions, scan.faces)
+    cam = capture_cameras()[0]
+    depth_cam = cam.scaled(2.0)
+    K = depth_cam.K.copy()
+    K[0, 0] *= 0.8
+    K[1, 1] *= 0.85
+    K[0, 2] += 6.0
+    K[1, 2] -= 4.0
+    depth_cam = dataclasses.replace(depth_cam, K=K)
+    measured = cast_gbuffer(caster, depth_cam, scan.face_normals).depth
+    Image.fromarray(np.where(np.isfinite(measured), np.rint(measured * 1000), 0).astype(np.uint16)).save(
+        tmp_path / "d.png")
+    Image.fromarray(to_uint8(render(scan, cam, caster)[0])).save(tmp_path / "p.png")
+    warp = depth_warp(K, (depth_cam.width, depth_cam.height), cam.K, (cam.width, cam.height))
+    photos = PhotoSet(cameras=(cam,), images=(tmp_path / "p.png",), depths=(tmp_path / "d.png",),
+                      depth_warps=(warp,), source=tmp_path, format="test")
+    truth = cast_gbuffer(caster, cam.scaled(2.0), scan.face_normals).depth
+    read = photos.load_depth(0)
+    assert read.shape == truth.shape
+    both = np.isfinite(read) & np.isfinite(truth)
+    assert both.sum() > 0.9 * np.isfinite(truth).sum()  # the wider depth camera saw all the photo sees
+    error = np.abs(read[both] - truth[both])  # nearest sampling: within a depth pixel's slope of the faces
+    as_stored = dataclasses.replace(photos, depth_warps=(None,)).load_depth(0)
+    seen = np.isfinite(as_stored) & np.isfinite(truth)
+    error_as_stored = np.abs(as_stored[seen] - truth[seen])
+    assert np.median(error) < 0.02 and np.median(error_as_stored) > 0.1
+    assert np.mean(error > 0.05) < 0.05 and np.mean(error_as_stored > 0.05) > 0.9
+    # fixed when the photos are read: a focal length refined later takes the map along, as with any map
+    refined = dataclasses.replace(cam, K=cam.K * np.array([[1.02], [1.02], [1.0]]))
+    np.testing.assert_array_equal(dataclasses.replace(photos, cameras=(refined,)).load_depth(0), read)
+    for writer in (write_cameras_json, write_nerfstudio, write_polycam, write_3dscannerapp):
+        back = load_photos(writer(photos, tmp_path / writer.__name__))
+        assert back.depth_warps[0] is None
+        np.testing.assert_allclose(back.load_depth(0), read, atol=6e-4)  # millimetres
+
+
+def test_scannet_depth_intrinsics_are_read(tmp_path):
+    """ScanNet's intrinsic_depth.txt is the depth camera's lens: its maps are resampled into the photos' view."""
+    root = scannet_export(tmp_path / "scene", numbers=(0,))
+    photos = load_photos(root)
+    assert photos.depth_warps[0] is None
+    K = np.eye(4)
+    K[:3, :3] = reference_camera().scaled(0.5).K
+    K[0, 2] += 2  # the depth camera's principal point 2 px right of the photo's, halved
+    np.savetxt(root / "intrinsic" / "intrinsic_depth.txt", K)
+    photos = load_photos(root)
+    assert photos.depth_warps[0] is not None
+    assert np.isnan(photos.load_depth(0)[:, -2:]).all() and np.isfinite(photos.load_depth(0)[:, :-2]).all()
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
@@ -452,6 +573,40 @@ def bad_scannet_pose(tmp_path):
 def bad_scannet_all_lost(tmp_path):
     scannet_export(tmp_path, numbers=(0, 1), lost=(0, 1))
     return tmp_path, "none of its 2 pose/N.txt files has both a finite pose and its photo"
+
+
+def bad_frames_without_intrinsics(tmp_path):
+    rgbd_frames_folder(tmp_path / "seq", intrinsics="3dmatch")
+    (tmp_path / "camera-intrinsics.txt").unlink()
+    return tmp_path / "seq", "no intrinsics for its frames: expected colorIntrinsics.txt, _info.txt"
+
+
+def bad_frames_colour_extrinsic(tmp_path):
+    root = rgbd_frames_folder(tmp_path, intrinsics="sens")
+    info = root / "_info.txt"
+    info.write_text(info.read_text().replace("m_calibrationColorExtrinsic = 1.0 0.0 0.0 0.0",
+                                             "m_calibrationColorExtrinsic = 1.0 0.0 0.0 0.05"))
+    return root, "_info.txt: m_calibrationColorExtrinsic is not the identity"
+
+
+def bad_frames_info_of_another_size(tmp_path):
+    root = rgbd_frames_folder(tmp_path, intrinsics="sens")
+    info = root / "_info.txt"
+    info.write_text(info.read_text().replace(f"m_colorWidth = {W}", "m_colorWidth = 1296"))
+    return root, f"_info.txt: its colour camera is 1296x{H} but frame-000000.color.png is {W}x{H}"
+
+
+def bad_frames_depth_shift(tmp_path):
+    root = rgbd_frames_folder(tmp_path, intrinsics="sens")
+    info = root / "_info.txt"
+    info.write_text(info.read_text().replace("m_depthShift = 1000", "m_depthShift = zero"))
+    return root, "m_depthShift is 'zero', expected depth units per metre"
+
+
+def bad_frames_pose(tmp_path):
+    root = rgbd_frames_folder(tmp_path, numbers=(0,))
+    (root / "frame-000000.pose.txt").write_text("1 0 0 0\n0 1 0 0\n")
+    return root, "frame-000000.pose.txt: not a 4x4 camera-to-world pose: 2x4 numbers, expected 4x4"
 
 
 # ---- bad input -----------------------------------------------------------------------------------
@@ -584,7 +739,9 @@ def bad_image_path_a_folder(tmp_path):
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
        bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
-       bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost]
+       bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost,
+       bad_frames_without_intrinsics, bad_frames_colour_extrinsic, bad_frames_info_of_another_size,
+       bad_frames_depth_shift, bad_frames_pose]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
@@ -749,9 +906,9 @@ def test_float_depth_maps_are_read_in_metres(tmp_path):
 
 def test_integer_depth_in_other_units_is_written_in_millimetres(tmp_path):
     """An integer depth map in other units than millimetres (``depth_scale`` set in code: say a Kinect's 0.2 mm) is
-    written as millimetres by both writers, whether the photos are copied or not: the formats read integers as
-    millimetres, and the same map copied as it is would be read five times too far. A millimetre PNG is copied as
-    it is."""
+    written as millimetres by every writer that keeps depth, whether the photos are copied or not: the formats read
+    integers as millimetres, and the same map copied as it is would be read five times too far. A millimetre PNG is
+    copied as it is."""
     raw = np.full((H // 2, W // 2), 6250, np.uint16)  # 1.25 m in units of 0.2 mm
     raw[0, 0] = 0
     Image.fromarray(np.zeros((H, W, 3), np.uint8)).save(tmp_path / "p.png")
@@ -762,10 +919,11 @@ def test_integer_depth_in_other_units_is_written_in_millimetres(tmp_path):
     assert np.isnan(read[0, 0]) and np.allclose(read.flat[1:], 1.25)
     written = [write_cameras_json(photos, tmp_path / "copied"), write_cameras_json(photos, tmp_path / "referred",
                                                                                  copy_images=False),
-               write_3dscannerapp(photos, tmp_path / "app")]
+               write_3dscannerapp(photos, tmp_path / "app"), write_nerfstudio(photos, tmp_path / "ns"),
+               write_polycam(photos, tmp_path / "polycam")]
     for path in written:
         back = load_photos(path)
-        assert back.depths[0].parent == Path(path if path.is_dir() else path.parent)
+        assert Path(path if path.is_dir() else path.parent) in back.depths[0].parents
         np.testing.assert_allclose(back.load_depth(0), read)
     millimetres = dataclasses.replace(photos, depth_scale=1e-3)
     back = load_photos(write_3dscannerapp(millimetres, tmp_path / "app_mm"))

@@ -1,0 +1,206 @@
+"""RGB-D frames as files of their own (``frame-000000.color.png``, ``.depth.png``, ``.pose.txt``): the layout of the
+Intrinsic3D and shading-refinement datasets (a Structure Sensor on an iPad: 1296x968 photos, 640x480 depth), of
+BundleFusion's and ScanNet's C++ ``.sens`` export, of 3RScan's sequences and of 3DMatch's.
+
+Conventions, and what scantex does with them:
+
+- ``<name>NNNNNN.color.png`` (or ``.jpg``) is a frame's photo, ``<name>NNNNNN.pose.txt`` its pose: a 4x4
+  *camera-to-world* (four rows of four numbers) in OpenCV's camera axes (+y down, +z forward), in the world frame
+  of the scan: scantex's ``world_to_camera = inv(pose)``. A frame whose tracking was lost holds ``-inf`` (or
+  ``nan``): it is skipped, and a warning says how many were. A photo without a pose is no frame. Frames are taken
+  in the order of their numbers.
+- ``<name>NNNNNN.depth.png`` is its depth map, 16-bit, in millimetres (in ``1 / m_depthShift`` metres where an
+  ``_info.txt`` says so: 5000 for TUM's units).
+- The intrinsics, in the frames' folder or the one above (the first found): ``colorIntrinsics.txt`` and
+  ``depthIntrinsics.txt``, a 4x4 each (Intrinsic3D); ``_info.txt`` or ``info.txt`` (a ``.sens`` export:
+  ``m_calibrationColorIntrinsic`` and ``m_calibrationDepthIntrinsic``, 16 numbers each, ``m_colorWidth``,
+  ``m_colorHeight``, ``m_depthWidth``, ``m_depthHeight``); ``camera-intrinsics.txt``, a 3x3 (3DMatch: the depth
+  map covers the photo's view). K in OpenCV's pixel centres, as scantex's. The depth camera is registered to the
+  colour camera (its centre and axes) through a lens of its own: its map is resampled into the photo's view
+  (:attr:`PhotoSet.depth_warps`). An ``_info.txt`` whose colour camera is not at the pose (a colour
+  extrinsic other than the identity) is refused; one whose depth camera is elsewhere keeps the photos without
+  their depth maps, with a warning.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.conventions import (
+    MAX_DISTORTION_PX,
+    check_depth_intrinsics,
+    check_intrinsics,
+    check_pose,
+    pixel_count,
+)
+from scantex.photos.files import check_sizes, folder_of, read_matrix
+from scantex.photos.photoset import DEPTH_SCALE_MM, PhotoSet, depth_warp, image_size
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+FORMAT = "rgbd-frames"
+COLOUR = re.compile(r"^(?P<stem>.*?(?P<number>\d+))\.color\.(?:png|jpe?g)$", re.IGNORECASE)
+#: the intrinsics files, in the order they are looked for: Intrinsic3D's, a .sens export's, 3DMatch's
+INTRINSICS_FILES = ("colorIntrinsics.txt", "_info.txt", "info.txt", "camera-intrinsics.txt")
+
+
+class Intrinsics(NamedTuple):
+    K: np.ndarray
+    K_depth: np.ndarray | None = None  # None: the depth map covers the photo's view
+    size: tuple[int, int] | None = None  # the photos' (w, h) where the file says
+    depth_size: tuple[int, int] | None = None
+    depth_scale: float = DEPTH_SCALE_MM
+    depth_used: bool = True
+
+
+def frames(folder: Path) -> list[tuple[int, Path, Path]]:
+    """``(number, photo, pose file)`` of each frame of ``folder`` with both, in the order of their numbers."""
+    found = {}
+    for p in folder.iterdir():
+        match = COLOUR.match(p.name)
+        if match and p.is_file():
+            pose = folder / f"{match['stem']}.pose.txt"
+            if pose.is_file():
+                found.setdefault((int(match["number"]), match["stem"]), (p, pose))
+    return [(key[0], *found[key]) for key in sorted(found)]
+
+
+def is_frames_folder(folder: Path) -> bool:
+    return folder.is_dir() and any(folder.glob("*.pose.txt")) and bool(frames(folder))
+
+
+def intrinsics_file(folder: Path) -> Path | None:
+    for where in (folder, folder.parent):
+        for name in INTRINSICS_FILES:
+            if (where / name).is_file():
+                return where / name
+    return None
+
+
+def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+    """Read a folder of RGB-D frames (or one of its files); conventions in the module docstring.
+    ``max_distortion_px`` is accepted for symmetry: the layout stores no distortion.
+
+    Raises:
+        ScanError: no frame with a photo and a pose, no intrinsics file, a malformed pose or intrinsics file,
+            photos of another size than the intrinsics', no frame with a finite pose.
+    """
+    folder = folder_of(Path(path))
+    found = frames(folder)
+    if not found:
+        raise ScanError(folder, "no frame with both a photo and a pose (frame-000000.color.png + "
+                                "frame-000000.pose.txt)")
+    source = intrinsics_file(folder)
+    if source is None:
+        raise ScanError(folder, f"no intrinsics for its frames: expected {', '.join(INTRINSICS_FILES)} beside "
+                                "them or in the folder above")
+    lens = _intrinsics(source)
+    width, height = image_size(found[0][1])
+    if lens.size is not None and lens.size != (width, height):
+        raise ScanError(source, f"its colour camera is {lens.size[0]}x{lens.size[1]} but {found[0][1].name} is "
+                                f"{width}x{height}: another capture's intrinsics")
+    check_intrinsics(lens.K, width, height, source, "colour intrinsics")
+    cameras, images, depths = [], [], []
+    lost = 0
+    for _, image, pose_file in found:
+        c2w = read_matrix(pose_file, "4x4 camera-to-world pose")
+        if not np.isfinite(c2w).all():
+            lost += 1
+            continue
+        cameras.append(Camera(lens.K, check_pose(np.linalg.inv(c2w), pose_file, "pose"), width, height))
+        images.append(image)
+        depth = image.with_name(image.name[:image.name.lower().rindex(".color.")] + ".depth.png")
+        depths.append(depth if lens.depth_used and depth.is_file() else None)
+    if not images:
+        raise ScanError(folder, f"none of its {len(found)} frames has a finite pose (tracking lost: -inf)")
+    if lost:
+        log.warning("%s: %d frames have no pose (tracking lost: -inf): skipped", folder, lost)
+    check_sizes(cameras, images, folder)
+    first = next((d for d in depths if d is not None), None)
+    warp = None
+    if first is not None:
+        depth_size = image_size(first)
+        if lens.depth_size is not None and depth_size != lens.depth_size:
+            raise ScanError(source, f"its depth camera is {lens.depth_size[0]}x{lens.depth_size[1]} but {first.name} "
+                                    f"is {depth_size[0]}x{depth_size[1]}")
+        if lens.K_depth is not None:
+            warp = depth_warp(lens.K_depth, depth_size, lens.K, (width, height))
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
+                    format=FORMAT, depth_scale=lens.depth_scale,
+                    depth_warps=tuple(None if d is None else warp for d in depths))
+
+
+def _intrinsics(source: Path) -> Intrinsics:
+    """The cameras an intrinsics file describes (Intrinsic3D's colour file with its depth file beside it)."""
+    if source.name == "colorIntrinsics.txt":
+        K = read_matrix(source, "4x4 intrinsics file")[:3, :3].copy()
+        depth_file = source.with_name("depthIntrinsics.txt")
+        if not depth_file.is_file():
+            return Intrinsics(K)
+        return Intrinsics(K, check_depth_intrinsics(read_matrix(depth_file, "4x4 intrinsics file")[:3, :3].copy(),
+                                                    depth_file))
+    if source.name == "camera-intrinsics.txt":
+        return Intrinsics(read_matrix(source, "3x3 intrinsics file", ((3, 3),)))
+    return _sens_info(source)
+
+
+def _sens_info(source: Path) -> Intrinsics:
+    try:
+        text = source.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ScanError(source, f"cannot read the file ({getattr(e, 'strerror', None) or 'not text'})") from None
+    keys = {}
+    for line in text.splitlines():
+        key, eq, value = line.partition("=")
+        if eq:
+            keys[key.strip()] = value.split()
+
+    def matrix(key: str, required: bool = True) -> np.ndarray | None:
+        if key not in keys:
+            if required:
+                raise ScanError(source, f"no {key} line: not the info file of a .sens export")
+            return None
+        try:
+            values = [float(v) for v in keys[key]]
+        except ValueError:
+            raise ScanError(source, f"{key} is not 16 numbers") from None
+        if len(values) != 16:
+            raise ScanError(source, f"{key} has {len(values)} numbers, expected 16 (a 4x4 row by row)")
+        return np.array(values).reshape(4, 4)
+
+    def size(prefix: str) -> tuple[int, int] | None:
+        if f"m_{prefix}Width" not in keys or f"m_{prefix}Height" not in keys:
+            return None
+        return tuple(pixel_count(" ".join(keys[f"m_{prefix}{side}"]), f"m_{prefix}{side}", source, "size")
+                     for side in ("Width", "Height"))
+
+    K = matrix("m_calibrationColorIntrinsic")[:3, :3].copy()
+    K_depth = matrix("m_calibrationDepthIntrinsic", required=False)
+    colour_extrinsic = matrix("m_calibrationColorExtrinsic", required=False)
+    depth_extrinsic = matrix("m_calibrationDepthExtrinsic", required=False)
+    if colour_extrinsic is not None and not np.allclose(colour_extrinsic, np.eye(4), atol=1e-6):
+        raise ScanError(source, "m_calibrationColorExtrinsic is not the identity: scantex takes each pose to be "
+                                "the colour camera's (give the colour camera's poses)")
+    if K_depth is not None:
+        K_depth = check_depth_intrinsics(K_depth[:3, :3].copy(), source)
+    shift = 1000.0
+    if "m_depthShift" in keys:
+        try:
+            shift = float(keys["m_depthShift"][0])
+        except (ValueError, IndexError):
+            shift = float("nan")
+        if not (np.isfinite(shift) and shift > 0):
+            raise ScanError(source, f"m_depthShift is {' '.join(keys['m_depthShift'])!r}, expected depth units "
+                                    "per metre (1000: millimetres)")
+    if depth_extrinsic is not None and not np.allclose(depth_extrinsic, np.eye(4), atol=1e-6):
+        log.warning("%s: the depth camera is not at the colour camera (m_calibrationDepthExtrinsic is not the "
+                    "identity): its depth maps are not used", source)
+        return Intrinsics(K, size=size("color"), depth_used=False)
+    return Intrinsics(K, K_depth, size("color"), size("depth"), 1.0 / shift)
