@@ -77,11 +77,23 @@ def is_frames_folder(folder: Path) -> bool:
 
 
 def intrinsics_file(folder: Path) -> Path | None:
+    """The first of :data:`INTRINSICS_FILES` in ``folder``, else in the folder above; names in any case (some
+    converters write ``colorintrinsics.txt``)."""
     for where in (folder, folder.parent):
-        for name in INTRINSICS_FILES:
-            if (where / name).is_file():
-                return where / name
+        found = _named(where, INTRINSICS_FILES)
+        if found:
+            return found[0]
     return None
+
+
+def _named(folder: Path, names) -> list[Path]:
+    """The files of ``folder`` whose names are ``names`` in any case, in the order of ``names``."""
+    wanted = [name.lower() for name in names]
+    try:
+        files = {p.name.lower(): p for p in folder.iterdir() if p.name.lower() in wanted and p.is_file()}
+    except OSError:
+        return []
+    return [files[name] for name in wanted if name in files]
 
 
 def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
@@ -139,14 +151,14 @@ def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
 
 def _intrinsics(source: Path) -> Intrinsics:
     """The cameras an intrinsics file describes (Intrinsic3D's colour file with its depth file beside it)."""
-    if source.name == "colorIntrinsics.txt":
+    if source.name.lower() == "colorintrinsics.txt":
         K = read_matrix(source, "4x4 intrinsics file")[:3, :3].copy()
-        depth_file = source.with_name("depthIntrinsics.txt")
-        if not depth_file.is_file():
+        depth_file = _named(source.parent, ("depthIntrinsics.txt",))
+        if not depth_file:
             return Intrinsics(K)
-        return Intrinsics(K, check_depth_intrinsics(read_matrix(depth_file, "4x4 intrinsics file")[:3, :3].copy(),
-                                                    depth_file))
-    if source.name == "camera-intrinsics.txt":
+        return Intrinsics(K, check_depth_intrinsics(read_matrix(depth_file[0], "4x4 intrinsics file")[:3, :3].copy(),
+                                                    depth_file[0]))
+    if source.name.lower() == "camera-intrinsics.txt":
         return Intrinsics(read_matrix(source, "3x3 intrinsics file", ((3, 3),)))
     return _sens_info(source)
 

@@ -359,11 +359,14 @@ def rgbd_frames_folder(root: Path, numbers=(0, 2, 10), lost=(), intrinsics="intr
     K4 = np.eye(4)
     K4[:3, :3] = reference_camera().K
     half = reference_camera().scaled(0.5).K
-    if intrinsics == "intrinsic3d":
-        np.savetxt(root / "colorIntrinsics.txt", K4)
+    if intrinsics in ("intrinsic3d", "lower case"):
+        names = ("colorIntrinsics.txt", "depthIntrinsics.txt")
+        names = [n.lower() for n in names] if intrinsics == "lower case" else names
+        np.savetxt(root / names[0], K4)
         K4d = np.eye(4)
         K4d[:3, :3] = half
-        np.savetxt(root / "depthIntrinsics.txt", K4d)
+        K4d[0, 2] += 1  # the depth camera's principal point a pixel right of the photo's, halved
+        np.savetxt(root / names[1], K4d)
     elif intrinsics == "sens":
         row = " ".join
         (root / "_info.txt").write_text(
@@ -384,7 +387,7 @@ def rgbd_frames_folder(root: Path, numbers=(0, 2, 10), lost=(), intrinsics="intr
     return root
 
 
-@pytest.mark.parametrize("intrinsics", ["intrinsic3d", "sens", "3dmatch"])
+@pytest.mark.parametrize("intrinsics", ["intrinsic3d", "lower case", "sens", "3dmatch"])
 def test_rgbd_frames_convention_order_lost_frames_and_depth(tmp_path, caplog, intrinsics):
     """frame-NNNNNN.pose.txt camera-to-world in OpenCV's axes, K from Intrinsic3D's colorIntrinsics.txt, a .sens
     export's _info.txt or 3DMatch's camera-intrinsics.txt one folder up; frames in the order of their numbers,
@@ -403,7 +406,10 @@ def test_rgbd_frames_convention_order_lost_frames_and_depth(tmp_path, caplog, in
     assert_reference(photos)
     depth = photos.load_depth(0)
     assert depth.shape == (H // 2, W // 2) and np.nanmedian(depth) == pytest.approx(2.5)
-    assert np.isfinite(depth).all()  # the depth camera's K is the photo's, halved: nothing resampled away
+    if intrinsics in ("intrinsic3d", "lower case"):  # the depth camera looked a pixel left of the photo's view
+        assert np.isnan(depth[:, -1]).all() and np.isfinite(depth[:, :-1]).all()
+    else:  # the depth camera's K is the photo's, halved (or none): the map covers the photo's view
+        assert np.isfinite(depth).all()
     assert photos.depths[1] is None
 
 
