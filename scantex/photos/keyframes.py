@@ -21,7 +21,7 @@ nothing repeats: the apartment's split held out 16 and 66 beside their repeats 1
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -39,13 +39,16 @@ REPEAT_ANGLE_DEG = 3.0
 DISTANCE_PX = 48
 
 
-def viewing_distances(photos: PhotoSet, indices: Sequence[int], caster) -> np.ndarray:
+def viewing_distances(photos: PhotoSet, indices: Sequence[int], caster,
+                      update: Callable[[int], None] | None = None) -> np.ndarray:
     """Per photo of ``indices``, the median depth of the surface its camera sees (NaN where it sees none), from
-    a ray cast :data:`DISTANCE_PX` pixels across."""
+    a ray cast :data:`DISTANCE_PX` pixels across; ``update(k)`` before photo ``k``."""
     from scantex.views.raycast import cast_gbuffer
 
     out = np.full(len(indices), np.nan)
     for k, i in enumerate(indices):
+        if update:
+            update(k)
         cam = photos.cameras[i]
         g = cast_gbuffer(caster, cam.scaled(min(1.0, DISTANCE_PX / cam.width)))
         if g.mask.any():
@@ -95,13 +98,24 @@ def repeats(photos: PhotoSet, indices: Sequence[int], distances: np.ndarray) -> 
     return out
 
 
-def keyframes(photos: PhotoSet, indices: Sequence[int], caster) -> tuple[list[int], list[dict]]:
+def keyframes(photos: PhotoSet, indices: Sequence[int], caster,
+              update: Callable[[int, int], None] | None = None) -> tuple[list[int], list[dict]]:
     """``(kept, repeated)``: the photos of ``indices`` kept (in their order), and per photo given way
-    ``{"photo", "repeats"}`` (the kept photo whose view it repeats), by the rule in the module docstring."""
+    ``{"photo", "repeats"}`` (the kept photo whose view it repeats), by the rule in the module docstring.
+    ``update(done, total)`` counts the photos cast, then those decoded for their sharpness (a video-rate capture's
+    thousands of photos take a minute)."""
     indices = [int(i) for i in indices]
-    near = repeats(photos, indices, viewing_distances(photos, indices, caster))
-    candidates = [k for k in range(len(indices)) if near[k]]
-    scores = {k: sharpness(photos, indices[k]) for k in candidates}
+    n = len(indices)
+    near = repeats(photos, indices, viewing_distances(photos, indices, caster,
+                                                      update and (lambda k: update(k, 2 * n))))
+    candidates = [k for k in range(n) if near[k]]
+    scores = {}
+    for done, k in enumerate(candidates):
+        if update:
+            update(n + done, n + len(candidates))
+        scores[k] = sharpness(photos, indices[k])
+    if update:
+        update(n + len(candidates), n + len(candidates))
     kept: set[int] = set(range(len(indices))) - set(candidates)
     repeated = []
     for k in sorted(candidates, key=lambda k: (-scores[k], k)):

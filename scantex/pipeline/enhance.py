@@ -332,13 +332,14 @@ class PhotoData:
     ``photos.blurred``)"""
 
 
-def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster,
-                  seed: int) -> tuple[object | None, np.ndarray, np.ndarray, list, list]:
+def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaster, seed: int,
+                  update: Update | None = None) -> tuple[object | None, np.ndarray, np.ndarray, list, list]:
     """Photo mode's first step, whole or tiled: ``(alignment report, train, held, left_out, repeated)``. The
     photos that repeat a sharper one's view set aside (``photos.keyframes``), the alignment check (refuses a mesh
     out of the cameras' frame; ``None`` when skipped), the held-out split of the photos kept (without thinning,
     moved off views another photo repeats: :func:`scantex.photos.keyframes.held_apart`), and the photos that do not
-    show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`)."""
+    show what their cameras see left out of both (:func:`scantex.photos.matching.leave_out_mismatched`).
+    ``update(done, total)`` counts the photos the thinning looks at."""
     from scantex.photos.alignment import require_alignment
     from scantex.photos.training import split_photos
 
@@ -347,7 +348,7 @@ def checked_split(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCas
     if thinned:
         from scantex.photos.keyframes import keyframes
 
-        chosen, repeated = keyframes(photos, kept, caster)
+        chosen, repeated = keyframes(photos, kept, caster, update)
         kept = np.asarray(chosen, dtype=kept.dtype)
         log.info("keyframes: %d of %d photos kept; %d repeat a sharper one's view", len(kept), len(photos),
                  len(repeated))
@@ -370,7 +371,7 @@ def read_photos(scan: Scan, photos: PhotoSet, pc: PhotosConfig, caster: RayCaste
     """Check the photos' alignment with the mesh, split them, and prepare them at working resolution."""
     from scantex.photos.training import prepare_photos
 
-    report, train, held, left_out, repeated = checked_split(scan, photos, pc, caster, seed)
+    report, train, held, left_out, repeated = checked_split(scan, photos, pc, caster, seed, update)
     corrections = []
     canonicalise = fallback = None
     mode = pose_refinement_mode(pc.refine_poses, scan, len(photos))

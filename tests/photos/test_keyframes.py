@@ -57,7 +57,10 @@ def test_the_sharpest_of_each_repeated_view_is_kept(tmp_path):
     assert np.isnan(distances[8]) and np.all(np.abs(distances[:8] - dist) < 0.6 * dist)
     near = repeats(photos, range(len(photos)), distances)
     assert near[0] == {1, 2} and near[3] == {4, 5} and near[6] == near[7] == near[8] == set()
-    kept, repeated = keyframes(photos, range(len(photos)), caster)
+    calls = []
+    kept, repeated = keyframes(photos, range(len(photos)), caster, lambda done, total: calls.append((done, total)))
+    # progress: the 9 photos cast, then the 6 that repeat another decoded for their sharpness
+    assert calls[:9] == [(k, 18) for k in range(9)] and calls[9:] == [(9 + k, 15) for k in range(7)]
     assert 0 not in kept and len(set(kept) & {1, 2}) == 1 and len(set(kept) & {3, 4, 5}) == 1
     assert {6, 7, 8} <= set(kept) and len(kept) == 5 and kept == sorted(kept)
     assert {d["photo"] for d in repeated} == set(range(9)) - set(kept)
