@@ -11,6 +11,7 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.scannet` ScanNet's exported frames (``color/``, ``depth/``, ``pose/``, ``intrinsic/``),
 - :mod:`~scantex.photos.rgbd_frames` RGB-D frames as files (``frame-000000.color.png``, ``.depth.png``,
   ``.pose.txt``: Intrinsic3D, a ``.sens`` export, 3RScan, 3DMatch),
+- :mod:`~scantex.photos.arkitscenes` ARKitScenes' captures (iPad Pro LiDAR scans: ``lowres_wide.traj``, ``.pincam``),
 - :mod:`~scantex.photos.mve` texrecon's scene folder (photos beside ``.cam`` files; G2LTex's too),
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
@@ -27,6 +28,7 @@ from scantex.photos.alignment import (
            check_alignment,
            require_alignment,
 )
+from scantex.photos.arkitscenes import load_arkitscenes
 from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
 from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
 from scantex.photos.load import detect_format, load_photos
@@ -39,7 +41,7 @@ from scantex.photos.scannerapp import load_3dscannerapp, write_3dscannerapp
 from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment",
-           "detect_format", "load_3dscannerapp", "load_cameras_json", "load_colmap", "load_mve", "load_nerfstudio",
-           "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment",
+           "detect_format", "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_mve",
+           "load_nerfstudio", "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment",
            "write_3dscannerapp", "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_mve",
            "write_nerfstudio", "write_polycam"]

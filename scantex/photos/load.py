@@ -8,7 +8,17 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos import cameras_json, colmap, mve, nerfstudio, polycam, rgbd_frames, scannerapp, scannet
+from scantex.photos import (
+    arkitscenes,
+    cameras_json,
+    colmap,
+    mve,
+    nerfstudio,
+    polycam,
+    rgbd_frames,
+    scannerapp,
+    scannet,
+)
 from scantex.photos.conventions import MAX_DISTORTION_PX
 from scantex.photos.files import load_json
 from scantex.photos.photoset import PhotoSet
@@ -17,8 +27,8 @@ log = logging.getLogger(__name__)
 
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
-           "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export) or photos beside "
-           ".cam files (texrecon)")
+           "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
+           "lowres_wide/ (ARKitScenes) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -42,6 +52,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return scannet.FORMAT, scannet.export_folder(path.parent)
         if path.suffix.lower() in (".txt", ".png", ".jpg", ".jpeg") and rgbd_frames.is_frames_folder(path.parent):
             return rgbd_frames.FORMAT, path.parent
+        if path.suffix.lower() in (".traj", ".pincam", ".png") and arkitscenes.capture_folder(path) is not None:
+            return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -77,6 +89,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return scannet.FORMAT, scannet.export_folder(path)
     if rgbd_frames.is_frames_folder(path):
         return rgbd_frames.FORMAT, path
+    if arkitscenes.capture_folder(path) is not None:
+        return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
@@ -100,7 +114,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
     loaders = {nerfstudio.FORMAT: nerfstudio.load_nerfstudio, "colmap": colmap.load_colmap,
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
                scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve,
-               scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames}
+               scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
+               arkitscenes.FORMAT: arkitscenes.load_arkitscenes}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

@@ -140,6 +140,19 @@ def test_texrecon_scene_folder_below_the_mesh(exports, tmp_path):
         assert capture.photos == tmp_path / "textureimages" and len(load_photos(capture.photos)) == 4
 
 
+def test_arkitscenes_video_folder(exports, tmp_path):
+    """ARKitScenes' video folder: the ARKit mesh <video_id>_3dod_mesh.ply beside <video_id>_frames/."""
+    from tests.photos.test_importers import arkitscenes_capture
+
+    scan = exports["scan"]
+    (tmp_path / "41069021").mkdir()
+    trimesh.Trimesh(scan.positions, scan.faces, process=False).export(tmp_path / "41069021" / "41069021_3dod_mesh.ply")
+    frames = arkitscenes_capture(tmp_path / "41069021")
+    with find_capture(tmp_path / "41069021") as capture:
+        assert capture.mesh.name == "41069021_3dod_mesh.ply" and capture.photo_format == "arkitscenes"
+        assert capture.photos == frames and len(load_photos(capture.photos)) == 2
+
+
 def test_gltf_with_its_buffers(exports, tmp_path):
     save_scan(exports["scan"], tmp_path / "c.glb")
     files = trimesh.load(tmp_path / "c.glb", process=False).export(file_type="gltf")

@@ -476,6 +476,73 @@ def test_scannet_depth_intrinsics_are_read(tmp_path):
     assert np.isnan(photos.load_depth(0)[:, -2:]).all() and np.isfinite(photos.load_depth(0)[:, :-2]).all()
 
 
+def arkitscenes_capture(video: Path, times=(100.0, 100.1, 500.0), stream="lowres_wide", poses=None,
+                        frames_folder=True) -> Path:
+    """An ARKitScenes capture of the reference camera: ``<video>/<video>_frames/`` (or the video folder itself, as
+    the raw subset) with ``lowres_wide.traj`` (the reference pose at 100.0 and 100.1 s, or ``poses`` {time: world
+    to camera}), frames of ``stream`` at ``times`` with their .pincam (ARKit's corner convention), a LiDAR depth map
+    beside the first."""
+    from scipy.spatial.transform import Rotation
+
+    folder = video / f"{video.name}_frames" if frames_folder else video
+    for sub in (stream, f"{stream}_intrinsics", "lowres_depth"):
+        (folder / sub).mkdir(parents=True, exist_ok=True)
+    poses = poses or {100.0: reference_camera().world_to_camera, 100.1: reference_camera().world_to_camera}
+    lines = [f"{t:.6f} " + " ".join(f"{v:.17g}" for v in (*Rotation.from_matrix(m[:3, :3]).as_rotvec(), *m[:3, 3]))
+             for t, m in poses.items()]
+    (folder / "lowres_wide.traj").write_text("\n".join(lines) + "\n")
+    K = reference_camera().K
+    for t in times:
+        stem = f"{video.name}_{t:.3f}"
+        blank_png(folder / stream / f"{stem}.png")
+        (folder / f"{stream}_intrinsics" / f"{stem}.pincam").write_text(
+            f"{W} {H} {K[0, 0]} {K[1, 1]} {K[0, 2] + 0.5} {K[1, 2] + 0.5}\n")
+    Image.fromarray(np.full((H // 2, W // 2), 1800, np.uint16)).save(
+        folder / "lowres_depth" / f"{video.name}_{times[0]:.3f}.png")
+    return folder
+
+
+def test_arkitscenes_convention_frames_without_a_pose_and_depth(tmp_path, caplog):
+    """lowres_wide.traj: world-to-camera as axis-angle and translation, OpenCV's axes; .pincam: width height fx fy cx
+    cy from the image's corner; a frame far from every pose skipped with a warning, one without a .pincam too;
+    lowres_depth/ the depth map at the frame's timestamp."""
+    folder = arkitscenes_capture(tmp_path / "41069021")
+    blank_png(folder / "lowres_wide" / "41069021_300.000.png")  # no .pincam
+    for where in (tmp_path / "41069021", folder, folder / "lowres_wide.traj",
+                  folder / "lowres_wide_intrinsics" / "41069021_100.000.pincam"):
+        assert detect_format(where) == ("arkitscenes", folder)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path / "41069021")
+    assert "1 of the 4 lowres_wide frames lie outside the trajectory's poses" in caplog.text
+    assert "1 of the 4 lowres_wide frames have no .pincam" in caplog.text
+    assert photos.format == "arkitscenes"
+    assert [p.name for p in photos.images] == ["41069021_100.000.png", "41069021_100.100.png"]
+    assert_reference(photos)
+    assert np.nanmedian(photos.load_depth(0)) == pytest.approx(1.8) and photos.depths[1] is None
+
+
+def test_arkitscenes_pose_between_two_is_interpolated_and_the_sharpest_stream_read(tmp_path):
+    """A raw video's frame between two of the trajectory's poses takes their interpolation (the centre linearly,
+    the rotation halfway); the wide camera's sharpest stream is read when the capture holds several."""
+    a = reference_camera()
+    turn = np.array([[np.cos(0.2), 0, np.sin(0.2)], [0, 1, 0], [-np.sin(0.2), 0, np.cos(0.2)]])
+    b = np.eye(4)
+    b[:3, :3] = turn @ a.R
+    b[:3, 3] = -b[:3, :3] @ (a.center + [0.3, 0.0, 0.0])
+    poses = {10.0: a.world_to_camera, 10.2: b}
+    arkitscenes_capture(tmp_path / "7", times=(10.1, 10.6), stream="lowres_wide", poses=poses, frames_folder=False)
+    folder = arkitscenes_capture(tmp_path / "7", times=(10.1,), stream="wide", poses=poses, frames_folder=False)
+    photos = load_photos(folder)
+    assert [p.parent.name for p in photos.images] == ["wide"]  # the 10.6 s frame of lowres_wide is not read
+    cam = photos.cameras[0]
+    np.testing.assert_allclose(cam.center, a.center + [0.15, 0.0, 0.0], atol=1e-9)
+    half = np.degrees(np.arccos((np.trace(cam.R @ a.R.T) - 1) / 2))
+    assert half == pytest.approx(np.degrees(0.1), abs=1e-6)
+    with pytest.raises(ScanError, match="none of its 1 lowres_wide frames has both a pose"):
+        load_photos(arkitscenes_capture(tmp_path / "8", times=(11.0,), poses={10.0: a.world_to_camera,
+                                                                               11.5: b}))
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
@@ -615,6 +682,18 @@ def bad_frames_pose(tmp_path):
     return root, "frame-000000.pose.txt: not a 4x4 camera-to-world pose: 2x4 numbers, expected 4x4"
 
 
+def bad_arkitscenes_trajectory(tmp_path):
+    folder = arkitscenes_capture(tmp_path / "9")
+    (folder / "lowres_wide.traj").write_text("100.0 0 0 0 1 2\n")
+    return folder, "lowres_wide.traj: not a trajectory: 6 numbers a line, expected 7"
+
+
+def bad_arkitscenes_pincam(tmp_path):
+    folder = arkitscenes_capture(tmp_path / "9", times=(100.0,))
+    (folder / "lowres_wide_intrinsics" / "9_100.000.pincam").write_text("48 36 50 40\n")
+    return folder, "9_100.000.pincam: not a .pincam file: 4 numbers, expected 6"
+
+
 # ---- bad input -----------------------------------------------------------------------------------
 
 def bad_missing(tmp_path):
@@ -747,7 +826,7 @@ BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pos
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
        bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost,
        bad_frames_without_intrinsics, bad_frames_colour_extrinsic, bad_frames_info_of_another_size,
-       bad_frames_depth_shift, bad_frames_pose]
+       bad_frames_depth_shift, bad_frames_pose, bad_arkitscenes_trajectory, bad_arkitscenes_pincam]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
