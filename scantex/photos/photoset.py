@@ -375,8 +375,8 @@ def depth_warp(K_depth: np.ndarray, depth_size: tuple[int, int], K_photo: np.nda
                photo_size: tuple[int, int]) -> np.ndarray | None:
     """The :attr:`PhotoSet.depth_warps` entry of a depth camera (``K_depth`` for maps of ``depth_size``, ``(w,
     h)``) registered to a photo camera (``K_photo``, ``photo_size``): at the same centre, looking the same way, so
-    a ray's pixel moves and its depth does not. ``None`` when the map covers the photo's view (the warp within a
-    thousandth of a pixel of the identity)."""
+    a ray's pixel moves and its depth does not. ``None`` when the map covers the photo's view (the warp moves no
+    point of the map by a twentieth of a pixel: ScanNet's depth K is its colour K scaled, to a hundredth)."""
     def share(size):  # pixel (u, v) -> ((u + 0.5) / w, (v + 0.5) / h)
         return np.array([[1.0 / size[0], 0, 0.5 / size[0]], [0, 1.0 / size[1], 0.5 / size[1]], [0, 0, 1]])
 
@@ -384,7 +384,7 @@ def depth_warp(K_depth: np.ndarray, depth_size: tuple[int, int], K_photo: np.nda
         share(photo_size))
     warp[2] = (0.0, 0.0, 1.0)
     off = np.abs(warp[:2] - np.eye(3)[:2]) * np.array([[depth_size[0]], [depth_size[1]]])
-    return None if off.max() < 1e-3 else warp
+    return None if off.max() < 0.05 else warp
 
 
 def into_photo_view(depth: np.ndarray, warp: np.ndarray) -> np.ndarray:

@@ -16,10 +16,10 @@ Conventions, and what scantex does with them:
   ``m_calibrationColorIntrinsic`` and ``m_calibrationDepthIntrinsic``, 16 numbers each, ``m_colorWidth``,
   ``m_colorHeight``, ``m_depthWidth``, ``m_depthHeight``); ``camera-intrinsics.txt``, a 3x3 (3DMatch: the depth
   map covers the photo's view). K in OpenCV's pixel centres, as scantex's. The depth camera is registered to the
-  colour camera (its centre and axes) through a lens of its own: its map is resampled into the photo's view
-  (:attr:`PhotoSet.depth_warps`). An ``_info.txt`` whose colour camera is not at the pose (a colour
-  extrinsic other than the identity) is refused; one whose depth camera is elsewhere keeps the photos without
-  their depth maps, with a warning.
+  colour camera (its centre and axes), its lens given apart: where it differs from the photo's, its map is
+  resampled into the photo's view (:attr:`PhotoSet.depth_warps`). An ``_info.txt`` whose colour camera is not at
+  the pose (a colour extrinsic other than the identity) is refused; one whose depth camera is elsewhere keeps the
+  photos without their depth maps, with a warning.
 """
 
 from __future__ import annotations

@@ -11,11 +11,10 @@ Conventions, and what scantex does with them:
 - ``color/N.jpg`` (or ``.png``) is frame N's photo; frames are taken in the order of their numbers, those
   without a photo skipped.
 - ``depth/N.png``: uint16 millimetres, usually 640x480 beside 1296x968 photos, kept as the photo's depth map,
-  registered to the colour camera (its centre and axes) through a lens of its own,
-  ``intrinsic/intrinsic_depth.txt`` (4x4): scantex resamples it into the photo's view
-  (:attr:`PhotoSet.depth_warps`; a scene's depth K puts its rows about 4 px at 480 px from where the
-  photo's K scaled would). Without that file the map is taken to cover the photo's view. Each photo's map is
-  judged against the mesh before it is used.
+  registered to the colour camera (its centre and axes), its lens ``intrinsic/intrinsic_depth.txt`` (4x4):
+  scantex resamples it into the photo's view where that lens differs from the photo's (:attr:`PhotoSet.depth_warps`;
+  ScanNet's own scenes give the colour camera's K scaled, to a hundredth of a pixel: no resampling). Without that
+  file the map is taken to cover the photo's view. Each photo's map is judged against the mesh before it is used.
 """
 
 from __future__ import annotations
