@@ -3,7 +3,8 @@ and mesh they were scanned with.
 
 Layout: the video's folder ``<video_id>/`` holds the mesh ``<video_id>_3dod_mesh.ply`` and the frames, in
 ``<video_id>_frames/`` (the 3DOD subset) or beside the mesh (the raw subset): ``lowres_wide.traj`` and, per stream,
-``<stream>/<video_id>_<timestamp>.png`` with ``<stream>_intrinsics/<video_id>_<timestamp>.pincam``.
+``<stream>/<video_id>_<timestamp>.png`` (or a JPEG) with
+``<stream>_intrinsics/<video_id>_<timestamp>.pincam``.
 
 Conventions, and what scantex does with them:
 
@@ -58,7 +59,7 @@ DEPTHS = ("highres_depth", "lowres_depth")
 SAME_TIME_S = 0.005
 #: a frame between two poses at most this many seconds apart takes their interpolation
 MAX_GAP_S = 0.25
-FRAME = re.compile(r"^(?P<video>.+)_(?P<time>\d+(?:\.\d+)?)\.png$", re.IGNORECASE)
+FRAME = re.compile(r"^(?P<video>.+)_(?P<time>\d+(?:\.\d+)?)\.(?:png|jpe?g)$", re.IGNORECASE)
 
 
 def capture_folder(path: Path) -> Path | None:
@@ -86,9 +87,15 @@ def load_arkitscenes(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
         raise ScanError(Path(path), f"not an ARKitScenes capture: expected {TRAJECTORY} beside lowres_wide/ (or in "
                                     "<video_id>_frames/)")
     times, poses = _trajectory(folder / TRAJECTORY)
-    stream = next(s for s in STREAMS if (folder / s).is_dir() and any((folder / s).glob("*.png")))
-    frames = sorted(((float(m["time"]), p) for p in (folder / stream).iterdir()
-                     if (m := FRAME.match(p.name)) and p.is_file()), key=lambda f: f[0])
+    frames, stream = [], None
+    for stream in (s for s in STREAMS if (folder / s).is_dir()):
+        frames = sorted(((float(m["time"]), p) for p in (folder / stream).iterdir()
+                         if (m := FRAME.match(p.name)) and p.is_file()), key=lambda f: f[0])
+        if frames:
+            break
+    if not frames:
+        raise ScanError(folder, f"no frames in {', '.join(s + '/' for s in STREAMS if (folder / s).is_dir())}: "
+                                "expected <video_id>_<timestamp>.png")
     cameras, images, depths = [], [], []
     no_pose = no_lens = 0
     for time, image in frames:
@@ -103,7 +110,8 @@ def load_arkitscenes(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
         K, width, height = _read_pincam(pincam)
         cameras.append(Camera(K, check_pose(w2c, folder / TRAJECTORY, f"the pose at {time:.3f} s"), width, height))
         images.append(image)
-        depth = next((folder / d / image.name for d in DEPTHS if (folder / d / image.name).is_file()), None)
+        depth = next((folder / d / f"{image.stem}.png" for d in DEPTHS if (folder / d / f"{image.stem}.png").is_file()),
+                     None)
         depths.append(depth)
     if not images:
         raise ScanError(folder, f"none of its {len(frames)} {stream} frames has both a pose in {TRAJECTORY} (within "

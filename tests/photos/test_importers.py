@@ -688,6 +688,12 @@ def bad_arkitscenes_trajectory(tmp_path):
     return folder, "lowres_wide.traj: not a trajectory: 6 numbers a line, expected 7"
 
 
+def bad_arkitscenes_no_frames(tmp_path):
+    folder = arkitscenes_capture(tmp_path / "9", times=(100.0,))
+    (folder / "lowres_wide" / "9_100.000.png").unlink()
+    return folder, "no frames in lowres_wide/: expected <video_id>_<timestamp>.png"
+
+
 def bad_arkitscenes_pincam(tmp_path):
     folder = arkitscenes_capture(tmp_path / "9", times=(100.0,))
     (folder / "lowres_wide_intrinsics" / "9_100.000.pincam").write_text("48 36 50 40\n")
@@ -826,7 +832,8 @@ BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pos
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
        bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost,
        bad_frames_without_intrinsics, bad_frames_colour_extrinsic, bad_frames_info_of_another_size,
-       bad_frames_depth_shift, bad_frames_pose, bad_arkitscenes_trajectory, bad_arkitscenes_pincam]
+       bad_frames_depth_shift, bad_frames_pose, bad_arkitscenes_trajectory, bad_arkitscenes_pincam,
+       bad_arkitscenes_no_frames]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
