@@ -63,12 +63,13 @@ FRAME = re.compile(r"^(?P<video>.+)_(?P<time>\d+(?:\.\d+)?)\.(?:png|jpe?g)$", re
 
 
 def capture_folder(path: Path) -> Path | None:
-    """The folder holding ``lowres_wide.traj`` that ``path`` is, holds (in ``<name>_frames/``) or lies in, else
-    ``None``."""
+    """The folder holding ``lowres_wide.traj`` that ``path`` is, holds (in a ``<video_id>_frames/``) or lies in,
+    else ``None``."""
     path = Path(path)
     if path.is_file():
         path = path.parent
-    for folder in (path, path / f"{path.name}_frames", path.parent, path.parent.parent):
+    frames = sorted(path.glob("*_frames")) if path.is_dir() else []
+    for folder in (path, *frames, path.parent, path.parent.parent):
         if (folder / TRAJECTORY).is_file() and any((folder / s).is_dir() for s in STREAMS):
             return folder
     return None
@@ -139,8 +140,13 @@ def _trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if rows.size == 0 or rows.shape[1] != 7:
         raise ScanError(path, f"not a trajectory: {rows.shape[1] if rows.size else 0} numbers a line, expected 7 "
                               "(timestamp, axis-angle rotation, translation)")
-    if not np.isfinite(rows).all():
-        raise ScanError(path, "the trajectory holds non-finite numbers")
+    finite = np.isfinite(rows).all(axis=1)
+    if not finite.any():
+        raise ScanError(path, "the trajectory holds no pose of finite numbers")
+    if not finite.all():
+        log.warning("%s: %d of its %d poses hold non-finite numbers (tracking lost): left out", path,
+                    int((~finite).sum()), len(rows))
+        rows = rows[finite]
     rows = rows[np.argsort(rows[:, 0], kind="stable")]
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :3] = Rotation.from_rotvec(rows[:, 1:4]).as_matrix()

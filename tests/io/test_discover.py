@@ -151,6 +151,9 @@ def test_arkitscenes_video_folder(exports, tmp_path):
     with find_capture(tmp_path / "41069021") as capture:
         assert capture.mesh.name == "41069021_3dod_mesh.ply" and capture.photo_format == "arkitscenes"
         assert capture.photos == frames and len(load_photos(capture.photos)) == 2
+    # the video folder renamed: its frames folder is still found
+    (tmp_path / "41069021").rename(tmp_path / "kitchen")
+    assert load_photos(tmp_path / "kitchen").source == tmp_path / "kitchen" / "41069021_frames"
 
 
 def test_gltf_with_its_buffers(exports, tmp_path):

@@ -515,6 +515,11 @@ def test_arkitscenes_convention_frames_without_a_pose_and_depth(tmp_path, caplog
         photos = load_photos(tmp_path / "41069021")
     assert "1 of the 4 lowres_wide frames lie outside the trajectory's poses" in caplog.text
     assert "1 of the 4 lowres_wide frames have no .pincam" in caplog.text
+    with (folder / "lowres_wide.traj").open("a") as f:
+        f.write("300.0 nan 0 0 0 0 0\n")  # a lost pose: left out, the frame at 300 s has none
+    with caplog.at_level(logging.WARNING):
+        assert len(load_photos(folder)) == 2
+    assert "1 of its 3 poses hold non-finite numbers (tracking lost): left out" in caplog.text
     assert photos.format == "arkitscenes"
     assert [p.name for p in photos.images] == ["41069021_100.000.png", "41069021_100.100.png"]
     assert_reference(photos)
