@@ -767,8 +767,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the capture's posed photos: a nerfstudio transforms.json, a COLMAP model (text or "
                              "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
                              "or ScanNet's exported frames, RGB-D frame files (frame-000000.color.png + .pose.txt: "
-                             "Intrinsic3D, a .sens export), an ARKitScenes capture (lowres_wide.traj), or texrecon's "
-                             "scene folder (photos beside .cam files); "
+                             "Intrinsic3D, a .sens export), an ARKitScenes capture (lowres_wide.traj), an MVE scene "
+                             "(views/*.mve), or texrecon's scene folder (photos beside .cam files); "
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
@@ -895,8 +895,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the posed photos, read as 'enhance --photos' reads them: a nerfstudio transforms.json, a "
                         "COLMAP model (text or binary), a 3D Scanner App or Polycam export, a cameras.json, or a "
                         "folder holding one, ScanNet's exported frames, RGB-D frame files (frame-000000.color.png "
-                        "+ .pose.txt), an ARKitScenes capture or texrecon's scene folder (photos beside .cam files): "
-                        "both meshes' "
+                        "+ .pose.txt), an ARKitScenes capture, an MVE scene or texrecon's scene folder (photos "
+                        "beside .cam files): both meshes' "
                         "renders are scored against the photos, on the pixels A covers (photos that see none of A "
                         "are left out with a warning; none seeing it is an error: A is not in the cameras' frame)")
     add_distortion_option(p, "--cameras")

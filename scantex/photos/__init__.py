@@ -13,6 +13,7 @@ world frame = the mesh's); each format's module docstring says exactly how it is
   ``.pose.txt``: Intrinsic3D, a ``.sens`` export, 3RScan, 3DMatch),
 - :mod:`~scantex.photos.arkitscenes` ARKitScenes' captures (iPad Pro LiDAR scans: ``lowres_wide.traj``, ``.pincam``),
 - :mod:`~scantex.photos.mve` texrecon's scene folder (photos beside ``.cam`` files; G2LTex's too),
+- :mod:`~scantex.photos.mve_scene` MVE's scene (``views/view_0000.mve/meta.ini``),
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
 ::
@@ -33,6 +34,7 @@ from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
 from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
 from scantex.photos.load import detect_format, load_photos
 from scantex.photos.mve import load_mve, write_mve
+from scantex.photos.mve_scene import load_mve_scene, write_mve_scene
 from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.photos.polycam import load_polycam, write_polycam
@@ -42,6 +44,6 @@ from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment",
            "detect_format", "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_mve",
-           "load_nerfstudio", "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment",
-           "write_3dscannerapp", "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_mve",
-           "write_nerfstudio", "write_polycam"]
+           "load_mve_scene", "load_nerfstudio", "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet",
+           "require_alignment", "write_3dscannerapp", "write_cameras_json", "write_colmap_binary", "write_colmap_text",
+           "write_mve", "write_mve_scene", "write_nerfstudio", "write_polycam"]

@@ -13,6 +13,7 @@ from scantex.photos import (
     cameras_json,
     colmap,
     mve,
+    mve_scene,
     nerfstudio,
     polycam,
     rgbd_frames,
@@ -28,7 +29,7 @@ log = logging.getLogger(__name__)
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
-           "lowres_wide/ (ARKitScenes) or photos beside .cam files (texrecon)")
+           "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -48,6 +49,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return "colmap", path
         if path.suffix.lower() == ".cam":
             return mve.FORMAT, path.parent
+        if path.name.lower() == "meta.ini" and mve_scene.views_folder(path) is not None:
+            return mve_scene.FORMAT, mve_scene.views_folder(path)
         if path.name == scannet.INTRINSICS.name and scannet.export_folder(path.parent) is not None:
             return scannet.FORMAT, scannet.export_folder(path.parent)
         if path.suffix.lower() in (".txt", ".png", ".jpg", ".jpeg") and rgbd_frames.is_frames_folder(path.parent):
@@ -91,6 +94,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return rgbd_frames.FORMAT, path
     if arkitscenes.capture_folder(path) is not None:
         return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
+    if mve_scene.views_folder(path) is not None:
+        return mve_scene.FORMAT, mve_scene.views_folder(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
@@ -115,7 +120,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
                scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve,
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
-               arkitscenes.FORMAT: arkitscenes.load_arkitscenes}
+               arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

@@ -105,7 +105,7 @@ def load_mve(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) 
                                           "another capture's (set its RGB_ lines to this capture's camera)")
             distortion = None
         else:
-            K, distortion = _intrinsics(lens, width, height, cam_file)
+            K, distortion = lens_intrinsics(lens, width, height, cam_file)
         width, height = check_intrinsics(K, width, height, cam_file, "intrinsics")
         camera = Camera(K, pose, width, height)
         distortions.append(accept_distortion(distortion, camera, max_distortion_px, cam_file, "line 2"))
@@ -140,7 +140,8 @@ def _read_cam(cam_file: Path) -> tuple[np.ndarray, list[float] | None]:
     return pose, numbers[1]
 
 
-def _intrinsics(lens: list[float], width: int, height: int, cam_file: Path) -> tuple[np.ndarray, Distortion | None]:
+def lens_intrinsics(lens: list[float], width: int, height: int,
+                    cam_file: Path) -> tuple[np.ndarray, Distortion | None]:
     """K in scantex's convention and the distortion of a ``.cam``'s line 2 (texrecon's defaults filled in)."""
     f, d0, d1, paspect, ppx, ppy = lens + [0.0, 0.0, 1.0, 0.5, 0.5][len(lens) - 1:]
     if not (np.isfinite(lens).all() and f > 0 and paspect > 0):
@@ -216,14 +217,19 @@ def write_mve(photos: PhotoSet, out_dir: str | Path) -> Path:
     return out_dir
 
 
-def cam_lines(cam: Camera) -> str:
-    """A ``.cam`` file's two lines for ``cam`` (no distortion)."""
+def mve_lens(cam: Camera) -> tuple[float, float, float, float]:
+    """``(f, paspect, ppx, ppy)``: ``cam``'s K as MVE keeps it (the inverse of :func:`lens_intrinsics`)."""
     (fx, _, cx), (_, fy, cy) = cam.K[0], cam.K[1]
     paspect = fy / fx
     w, h = cam.width, cam.height
     f = fy / h if w / h * paspect < 1.0 else fx / w
+    return float(f), float(paspect), float((cx + CORNER_CONVENTION) / w), float((cy + CORNER_CONVENTION) / h)
+
+
+def cam_lines(cam: Camera) -> str:
+    """A ``.cam`` file's two lines for ``cam`` (no distortion)."""
+    f, paspect, ppx, ppy = mve_lens(cam)
     R, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
     pose = " ".join(repr(float(v)) for v in [*t, *R.reshape(-1)])
-    lens = " ".join(repr(float(v)) for v in (f, 0.0, 0.0, paspect, (cx + CORNER_CONVENTION) / w,
-                                             (cy + CORNER_CONVENTION) / h))
+    lens = " ".join(repr(float(v)) for v in (f, 0.0, 0.0, paspect, ppx, ppy))
     return f"{pose}\n{lens}\n"

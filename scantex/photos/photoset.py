@@ -192,7 +192,7 @@ class PhotoSet:
         source: the file or folder the set was read from.
         format: the format it was read from (``"nerfstudio"``, ``"colmap-text"``, ``"colmap-binary"``,
             ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``,
-            ``"rgbd-frames"``, ``"arkitscenes"``), or any label for sets made in code.
+            ``"rgbd-frames"``, ``"arkitscenes"``, ``"mve"``), or any label for sets made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras ignore it (importers refuse distortions that move pixels by more than a limit).
         image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new

@@ -25,6 +25,7 @@ from scantex.photos import (
     write_colmap_binary,
     write_colmap_text,
     write_mve,
+    write_mve_scene,
     write_nerfstudio,
     write_polycam,
 )
@@ -84,6 +85,7 @@ WRITERS = [  # writer, format read back, keeps depth
     (write_polycam, "polycam", True),
     (write_cameras_json, "cameras.json", True),
     (write_mve, "texrecon", False),
+    (write_mve_scene, "mve", False),
 ]
 
 
@@ -548,6 +550,40 @@ def test_arkitscenes_pose_between_two_is_interpolated_and_the_sharpest_stream_re
                                                                                11.5: b}))
 
 
+def mve_view(views: Path, n: int, focal: float, image: str | None = "undistorted.png", extra: str = "") -> Path:
+    """``views/view_<n>.mve/`` of the reference camera (``focal``: MVE's focal length; 0: no camera)."""
+    folder = views / f"view_{n:04d}.mve"
+    folder.mkdir(parents=True)
+    cam = reference_camera()
+    R, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
+    (folder / "meta.ini").write_text(
+        f"# MVE view meta data\n\n[camera]\nfocal_length = {focal}\npixel_aspect = 0.8\nprincipal_point = 0.5 0.5\n"
+        f"radial_distortion = 0 0\nrotation = {' '.join(map(str, R.ravel()))}\n"
+        f"translation = {' '.join(map(str, t))}\n{extra}\n[view]\nid = {n}\nname = {n:04d}\n")
+    if image:
+        blank_png(folder / image)
+    return folder
+
+
+def test_mve_scene_convention_views_without_a_camera_and_order(tmp_path, caplog):
+    """meta.ini: MVE's camera (world-to-camera rotation and translation, the focal length over the larger side,
+    the pixel aspect, the principal point a share from the corner); a view whose focal length is 0 skipped with a
+    warning; the undistorted image, else the original; views in the order of their numbers."""
+    views = tmp_path / "scene" / "views"
+    mve_view(views, 10, 50 / W)
+    mve_view(views, 2, 50 / W, image="original.jpg")
+    mve_view(views, 0, 0.0)
+    for where in (tmp_path / "scene", views, views / "view_0002.mve" / "meta.ini"):
+        assert detect_format(where) == ("mve", views)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path / "scene")
+    assert "1 of its 3 views have no camera (focal length 0" in caplog.text
+    assert photos.format == "mve"
+    assert [p.parent.name + "/" + p.name for p in photos.images] == ["view_0002.mve/original.jpg",
+                                                                     "view_0010.mve/undistorted.png"]
+    assert_reference(photos)
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
@@ -705,6 +741,19 @@ def bad_arkitscenes_pincam(tmp_path):
     return folder, "9_100.000.pincam: not a .pincam file: 4 numbers, expected 6"
 
 
+def bad_mve_meta(tmp_path):
+    mve_view(tmp_path / "views", 0, 50 / W)
+    (tmp_path / "views" / "view_0000.mve" / "meta.ini").write_text("focal_length = 1\n")
+    return tmp_path, "meta.ini: not an MVE meta.ini (File contains no section headers."
+
+
+def bad_mve_rotation(tmp_path):
+    folder = mve_view(tmp_path / "views", 0, 50 / W)
+    text = (folder / "meta.ini").read_text().replace("rotation = ", "rotation = 2 ")
+    (folder / "meta.ini").write_text(text)
+    return tmp_path, "meta.ini: [camera] rotation has 10 numbers, expected 9"
+
+
 # ---- bad input -----------------------------------------------------------------------------------
 
 def bad_missing(tmp_path):
@@ -838,7 +887,7 @@ BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pos
        bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost,
        bad_frames_without_intrinsics, bad_frames_colour_extrinsic, bad_frames_info_of_another_size,
        bad_frames_depth_shift, bad_frames_pose, bad_arkitscenes_trajectory, bad_arkitscenes_pincam,
-       bad_arkitscenes_no_frames]
+       bad_arkitscenes_no_frames, bad_mve_meta, bad_mve_rotation]
 
 
 def test_cameras_json_pose_as_r_and_c_and_a_byte_order_mark(tmp_path, caplog):
