@@ -140,6 +140,17 @@ def test_texrecon_scene_folder_below_the_mesh(exports, tmp_path):
         assert capture.photos == tmp_path / "textureimages" and len(load_photos(capture.photos)) == 4
 
 
+def test_mve_scene_beside_its_mesh(exports, tmp_path):
+    """MVE's scene folder: the mesh its reconstruction wrote beside views/."""
+    from scantex.photos import write_mve_scene
+
+    save_scan(exports["scan"], tmp_path / "surface-L2-clean.obj")
+    write_mve_scene(photographs(exports["scan"], tmp_path / "renders"), tmp_path)
+    with find_capture(tmp_path) as capture:
+        assert capture.mesh.name == "surface-L2-clean.obj" and capture.photo_format == "mve"
+        assert capture.photos == tmp_path / "views" and len(load_photos(capture.photos)) == 4
+
+
 def test_arkitscenes_video_folder(exports, tmp_path):
     """ARKitScenes' video folder: the ARKit mesh <video_id>_3dod_mesh.ply beside <video_id>_frames/."""
     from tests.photos.test_importers import arkitscenes_capture
