@@ -207,14 +207,19 @@ def write_mve(photos: PhotoSet, out_dir: str | Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
         for i, (cam, image) in enumerate(zip(photos.cameras, photos.images)):
-            if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
-                log.warning("photo %d: its lens distortion is not written to the .cam file", i)
-            if cam.K[0, 1] != 0.0:
-                log.warning("photo %d: its skew is not written to the .cam file (MVE's cameras have none)", i)
+            warn_unwritten(photos, i, "the .cam file")
             stem = f"view_{i:04d}"
             copy_into(files, image, out_dir / f"{stem}{image.suffix.lower()}")
             files.path(out_dir / f"{stem}.cam").write_text(cam_lines(cam))
     return out_dir
+
+
+def warn_unwritten(photos: PhotoSet, i: int, where: str) -> None:
+    """Warn that photo ``i``'s lens distortion or skew, which MVE's cameras cannot hold, is not written to ``where``."""
+    if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
+        log.warning("photo %d: its lens distortion is not written to %s", i, where)
+    if photos.cameras[i].K[0, 1] != 0.0:
+        log.warning("photo %d: its skew is not written to %s (MVE's cameras have none)", i, where)
 
 
 def mve_lens(cam: Camera) -> tuple[float, float, float, float]:

@@ -28,7 +28,7 @@ from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import MAX_DISTORTION_PX, accept_distortion, check_intrinsics, check_pose
 from scantex.photos.files import copy_into
-from scantex.photos.mve import lens_intrinsics, mve_lens, natural_key
+from scantex.photos.mve import lens_intrinsics, mve_lens, natural_key, warn_unwritten
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -146,10 +146,7 @@ def write_mve_scene(photos: PhotoSet, out_dir: str | Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
         for i, (cam, image) in enumerate(zip(photos.cameras, photos.images)):
-            if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
-                log.warning("photo %d: its lens distortion is not written to meta.ini", i)
-            if cam.K[0, 1] != 0.0:
-                log.warning("photo %d: its skew is not written to meta.ini (MVE's cameras have none)", i)
+            warn_unwritten(photos, i, "meta.ini")
             folder = out_dir / "views" / f"view_{i:04d}.mve"
             folder.mkdir(parents=True, exist_ok=True)
             f, paspect, ppx, ppy = mve_lens(cam)

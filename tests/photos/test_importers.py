@@ -584,6 +584,24 @@ def test_mve_scene_convention_views_without_a_camera_and_order(tmp_path, caplog)
     assert_reference(photos)
 
 
+def test_mve_writers_say_what_they_cannot_hold(capture, tmp_path, caplog):
+    """MVE's cameras hold no skew and texrecon's no OpenCV distortion: both writers warn, naming the photo."""
+    from scantex.photos import Distortion
+
+    _, photos, _, _ = capture
+    K = photos.cameras[1].K.copy()
+    K[0, 1] = 0.5
+    odd = dataclasses.replace(photos, cameras=(photos.cameras[0], dataclasses.replace(photos.cameras[1], K=K),
+                                               *photos.cameras[2:]),
+                              distortions=(Distortion("OPENCV", (0.01, 0.0)), None, None, None))
+    with caplog.at_level(logging.WARNING):
+        write_mve(odd, tmp_path / "texrecon")
+        write_mve_scene(odd, tmp_path / "mve")
+    for where in ("the .cam file", "meta.ini"):
+        assert f"photo 0: its lens distortion is not written to {where}" in caplog.text
+        assert f"photo 1: its skew is not written to {where}" in caplog.text
+
+
 # ---- lens distortion -----------------------------------------------------------------------------
 
 def write_opencv_colmap(tmp_path, k1):
