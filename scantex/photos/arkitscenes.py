@@ -23,7 +23,8 @@ Conventions, and what scantex does with them:
   skipped. The image size is checked against the image file's.
 - Depth: ``highres_depth/`` (the laser scan's depth, registered to ``wide``) else ``lowres_depth/`` (the LiDAR's,
   256x192) at the frame's timestamp, uint16 millimetres: the wide camera's view, as its photo's.
-- Frames are taken in the order of their timestamps.
+- Frames are taken in the order of their timestamps. A stream none of whose frames has a pose and a ``.pincam`` (a
+  partial download) gives way to the next, with a warning.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from scantex.photos.conventions import (
     intrinsics,
     pixel_count,
 )
-from scantex.photos.files import check_sizes
+from scantex.photos.files import check_sizes, quiet_loadtxt
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera
 
@@ -88,15 +89,38 @@ def load_arkitscenes(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
         raise ScanError(Path(path), f"not an ARKitScenes capture: expected {TRAJECTORY} beside lowres_wide/ (or in "
                                     "<video_id>_frames/)")
     times, poses = _trajectory(folder / TRAJECTORY)
-    frames, stream = [], None
-    for stream in (s for s in STREAMS if (folder / s).is_dir()):
+    streams = [s for s in STREAMS if (folder / s).is_dir()]
+    tried = []
+    for stream in streams:
         frames = sorted(((float(m["time"]), p) for p in (folder / stream).iterdir()
                          if (m := FRAME.match(p.name)) and p.is_file()), key=lambda f: f[0])
-        if frames:
+        if not frames:
+            continue
+        cameras, images, depths, no_pose, no_lens = _stream(folder, stream, frames, times, poses)
+        if images:
             break
-    if not frames:
-        raise ScanError(folder, f"no frames in {', '.join(s + '/' for s in STREAMS if (folder / s).is_dir())}: "
-                                "expected <video_id>_<timestamp>.png")
+        tried.append(f"none of its {len(frames)} {stream} frames has both a pose in {TRAJECTORY} (within "
+                     f"{MAX_GAP_S:g} s) and its .pincam")
+    else:
+        if tried:
+            raise ScanError(folder, "; ".join(tried))
+        raise ScanError(folder, f"no frames in {', '.join(s + '/' for s in streams)}: expected "
+                                "<video_id>_<timestamp>.png")
+    if tried:
+        log.warning("%s: %s: reading its %s frames", folder, "; ".join(tried), stream)
+    if no_pose:
+        log.warning("%s: %d of the %d %s frames lie outside the trajectory's poses (more than %g s from one, or "
+                    "in a gap of more than %g s): skipped", folder, no_pose, len(frames), stream, SAME_TIME_S,
+                    MAX_GAP_S)
+    if no_lens:
+        log.warning("%s: %d of the %d %s frames have no .pincam in %s_intrinsics/: skipped", folder, no_lens,
+                    len(frames), stream, stream)
+    check_sizes(cameras, images, folder)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder, format=FORMAT)
+
+
+def _stream(folder: Path, stream: str, frames: list, times: np.ndarray, poses: np.ndarray):
+    """``(cameras, images, depths, frames without a pose, frames without a .pincam)`` of one stream's frames."""
     cameras, images, depths = [], [], []
     no_pose = no_lens = 0
     for time, image in frames:
@@ -114,18 +138,7 @@ def load_arkitscenes(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
         depth = next((folder / d / f"{image.stem}.png" for d in DEPTHS if (folder / d / f"{image.stem}.png").is_file()),
                      None)
         depths.append(depth)
-    if not images:
-        raise ScanError(folder, f"none of its {len(frames)} {stream} frames has both a pose in {TRAJECTORY} (within "
-                                f"{MAX_GAP_S:g} s) and its .pincam")
-    if no_pose:
-        log.warning("%s: %d of the %d %s frames lie outside the trajectory's poses (more than %g s from one, or "
-                    "in a gap of more than %g s): skipped", folder, no_pose, len(frames), stream, SAME_TIME_S,
-                    MAX_GAP_S)
-    if no_lens:
-        log.warning("%s: %d of the %d %s frames have no .pincam in %s_intrinsics/: skipped", folder, no_lens,
-                    len(frames), stream, stream)
-    check_sizes(cameras, images, folder)
-    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder, format=FORMAT)
+    return cameras, images, depths, no_pose, no_lens
 
 
 def _trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -133,7 +146,7 @@ def _trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
     from scipy.spatial.transform import Rotation
 
     try:
-        rows = np.loadtxt(path, dtype=np.float64, ndmin=2)
+        rows = quiet_loadtxt(path, ndmin=2)
     except (OSError, ValueError) as e:
         raise ScanError(path, f"not a trajectory ({str(e).splitlines()[0] if str(e) else type(e).__name__}): "
                               "expected lines of 'timestamp ax ay az tx ty tz'") from None
@@ -195,7 +208,7 @@ def _pincam_file(folder: Path, stem: str) -> Path | None:
 def _read_pincam(path: Path) -> tuple[np.ndarray, int, int]:
     """``(K, width, height)`` of a ``.pincam`` file."""
     try:
-        values = np.loadtxt(path, dtype=np.float64, ndmin=1)
+        values = quiet_loadtxt(path, ndmin=1)
     except (OSError, ValueError) as e:
         raise ScanError(path, f"not a .pincam file ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
                         ) from None

@@ -124,14 +124,29 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tu
     return width, height
 
 
-def check_depth_intrinsics(K: np.ndarray, where: Path) -> np.ndarray:
-    """A depth camera's ``(3, 3)`` K (its map's size is checked when the map is read): finite, positive focal
-    lengths, of the pinhole form; a ScanError naming ``where`` otherwise."""
-    K = np.asarray(K, dtype=np.float64)
-    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
-        raise ScanError(where, f"the depth camera's intrinsics {np.round(K, 3).tolist()} are not of the form "
-                               "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with positive focal lengths")
-    return K
+def depth_lens(K_depth: np.ndarray, depth_map: Path, K_photo: np.ndarray, photo_size: tuple[int, int],
+               where: Path, expected_size: tuple[int, int] | None = None) -> tuple[bool, np.ndarray | None]:
+    """``(usable, warp)``: whether a capture's depth maps can be used with the depth camera's K ``K_depth`` (given
+    in ``where``, for maps like ``depth_map``, of ``expected_size`` where the capture says), and their warp into the
+    photos' view (:func:`scantex.photos.photoset.depth_warp`; ``None``: they cover it). A K that is no pinhole's
+    for the maps' size (an unset calibration, another size's), or a map that is no image, leaves the depth maps out
+    with a warning: the photos are used without them, as without depth."""
+    from scantex.photos.photoset import depth_warp, image_size
+
+    try:
+        size = image_size(depth_map, "depth map")
+        if expected_size is not None and size != tuple(expected_size):
+            raise ScanError(where, f"its depth camera is {expected_size[0]}x{expected_size[1]} but {depth_map.name} "
+                                   f"is {size[0]}x{size[1]}")
+        K = np.asarray(K_depth, dtype=np.float64)
+        if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ScanError(where, f"the depth camera's intrinsics {np.round(K, 3).tolist()} have no positive focal "
+                                   "lengths")
+        check_intrinsics(K, *size, where, "the depth camera's intrinsics")
+    except ScanError as e:
+        log.warning("%s: the depth maps are not used", e)
+        return False, None
+    return True, depth_warp(K, size, K_photo, photo_size)
 
 
 def intrinsics(fx, fy, cx, cy, *, pixel_centre: float) -> np.ndarray:

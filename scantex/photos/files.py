@@ -66,11 +66,21 @@ def load_json(path: Path):
         raise ScanError(path, f"cannot read the file ({e.strerror})") from None
 
 
+def quiet_loadtxt(path: Path, ndmin: int) -> np.ndarray:
+    """``numpy.loadtxt`` of floats without its warning on an empty file (the caller says what is wrong, in one
+    line)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return np.loadtxt(path, dtype=np.float64, ndmin=ndmin)
+
+
 def read_matrix(path: Path, what: str, shapes: Sequence[tuple[int, int]] = ((4, 4),)) -> np.ndarray:
     """A text file of rows of numbers (a pose, a K) as a ``float64`` array of one of ``shapes``; a ScanError
     naming the file otherwise (non-finite numbers are the caller's to judge: a lost frame's pose is -inf)."""
     try:
-        m = np.loadtxt(path, dtype=np.float64, ndmin=2)
+        m = quiet_loadtxt(path, ndmin=2)
     except (OSError, ValueError) as e:
         raise ScanError(path, f"not a {what}: {e}".rstrip(": ")) from None
     if m.shape not in [tuple(s) for s in shapes]:

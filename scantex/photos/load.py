@@ -49,13 +49,15 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return "colmap", path
         if path.suffix.lower() == ".cam":
             return mve.FORMAT, path.parent
-        if path.name.lower() == "meta.ini" and mve_scene.views_folder(path) is not None:
+        if ((path.name.lower() == "meta.ini" or path.parent.suffix.lower() == ".mve")
+                and mve_scene.views_folder(path) is not None):
             return mve_scene.FORMAT, mve_scene.views_folder(path)
-        if path.name == scannet.INTRINSICS.name and scannet.export_folder(path.parent) is not None:
+        if path.suffix.lower() in (".txt", ".jpg", ".jpeg", ".png") and scannet.export_folder(path.parent) is not None:
             return scannet.FORMAT, scannet.export_folder(path.parent)
         if path.suffix.lower() in (".txt", ".png", ".jpg", ".jpeg") and rgbd_frames.is_frames_folder(path.parent):
             return rgbd_frames.FORMAT, path.parent
-        if path.suffix.lower() in (".traj", ".pincam", ".png") and arkitscenes.capture_folder(path) is not None:
+        if (path.suffix.lower() in (".traj", ".pincam", ".png", ".jpg", ".jpeg")
+                and arkitscenes.capture_folder(path) is not None):
             return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")

@@ -140,12 +140,13 @@ def _read_cam(cam_file: Path) -> tuple[np.ndarray, list[float] | None]:
     return pose, numbers[1]
 
 
-def lens_intrinsics(lens: list[float], width: int, height: int,
-                    cam_file: Path) -> tuple[np.ndarray, Distortion | None]:
-    """K in scantex's convention and the distortion of a ``.cam``'s line 2 (texrecon's defaults filled in)."""
+def lens_intrinsics(lens: list[float], width: int, height: int, cam_file: Path,
+                    what: str = "line 2") -> tuple[np.ndarray, Distortion | None]:
+    """K in scantex's convention and the distortion of a ``.cam``'s line 2 (texrecon's defaults filled in);
+    ``what`` names where the numbers are, for the error."""
     f, d0, d1, paspect, ppx, ppy = lens + [0.0, 0.0, 1.0, 0.5, 0.5][len(lens) - 1:]
     if not (np.isfinite(lens).all() and f > 0 and paspect > 0):
-        raise ScanError(cam_file, f"line 2: the focal length and the pixel aspect must be positive numbers, got "
+        raise ScanError(cam_file, f"{what}: the focal length and the pixel aspect must be positive numbers, got "
                                   f"{f} and {paspect}")
     if len(lens) == 6 and max(ppx, ppy) > 1.0:  # no share of the image: pixels, as G2LTex writes some
         K = np.array([[f, 0.0, ppx], [0.0, f * paspect, ppy], [0.0, 0.0, 1.0]])

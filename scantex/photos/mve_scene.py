@@ -7,8 +7,9 @@ Conventions, and what scantex does with them:
   ``radial_distortion``, ``rotation``, ``translation``) and ``[view]`` (``id``, ``name``). The camera is a texrecon
   ``.cam`` file's, key by key (:mod:`scantex.photos.mve`): ``rotation`` and ``translation`` the *world-to-camera*
   (row by row), the focal length over the image's larger side, the principal point a share of the image from its
-  corner, MVE's radial distortion. A view whose focal length is 0 has no camera (``sfmrecon`` could not place
-  it): skipped, with a count in a warning.
+  corner, MVE's radial distortion (its k2k4 model, the original photo's: the undistorted image has none left). A
+  view whose focal length is 0 has no camera (``sfmrecon`` could not place it): skipped, with a count in a
+  warning.
 - The image: ``undistorted`` (as texrecon reads it by default), else ``original`` (the photo as taken, its
   distortion checked against ``--max-distortion``), in any of the image formats scantex reads; the intrinsics are
   shares of the image, so they hold at the image's own size (MVE's smaller ``undist-L1``, ``undist-L2`` are not
@@ -29,7 +30,7 @@ from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import MAX_DISTORTION_PX, accept_distortion, check_intrinsics, check_pose
 from scantex.photos.files import copy_into
 from scantex.photos.mve import lens_intrinsics, mve_lens, natural_key, warn_unwritten
-from scantex.photos.photoset import PhotoSet, image_size
+from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
@@ -75,9 +76,12 @@ def load_mve_scene(path: str | Path, *, max_distortion_px: float = MAX_DISTORTIO
             no_image += 1
             continue
         width, height = image_size(image)
-        K, distortion = lens_intrinsics(lens, width, height, meta)
-        check_intrinsics(K, width, height, meta, "camera")
+        K, _ = lens_intrinsics([lens[0], 0.0, 0.0, *lens[3:]], width, height, meta, "[camera]")
+        check_intrinsics(K, width, height, meta, "[camera]")
         camera = Camera(K, pose, width, height)
+        # MVE's radial distortion (k2k4) is the original photo's: its undistorted image has none left
+        distortion = (Distortion("MVE k2k4", tuple(lens[1:3])) if any(lens[1:3]) and image.stem.lower() == "original"
+                      else None)
         distortions.append(accept_distortion(distortion, camera, max_distortion_px, meta, "radial_distortion"))
         cameras.append(camera)
         images.append(image)
@@ -108,8 +112,8 @@ def _read_meta(meta: Path) -> tuple[list[float] | None, np.ndarray | None]:
     """``(lens [f d0 d1 paspect ppx ppy] or None when the view has no camera, world-to-camera)`` of a meta.ini."""
     parser = configparser.ConfigParser(interpolation=None)
     try:
-        parser.read_string(meta.read_text(encoding="utf-8"), source=str(meta))
-    except (OSError, UnicodeDecodeError, configparser.Error) as e:
+        parser.read_string(meta.read_text(encoding="utf-8-sig", errors="replace"), source=str(meta))
+    except (OSError, configparser.Error) as e:
         reason = getattr(e, "strerror", None) or (str(e).splitlines()[0] if str(e) else type(e).__name__)
         raise ScanError(meta, f"not an MVE meta.ini ({reason})") from None
     if not parser.has_section("camera"):

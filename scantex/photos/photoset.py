@@ -417,7 +417,8 @@ def _load_npy(path: Path) -> np.ndarray:
     return np.array(stored)
 
 
-def image_size(path: Path) -> tuple[int, int]:
-    """``(width, height)`` of an image file, from its header (checked against the size limit)."""
-    with open_image(path, "photo") as im:
+def image_size(path: Path, what: str = "photo") -> tuple[int, int]:
+    """``(width, height)`` of an image file, from its header (checked against the size limit); ``what`` it is, for
+    the error."""
+    with open_image(path, what) as im:
         return im.size

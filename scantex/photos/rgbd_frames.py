@@ -9,17 +9,19 @@ Conventions, and what scantex does with them:
   of the scan: scantex's ``world_to_camera = inv(pose)``. A frame whose tracking was lost holds ``-inf`` (or
   ``nan``): it is skipped, and a warning says how many were. A photo without a pose is no frame. Frames are taken
   in the order of their numbers.
-- ``<name>NNNNNN.depth.png`` is its depth map, 16-bit, in millimetres (in ``1 / m_depthShift`` metres where an
-  ``_info.txt`` says so: 5000 for TUM's units).
+- ``<name>NNNNNN.depth.png`` (or ``.pgm``, as ScanNet's C++ SensReader and 3RScan write it) is its depth map,
+  16-bit, in millimetres (in ``1 / m_depthShift`` metres where an ``_info.txt`` says so: 5000 for TUM's units).
 - The intrinsics, in the frames' folder or the one above (the first found): ``colorIntrinsics.txt`` and
   ``depthIntrinsics.txt``, a 4x4 each (Intrinsic3D); ``_info.txt`` or ``info.txt`` (a ``.sens`` export:
   ``m_calibrationColorIntrinsic`` and ``m_calibrationDepthIntrinsic``, 16 numbers each, ``m_colorWidth``,
   ``m_colorHeight``, ``m_depthWidth``, ``m_depthHeight``); ``camera-intrinsics.txt``, a 3x3 (3DMatch: the depth
   map covers the photo's view). K in OpenCV's pixel centres, as scantex's. The depth camera is registered to the
   colour camera (its centre and axes), its lens given apart: where it differs from the photo's, its map is
-  resampled into the photo's view (:attr:`PhotoSet.depth_warps`). An ``_info.txt`` whose colour camera is not at
-  the pose (a colour extrinsic other than the identity) is refused; one whose depth camera is elsewhere keeps the
-  photos without their depth maps, with a warning.
+  resampled into the photo's view (:attr:`PhotoSet.depth_warps`); a depth K that is no pinhole's for the maps'
+  size (an unset calibration, another size's) leaves the depth maps out, with a warning. An ``_info.txt`` whose
+  colour camera is not at the pose (a colour extrinsic other than the identity) is refused; one whose depth camera
+  is elsewhere keeps the photos without their depth maps, with a warning. An ``info.txt`` without
+  ``m_calibrationColorIntrinsic`` is another program's: passed over.
 """
 
 from __future__ import annotations
@@ -32,20 +34,16 @@ from typing import NamedTuple
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import (
-    MAX_DISTORTION_PX,
-    check_depth_intrinsics,
-    check_intrinsics,
-    check_pose,
-    pixel_count,
-)
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose, depth_lens, pixel_count
 from scantex.photos.files import check_sizes, folder_of, read_matrix
-from scantex.photos.photoset import DEPTH_SCALE_MM, PhotoSet, depth_warp, image_size
+from scantex.photos.photoset import DEPTH_SCALE_MM, PhotoSet, image_size
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
 
 FORMAT = "rgbd-frames"
+#: a frame's depth map, ``<name>NNNNNN.depth`` and one of these (ScanNet's C++ SensReader writes 16-bit PGM)
+DEPTH_SUFFIXES = (".png", ".pgm")
 COLOUR = re.compile(r"^(?P<stem>.*?(?P<number>\d+))\.color\.(?:png|jpe?g)$", re.IGNORECASE)
 #: the intrinsics files, in the order they are looked for: Intrinsic3D's, a .sens export's, 3DMatch's
 INTRINSICS_FILES = ("colorIntrinsics.txt", "_info.txt", "info.txt", "camera-intrinsics.txt")
@@ -54,6 +52,7 @@ INTRINSICS_FILES = ("colorIntrinsics.txt", "_info.txt", "info.txt", "camera-intr
 class Intrinsics(NamedTuple):
     K: np.ndarray
     K_depth: np.ndarray | None = None  # None: the depth map covers the photo's view
+    depth_file: Path | None = None  # the file K_depth comes from
     size: tuple[int, int] | None = None  # the photos' (w, h) where the file says
     depth_size: tuple[int, int] | None = None
     depth_scale: float = DEPTH_SCALE_MM
@@ -63,7 +62,7 @@ class Intrinsics(NamedTuple):
 def frames(folder: Path) -> list[tuple[int, Path, Path]]:
     """``(number, photo, pose file)`` of each frame of ``folder`` with both, in the order of their numbers."""
     found = {}
-    for p in folder.iterdir():
+    for p in sorted(folder.iterdir()):  # a frame's .jpg before its .png, whatever the file system's order
         match = COLOUR.match(p.name)
         if match and p.is_file():
             pose = folder / f"{match['stem']}.pose.txt"
@@ -80,10 +79,19 @@ def intrinsics_file(folder: Path) -> Path | None:
     """The first of :data:`INTRINSICS_FILES` in ``folder``, else in the folder above; names in any case (some
     converters write ``colorintrinsics.txt``)."""
     for where in (folder, folder.parent):
-        found = _named(where, INTRINSICS_FILES)
-        if found:
-            return found[0]
+        for found in _named(where, INTRINSICS_FILES):
+            if found.name.lower() not in ("_info.txt", "info.txt") or _is_sens_info(found):
+                return found
     return None
+
+
+def _is_sens_info(path: Path) -> bool:
+    """Whether a ``_info.txt`` / ``info.txt`` is a ``.sens`` export's (another program's ``info.txt`` is not)."""
+    try:
+        with open(path, "rb") as f:
+            return b"m_calibrationColorIntrinsic" in f.read(1 << 16)
+    except OSError:
+        return False
 
 
 def _named(folder: Path, names) -> list[Path]:
@@ -126,10 +134,12 @@ def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
         if not np.isfinite(c2w).all():
             lost += 1
             continue
-        cameras.append(Camera(lens.K, check_pose(np.linalg.inv(c2w), pose_file, "pose"), width, height))
+        cameras.append(Camera(lens.K, np.linalg.inv(check_pose(c2w, pose_file, "pose")), width, height))
         images.append(image)
-        depth = image.with_name(image.name[:image.name.lower().rindex(".color.")] + ".depth.png")
-        depths.append(depth if lens.depth_used and depth.is_file() else None)
+        stem = image.name[:image.name.lower().rindex(".color.")]
+        depth = next((d for d in (image.with_name(f"{stem}.depth{ext}") for ext in DEPTH_SUFFIXES) if d.is_file()),
+                     None)
+        depths.append(depth if lens.depth_used else None)
     if not images:
         raise ScanError(folder, f"none of its {len(found)} frames has a finite pose (tracking lost: -inf)")
     if lost:
@@ -137,13 +147,9 @@ def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
     check_sizes(cameras, images, folder)
     first = next((d for d in depths if d is not None), None)
     warp = None
-    if first is not None:
-        depth_size = image_size(first)
-        if lens.depth_size is not None and depth_size != lens.depth_size:
-            raise ScanError(source, f"its depth camera is {lens.depth_size[0]}x{lens.depth_size[1]} but {first.name} "
-                                    f"is {depth_size[0]}x{depth_size[1]}")
-        if lens.K_depth is not None:
-            warp = depth_warp(lens.K_depth, depth_size, lens.K, (width, height))
+    if first is not None and lens.K_depth is not None:
+        usable, warp = depth_lens(lens.K_depth, first, lens.K, (width, height), lens.depth_file, lens.depth_size)
+        depths = depths if usable else [None] * len(depths)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
                     format=FORMAT, depth_scale=lens.depth_scale,
                     depth_warps=tuple(None if d is None else warp for d in depths))
@@ -156,8 +162,7 @@ def _intrinsics(source: Path) -> Intrinsics:
         depth_file = _named(source.parent, ("depthIntrinsics.txt",))
         if not depth_file:
             return Intrinsics(K)
-        return Intrinsics(K, check_depth_intrinsics(read_matrix(depth_file[0], "4x4 intrinsics file")[:3, :3].copy(),
-                                                    depth_file[0]))
+        return Intrinsics(K, read_matrix(depth_file[0], "4x4 intrinsics file")[:3, :3].copy(), depth_file[0])
     if source.name.lower() == "camera-intrinsics.txt":
         return Intrinsics(read_matrix(source, "3x3 intrinsics file", ((3, 3),)))
     return _sens_info(source)
@@ -165,9 +170,9 @@ def _intrinsics(source: Path) -> Intrinsics:
 
 def _sens_info(source: Path) -> Intrinsics:
     try:
-        text = source.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise ScanError(source, f"cannot read the file ({getattr(e, 'strerror', None) or 'not text'})") from None
+        text = source.read_text(encoding="utf-8", errors="replace")  # a sensor's name in another encoding is no matter
+    except OSError as e:
+        raise ScanError(source, f"cannot read the file ({e.strerror})") from None
     keys = {}
     for line in text.splitlines():
         key, eq, value = line.partition("=")
@@ -201,7 +206,7 @@ def _sens_info(source: Path) -> Intrinsics:
         raise ScanError(source, "m_calibrationColorExtrinsic is not the identity: scantex takes each pose to be "
                                 "the colour camera's (give the colour camera's poses)")
     if K_depth is not None:
-        K_depth = check_depth_intrinsics(K_depth[:3, :3].copy(), source)
+        K_depth = K_depth[:3, :3].copy()
     shift = 1000.0
     if "m_depthShift" in keys:
         try:
@@ -215,4 +220,4 @@ def _sens_info(source: Path) -> Intrinsics:
         log.warning("%s: the depth camera is not at the colour camera (m_calibrationDepthExtrinsic is not the "
                     "identity): its depth maps are not used", source)
         return Intrinsics(K, size=size("color"), depth_used=False)
-    return Intrinsics(K, K_depth, size("color"), size("depth"), 1.0 / shift)
+    return Intrinsics(K, K_depth, source, size("color"), size("depth"), 1.0 / shift)

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_depth_intrinsics, check_intrinsics, check_pose
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose, depth_lens
 from scantex.photos.files import check_sizes, read_matrix
-from scantex.photos.photoset import PhotoSet, depth_warp, image_size
+from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
@@ -64,7 +64,6 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
     K_depth = None
     if (folder / DEPTH_INTRINSICS).is_file():
         K_depth = read_matrix(folder / DEPTH_INTRINSICS, "4x4 intrinsics file")[:3, :3].copy()
-        check_depth_intrinsics(K_depth, folder / DEPTH_INTRINSICS)
     photos = {}
     for p in (folder / "color").iterdir():
         if p.suffix.lower() in IMAGE_SUFFIXES and NUMBERED.match(p.stem):
@@ -81,7 +80,7 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
         if not np.isfinite(c2w).all():
             lost += 1
             continue
-        w2c = check_pose(np.linalg.inv(c2w), pose_file, "pose")
+        w2c = np.linalg.inv(check_pose(c2w, pose_file, "pose"))
         if size is None:
             size = check_intrinsics(K, *image_size(image), folder / INTRINSICS, "intrinsics")
         cameras.append(Camera(K, w2c, *size))
@@ -95,6 +94,9 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
         log.warning("%s: %d frames have no pose (tracking lost: -inf): skipped", folder, lost)
     check_sizes(cameras, images, folder)
     first = next((d for d in depths if d is not None), None)
-    warp = None if K_depth is None or first is None else depth_warp(K_depth, image_size(first), K, size)
+    warp = None
+    if K_depth is not None and first is not None:
+        usable, warp = depth_lens(K_depth, first, K, size, folder / DEPTH_INTRINSICS)
+        depths = depths if usable else [None] * len(depths)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
                     format=FORMAT, depth_warps=tuple(None if d is None else warp for d in depths))

@@ -341,7 +341,8 @@ def test_scannet_convention_order_lost_frames_and_depth(tmp_path, caplog):
     numbers, those whose tracking was lost (-inf) skipped with a warning; depth/N.png the depth map."""
     root = scannet_export(tmp_path / "scene0000_00", lost=(2,))
     blank_png(root / "color" / "5.png")  # a photo without a pose: not a frame
-    for where in (root, root / "pose", root / "intrinsic" / "intrinsic_color.txt"):
+    for where in (root, root / "pose", root / "intrinsic" / "intrinsic_color.txt", root / "pose" / "0.txt",
+                  root / "color" / "10.png"):
         assert detect_format(where) == ("scannet", root)
     with caplog.at_level(logging.WARNING):
         photos = load_photos(root)
@@ -353,7 +354,7 @@ def test_scannet_convention_order_lost_frames_and_depth(tmp_path, caplog):
 
 
 def rgbd_frames_folder(root: Path, numbers=(0, 2, 10), lost=(), intrinsics="intrinsic3d", depth_units=1000,
-                       prefix="frame-", suffix=".png") -> Path:
+                       prefix="frame-", suffix=".png", depth_suffix=".png") -> Path:
     """RGB-D frames as files of the reference camera (``frame-000000.color.png`` + ``.pose.txt``, a depth map
     beside frame 0 at half size) with the intrinsics of Intrinsic3D (4x4 files), a .sens export (``_info.txt``) or
     3DMatch (a 3x3 ``camera-intrinsics.txt`` in the folder above)."""
@@ -385,7 +386,7 @@ def rgbd_frames_folder(root: Path, numbers=(0, 2, 10), lost=(), intrinsics="intr
         blank_png(root / f"{prefix}{n:06d}.color{suffix}")
         np.savetxt(root / f"{prefix}{n:06d}.pose.txt", np.full((4, 4), -np.inf) if n in lost else c2w)
     Image.fromarray(np.full((H // 2, W // 2), round(2.5 * depth_units), np.uint16)).save(
-        root / f"{prefix}{numbers[0]:06d}.depth.png")
+        root / f"{prefix}{numbers[0]:06d}.depth{depth_suffix}")
     return root
 
 
@@ -396,7 +397,8 @@ def test_rgbd_frames_convention_order_lost_frames_and_depth(tmp_path, caplog, in
     those whose tracking was lost skipped with a warning, a photo without a pose no frame; .depth.png the depth
     map, in the units _info.txt says."""
     root = rgbd_frames_folder(tmp_path / "seq-01", lost=(2,), intrinsics=intrinsics,
-                              depth_units=5000 if intrinsics == "sens" else 1000)
+                              depth_units=5000 if intrinsics == "sens" else 1000,
+                              depth_suffix=".pgm" if intrinsics == "sens" else ".png")  # as ScanNet's SensReader
     blank_png(root / "frame-000005.color.png")  # a photo without a pose: not a frame
     for where in (root, root / "frame-000000.pose.txt", root / "frame-000010.color.png"):
         assert detect_format(where) == ("rgbd-frames", root)
@@ -413,6 +415,29 @@ def test_rgbd_frames_convention_order_lost_frames_and_depth(tmp_path, caplog, in
     else:  # the depth camera's K is the photo's, halved (or none): the map covers the photo's view
         assert np.isfinite(depth).all()
     assert photos.depths[1] is None
+
+
+def test_rgbd_frames_depth_lens_that_fits_no_map_and_another_programs_info(tmp_path, caplog):
+    """A depth K that is no pinhole's for the maps (an unset calibration: the identity) leaves the depth maps out
+    with a warning, the photos read; an info.txt of another program beside the frames is passed over for the
+    intrinsics above; a pose that is no rigid motion is one clear line."""
+    root = rgbd_frames_folder(tmp_path / "scan" / "seq", intrinsics="sens")
+    info = root / "_info.txt"
+    text = info.read_text()
+    start = text.index("m_calibrationDepthIntrinsic")
+    end = text.index("\n", start)
+    info.write_text(text[:start] + "m_calibrationDepthIntrinsic = " + " ".join(map(str, np.eye(4).ravel())) + text[end:])
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(root)
+    assert "the depth maps are not used" in caplog.text and set(photos.depths) == {None}
+    assert_reference(photos)
+    info.unlink()
+    np.savetxt(tmp_path / "scan" / "camera-intrinsics.txt", reference_camera().K)
+    (root / "info.txt").write_text("captured with some app, 3 frames\n")
+    assert_reference(load_photos(root))
+    (root / "frame-000000.pose.txt").write_text("0 0 0 0\n" * 4)
+    with pytest.raises(ScanError, match="frame-000000.pose.txt: pose: pose's last row"):
+        load_photos(root)
 
 
 def test_rgbd_frames_of_another_name_and_jpeg(tmp_path):
@@ -528,6 +553,22 @@ def test_arkitscenes_convention_frames_without_a_pose_and_depth(tmp_path, caplog
     assert np.nanmedian(photos.load_depth(0)) == pytest.approx(1.8) and photos.depths[1] is None
 
 
+def test_arkitscenes_a_stream_without_intrinsics_gives_way(tmp_path, caplog):
+    """A partial download: wide/ frames without wide_intrinsics/; the lowres_wide frames are read, with a warning.
+    A frame's file names its capture, a JPEG too."""
+    import shutil
+
+    folder = arkitscenes_capture(tmp_path / "5", times=(100.0,), stream="wide")
+    arkitscenes_capture(tmp_path / "5", times=(100.1,), stream="lowres_wide")
+    shutil.rmtree(folder / "wide_intrinsics")
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path / "5")
+    assert [p.parent.name for p in photos.images] == ["lowres_wide"]
+    assert "none of its 1 wide frames has both a pose" in caplog.text and "reading its lowres_wide frames" in caplog.text
+    blank_png(folder / "lowres_wide" / "5_100.200.jpg")
+    assert detect_format(folder / "lowres_wide" / "5_100.200.jpg") == ("arkitscenes", folder)
+
+
 def test_arkitscenes_pose_between_two_is_interpolated_and_the_sharpest_stream_read(tmp_path):
     """A raw video's frame between two of the trajectory's poses takes their interpolation (the centre linearly,
     the rotation halfway); the wide camera's sharpest stream is read when the capture holds several."""
@@ -600,6 +641,22 @@ def test_mve_writers_say_what_they_cannot_hold(capture, tmp_path, caplog):
     for where in ("the .cam file", "meta.ini"):
         assert f"photo 0: its lens distortion is not written to {where}" in caplog.text
         assert f"photo 1: its skew is not written to {where}" in caplog.text
+
+
+def test_mve_scene_distortion_is_the_original_photos(tmp_path):
+    """MVE's radial distortion (k2k4) is the original photo's: a view read through its undistorted image has none
+    left; one read through its original has it checked (and refused when strong)."""
+    views = tmp_path / "views"
+    strong = "radial_distortion = -0.2 0.05"
+    for n, image in ((0, "undistorted.png"), (1, "original.jpg")):
+        folder = mve_view(views, n, 50 / W, image=image)
+        (folder / "meta.ini").write_text((folder / "meta.ini").read_text().replace("radial_distortion = 0 0", strong))
+    with pytest.raises(ScanError, match=r"view_0001.mve.meta.ini: radial_distortion: lens distortion \(MVE k2k4\)"):
+        load_photos(views)
+    (views / "view_0001.mve" / "original.jpg").rename(views / "view_0001.mve" / "undistorted.jpg")
+    photos = load_photos(views)
+    assert photos.distortions == (None, None)
+    assert detect_format(views / "view_0001.mve" / "undistorted.jpg") == ("mve", views)
 
 
 # ---- lens distortion -----------------------------------------------------------------------------
