@@ -426,7 +426,8 @@ def test_rgbd_frames_depth_lens_that_fits_no_map_and_another_programs_info(tmp_p
     text = info.read_text()
     start = text.index("m_calibrationDepthIntrinsic")
     end = text.index("\n", start)
-    info.write_text(text[:start] + "m_calibrationDepthIntrinsic = " + " ".join(map(str, np.eye(4).ravel())) + text[end:])
+    unset = "m_calibrationDepthIntrinsic = " + " ".join(map(str, np.eye(4).ravel()))
+    info.write_text(text[:start] + unset + text[end:])
     with caplog.at_level(logging.WARNING):
         photos = load_photos(root)
     assert "the depth maps are not used" in caplog.text and set(photos.depths) == {None}
@@ -564,7 +565,8 @@ def test_arkitscenes_a_stream_without_intrinsics_gives_way(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         photos = load_photos(tmp_path / "5")
     assert [p.parent.name for p in photos.images] == ["lowres_wide"]
-    assert "none of its 1 wide frames has both a pose" in caplog.text and "reading its lowres_wide frames" in caplog.text
+    assert "none of its 1 wide frames has both a pose" in caplog.text
+    assert "reading its lowres_wide frames" in caplog.text
     blank_png(folder / "lowres_wide" / "5_100.200.jpg")
     assert detect_format(folder / "lowres_wide" / "5_100.200.jpg") == ("arkitscenes", folder)
 
