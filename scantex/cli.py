@@ -564,14 +564,53 @@ def cmd_compare(args) -> int:
 
 def cmd_info(args) -> int:
     from scantex.io import load_scan
+    from scantex.io.discover import find_capture
 
-    scan = load_scan(args.mesh)
-    lo, hi = scan.bounds
-    print(f"{args.mesh}: {scan.summary()}")
-    print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
-    print(f"surface area: {scan.face_areas.sum():.4g}")
-    print(f"colour: {colour_source(scan)}")
+    with find_capture(args.mesh, photos=not args.photos) as capture:
+        if capture.kind != "file" or capture.photos is not None:
+            print(capture.describe())
+        scan = load_scan(capture.mesh)
+        lo, hi = scan.bounds
+        print(f"{capture.shown(capture.mesh)}: {scan.summary()}")
+        print(f"bounds: {lo.round(4).tolist()} .. {hi.round(4).tolist()} (size {(hi - lo).round(4).tolist()})")
+        print(f"surface area: {scan.face_areas.sum():.4g}")
+        print(f"colour: {colour_source(scan)}")
+        photos_path = args.photos or capture.photos
+        if photos_path:
+            from scantex.photos import load_photos
+
+            photos = load_photos(photos_path, **distortion_setting(args))
+            for line in photos_summary(photos):
+                print(f"{capture.shown(photos_path)}: {line}" if line is not None else "")
     return 0
+
+
+def photos_summary(photos) -> list[str]:
+    """What ``scantex info`` says of a capture's photos: their number and layout, sizes, lenses, depth maps and
+    distortion, as scantex reads them."""
+    import numpy as np
+
+    sizes = sorted({(c.width, c.height) for c in photos.cameras}, key=lambda s: -s[0] * s[1])
+    fov = [np.degrees(2 * np.arctan(c.width / (2 * c.K[0, 0]))) for c in photos.cameras]
+    lines = [f"{len(photos)} photos ({photos.format}), " + ", ".join(f"{w}x{h}" for w, h in sizes[:3])
+             + (f" and {len(sizes) - 3} more sizes" if len(sizes) > 3 else ""),
+             f"horizontal field of view {min(fov):.1f}" + (f" to {max(fov):.1f}" if max(fov) - min(fov) > 0.05 else "")
+             + " degrees"]
+    with_depth = [i for i, d in enumerate(photos.depths) if d is not None]
+    if with_depth:
+        from scantex.photos.photoset import image_size
+
+        w, h = image_size(photos.depths[with_depth[0]], "depth map")
+        warped = sum(photos.depth_warps[i] is not None for i in with_depth)
+        lines.append(f"depth maps: {len(with_depth)} of {len(photos)} ({w}x{h}"
+                     + (f"; {warped} through a lens of their own, resampled into their photos' view" if warped else "")
+                     + ")")
+    else:
+        lines.append("depth maps: none")
+    distorted = sum(d is not None and not d.is_zero for d in photos.distortions)
+    if distorted:
+        lines.append(f"lens distortion: {distorted} photos (small enough to ignore, under --max-distortion)")
+    return lines
 
 
 def colour_source(scan) -> str:
@@ -921,11 +960,18 @@ def build_parser() -> argparse.ArgumentParser:
                                    "package, or in NUMBA_CACHE_DIR).")
     p.set_defaults(func=cmd_precompile)
 
-    p = sub.add_parser("info", parents=[common], help="print what a mesh file holds",
-                       description="Print what a mesh file holds: its vertices, faces, UVs and materials with "
+    p = sub.add_parser("info", parents=[common], help="print what a scan holds (its mesh, and its photos)",
+                       description="Print what a scan holds: its mesh's vertices, faces, UVs and materials with "
                                    "their textures, its bounds and surface area, and what colour it carries (what "
-                                   "enhance would do with it). Reads only; writes nothing.")
-    p.add_argument("mesh", type=Path, help="mesh file")
+                                   "enhance would do with it); and, where the capture holds posed photos (or "
+                                   "--photos names them), how scantex reads them: their number and layout, sizes, "
+                                   "field of view, depth maps. Reads only; writes nothing.")
+    p.add_argument("mesh", type=Path, metavar="PATH",
+                   help="a mesh file, or a capture app's export as written (its mesh and photos are found, as "
+                        "enhance finds them)")
+    p.add_argument("--photos", type=Path, metavar="PATH", help="the capture's posed photos, read as 'enhance "
+                                                                "--photos' reads them")
+    add_distortion_option(p, "--photos")
     p.set_defaults(func=cmd_info)
     return parser
 

@@ -167,6 +167,23 @@ def test_arkitscenes_video_folder(exports, tmp_path):
     assert load_photos(tmp_path / "kitchen").source == tmp_path / "kitchen" / "41069021_frames"
 
 
+def test_info_says_how_a_capture_s_photos_are_read(exports, tmp_path, capsys):
+    """``scantex info`` on a capture folder: the mesh found, and its photos as scantex reads them (number and layout,
+    size, field of view, depth maps); ``--photos`` names them for a mesh file."""
+    from scantex.cli import main
+    from scantex.photos.mve import write_mve
+
+    save_scan(exports["scan"], tmp_path / "mesh.obj")
+    write_mve(photographs(exports["scan"], tmp_path / "renders"), tmp_path / "textureimages")
+    assert main(["info", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "mesh mesh.obj; photos textureimages (texrecon)" in out
+    assert "textureimages: 4 photos (texrecon), 96x72" in out and "depth maps: none" in out
+    assert "horizontal field of view 50.0 degrees" in out
+    assert main(["info", str(tmp_path / "mesh.obj"), "--photos", str(exports["scanner"])]) == 0
+    assert "photos (3dscannerapp)" in capsys.readouterr().out
+
+
 def test_gltf_with_its_buffers(exports, tmp_path):
     save_scan(exports["scan"], tmp_path / "c.glb")
     files = trimesh.load(tmp_path / "c.glb", process=False).export(file_type="gltf")
