@@ -581,7 +581,7 @@ def cmd_info(args) -> int:
 
             photos = load_photos(photos_path, **distortion_setting(args))
             for line in photos_summary(photos):
-                print(f"{capture.shown(photos_path)}: {line}" if line is not None else "")
+                print(f"{capture.shown(photos_path)}: {line}")
     return 0
 
 

@@ -124,19 +124,23 @@ def check_intrinsics(K: np.ndarray, width, height, where: Path, what: str) -> tu
     return width, height
 
 
-def depth_lens(K_depth: np.ndarray, depth_map: Path, K_photo: np.ndarray, photo_size: tuple[int, int],
-               where: Path, expected_size: tuple[int, int] | None = None) -> tuple[bool, np.ndarray | None]:
-    """``(usable, warp)``: whether a capture's depth maps can be used with the depth camera's K ``K_depth`` (given
-    in ``where``, for maps like ``depth_map``, of ``expected_size`` where the capture says), and their warp into the
-    photos' view (:func:`scantex.photos.photoset.depth_warp`; ``None``: they cover it). A K that is no pinhole's
-    for the maps' size (an unset calibration, another size's), or a map that is no image, leaves the depth maps out
-    with a warning: the photos are used without them, as without depth."""
+def registered_depths(depths: list, K_depth: np.ndarray | None, K_photo: np.ndarray, photo_size: tuple[int, int],
+                      where: Path | None, expected_size: tuple[int, int] | None = None) -> tuple[tuple, tuple]:
+    """``(depths, warps)`` for a :class:`~scantex.photos.photoset.PhotoSet` of a capture whose depth camera's K
+    ``K_depth`` is given in ``where`` (``None``: the maps cover the photos' view; ``expected_size``: the maps' size,
+    where the capture says): its depth maps (``None`` per photo without one) and their warps into the photos' view
+    (:func:`scantex.photos.photoset.depth_warp`). A K that is no pinhole's for the maps' size (an unset
+    calibration, another size's), or a first map that is no image, leaves the depth maps out with a warning: the
+    photos are used without them, as without depth."""
     from scantex.photos.photoset import depth_warp, image_size
 
+    first = next((d for d in depths if d is not None), None)
+    if K_depth is None or first is None:
+        return tuple(depths), (None,) * len(depths)
     try:
-        size = image_size(depth_map, "depth map")
+        size = image_size(first, "depth map")
         if expected_size is not None and size != tuple(expected_size):
-            raise ScanError(where, f"its depth camera is {expected_size[0]}x{expected_size[1]} but {depth_map.name} "
+            raise ScanError(where, f"its depth camera is {expected_size[0]}x{expected_size[1]} but {first.name} "
                                    f"is {size[0]}x{size[1]}")
         K = np.asarray(K_depth, dtype=np.float64)
         if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
@@ -145,8 +149,9 @@ def depth_lens(K_depth: np.ndarray, depth_map: Path, K_photo: np.ndarray, photo_
         check_intrinsics(K, *size, where, "the depth camera's intrinsics")
     except ScanError as e:
         log.warning("%s: the depth maps are not used", e)
-        return False, None
-    return True, depth_warp(K, size, K_photo, photo_size)
+        return (None,) * len(depths), (None,) * len(depths)
+    warp = depth_warp(K, size, K_photo, photo_size)
+    return tuple(depths), tuple(None if d is None else warp for d in depths)
 
 
 def intrinsics(fx, fy, cx, cy, *, pixel_centre: float) -> np.ndarray:

@@ -89,6 +89,17 @@ def read_matrix(path: Path, what: str, shapes: Sequence[tuple[int, int]] = ((4, 
     return m
 
 
+def world_to_camera_of(pose_file: Path) -> np.ndarray | None:
+    """The world-to-camera of a text file holding a 4x4 *camera-to-world* (ScanNet's and the RGB-D frame files'
+    poses), checked rigid before it is inverted; ``None`` where the frame's tracking was lost (``-inf`` or ``nan``)."""
+    from scantex.photos.conventions import check_pose
+
+    c2w = read_matrix(pose_file, "4x4 camera-to-world pose")
+    if not np.isfinite(c2w).all():
+        return None
+    return np.linalg.inv(check_pose(c2w, pose_file, "pose"))
+
+
 def check_sizes(cameras: Sequence[Camera], images: Sequence[Path], where: Path) -> None:
     """Every image's header size equals its camera's (a downscaled copy would silently misalign)."""
     for i, (cam, path) in enumerate(zip(cameras, images)):

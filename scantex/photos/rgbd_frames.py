@@ -34,8 +34,8 @@ from typing import NamedTuple
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose, depth_lens, pixel_count
-from scantex.photos.files import check_sizes, folder_of, read_matrix
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pixel_count, registered_depths
+from scantex.photos.files import check_sizes, folder_of, read_matrix, world_to_camera_of
 from scantex.photos.photoset import DEPTH_SCALE_MM, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -130,11 +130,11 @@ def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
     cameras, images, depths = [], [], []
     lost = 0
     for _, image, pose_file in found:
-        c2w = read_matrix(pose_file, "4x4 camera-to-world pose")
-        if not np.isfinite(c2w).all():
+        w2c = world_to_camera_of(pose_file)
+        if w2c is None:
             lost += 1
             continue
-        cameras.append(Camera(lens.K, np.linalg.inv(check_pose(c2w, pose_file, "pose")), width, height))
+        cameras.append(Camera(lens.K, w2c, width, height))
         images.append(image)
         stem = image.name[:image.name.lower().rindex(".color.")]
         depth = next((d for d in (image.with_name(f"{stem}.depth{ext}") for ext in DEPTH_SUFFIXES) if d.is_file()),
@@ -145,14 +145,9 @@ def load_rgbd_frames(path: str | Path, *, max_distortion_px: float = MAX_DISTORT
     if lost:
         log.warning("%s: %d frames have no pose (tracking lost: -inf): skipped", folder, lost)
     check_sizes(cameras, images, folder)
-    first = next((d for d in depths if d is not None), None)
-    warp = None
-    if first is not None and lens.K_depth is not None:
-        usable, warp = depth_lens(lens.K_depth, first, lens.K, (width, height), lens.depth_file, lens.depth_size)
-        depths = depths if usable else [None] * len(depths)
-    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
-                    format=FORMAT, depth_scale=lens.depth_scale,
-                    depth_warps=tuple(None if d is None else warp for d in depths))
+    depths, warps = registered_depths(depths, lens.K_depth, lens.K, (width, height), lens.depth_file, lens.depth_size)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=depths, source=folder, format=FORMAT,
+                    depth_scale=lens.depth_scale, depth_warps=warps)
 
 
 def _intrinsics(source: Path) -> Intrinsics:

@@ -23,11 +23,9 @@ import logging
 import re
 from pathlib import Path
 
-import numpy as np
-
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose, depth_lens
-from scantex.photos.files import check_sizes, read_matrix
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, registered_depths
+from scantex.photos.files import check_sizes, read_matrix, world_to_camera_of
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -76,11 +74,10 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
         image = photos.get(number)
         if image is None:
             continue
-        c2w = read_matrix(pose_file, "4x4 camera-to-world pose")
-        if not np.isfinite(c2w).all():
+        w2c = world_to_camera_of(pose_file)
+        if w2c is None:
             lost += 1
             continue
-        w2c = np.linalg.inv(check_pose(c2w, pose_file, "pose"))
         if size is None:
             size = check_intrinsics(K, *image_size(image), folder / INTRINSICS, "intrinsics")
         cameras.append(Camera(K, w2c, *size))
@@ -93,10 +90,6 @@ def load_scannet(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
     if lost:
         log.warning("%s: %d frames have no pose (tracking lost: -inf): skipped", folder, lost)
     check_sizes(cameras, images, folder)
-    first = next((d for d in depths if d is not None), None)
-    warp = None
-    if K_depth is not None and first is not None:
-        usable, warp = depth_lens(K_depth, first, K, size, folder / DEPTH_INTRINSICS)
-        depths = depths if usable else [None] * len(depths)
-    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
-                    format=FORMAT, depth_warps=tuple(None if d is None else warp for d in depths))
+    depths, warps = registered_depths(depths, K_depth, K, size, folder / DEPTH_INTRINSICS)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=depths, source=folder, format=FORMAT,
+                    depth_warps=warps)
