@@ -607,9 +607,14 @@ def photos_summary(photos) -> list[str]:
                      + ")")
     else:
         lines.append("depth maps: none")
-    distorted = sum(d is not None and not d.is_zero for d in photos.distortions)
-    if distorted:
-        lines.append(f"lens distortion: {distorted} photos (small enough to ignore, under --max-distortion)")
+    undistorted = sum(lens is not None for lens in photos.lenses)
+    ignored = sum(d is not None and not d.is_zero for d in photos.distortions) - undistorted
+    if undistorted:
+        lens = next(lens for lens in photos.lenses if lens is not None)
+        lines.append(f"lens distortion: {undistorted} photos undistorted when read ({lens.distortion.model}, the "
+                     f"pinhole view's focal length {lens.K[0, 0] / lens.photo_K[0, 0]:.3f} times the photo's)")
+    if ignored:
+        lines.append(f"lens distortion: {ignored} photos (small enough to ignore, under --max-distortion)")
     return lines
 
 
@@ -685,7 +690,7 @@ def add_distortion_option(p, photos_option: str) -> None:
     p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
                    help=f"with {photos_option}: the largest lens distortion of the photos' camera model scantex "
                         "ignores, in pixels it moves a pixel by (with a warning: it treats the photos as pinhole "
-                        "images); stronger distortion is refused: undistort the photos first (default: 1)")
+                        "images); stronger distortion is undone when the photos are read (default: 1)")
 
 
 def distortion_setting(args) -> dict:

@@ -14,7 +14,8 @@ Conventions: scantex's own, so no conversion at all.
   millimetres, or a float map in metres (a 32-bit TIFF, a ``.npy``). ``width``/``height`` default to the
   image's size.
 - ``distortion`` (optional, written by :func:`write_cameras_json` when a photo has one): ``{"model",
-  "radial", "tangential", "radial_denominator"}`` as in :class:`~scantex.photos.photoset.Distortion`.
+  "radial", "tangential", "radial_denominator", "inverse_radial"?}`` as in
+  :class:`~scantex.photos.photoset.Distortion`.
 - A frame without ``world_to_camera`` may give the pose as ``R`` (3x3, world to camera) and ``C`` (the camera's
   centre in the world: ``t = -R C``) or ``t``, as the bolster's file also does beside ``world_to_camera``.
   Where a frame gives both, ``world_to_camera`` is used, with a warning when ``R`` and ``C`` are another pose
@@ -34,9 +35,9 @@ from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import (
     MAX_DISTORTION_PX,
-    accept_distortion,
     check_intrinsics,
     check_pose,
+    pinhole_camera,
 )
 from scantex.photos.files import check_sizes, copy_into, load_frames_file, need, resolve_file, write_depth
 from scantex.photos.photoset import DEPTH_SCALE_MM, Distortion, PhotoSet, image_size
@@ -89,7 +90,7 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
     """
     path, doc, frames = load_frames_file(path, "cameras.json", "")
     base = path.parent
-    cameras, images, depths, distortions = [], [], [], []
+    cameras, images, depths, distortions, lenses = [], [], [], [], []
     disagreeing = 0
     for i, frame in enumerate(frames):
         what = f"frame {i}"
@@ -107,9 +108,10 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
         else:
             width, height = image_size(image)
         width, height = check_intrinsics(K, width, height, path, what)
-        camera = Camera(K, w2c, width, height)
         distortion = _distortion(frame.get("distortion"), path, what)
-        distortions.append(accept_distortion(distortion, camera, max_distortion_px, path, what))
+        camera, lens = pinhole_camera(distortion, Camera(K, w2c, width, height), max_distortion_px, path, what)
+        distortions.append(distortion)
+        lenses.append(lens)
         cameras.append(camera)
         images.append(image)
         depth = frame.get("depth")
@@ -119,7 +121,7 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
         log.warning("%s: %d of %d frames give R and C (or t) of another pose than their world_to_camera: "
                     "world_to_camera is used", path, disagreeing, len(frames))
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=path,
-                    format=FORMAT, distortions=tuple(distortions))
+                    format=FORMAT, distortions=tuple(distortions), lenses=tuple(lenses))
 
 
 def _distortion(d, where: Path, what: str) -> Distortion | None:
@@ -128,10 +130,11 @@ def _distortion(d, where: Path, what: str) -> Distortion | None:
     try:
         return Distortion(str(d["model"]), tuple(float(v) for v in d.get("radial", ())),
                           tuple(float(v) for v in d.get("tangential", (0.0, 0.0))),
-                          tuple(float(v) for v in d.get("radial_denominator", ())))
+                          tuple(float(v) for v in d.get("radial_denominator", ())),
+                          tuple(float(v) for v in d.get("inverse_radial", ())))
     except (TypeError, ValueError, KeyError, AttributeError):
         raise ScanError(where, f"{what}: distortion is not {{model, radial, tangential, "
-                               "radial_denominator}") from None
+                               "radial_denominator, inverse_radial}") from None
 
 
 def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bool = True) -> Path:
@@ -143,6 +146,7 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
         copy_images: copy the photos (and depth maps) next to the file as ``photo_000.<ext>``
             (``depth_000.<ext>``) and refer to them by name; else refer to the originals by absolute path.
     """
+    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = []
@@ -167,6 +171,8 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
                 frame["distortion"] = {"model": distortion.model, "radial": list(distortion.radial),
                                        "tangential": list(distortion.tangential),
                                        "radial_denominator": list(distortion.radial_denominator)}
+                if distortion.inverse_radial:
+                    frame["distortion"]["inverse_radial"] = list(distortion.inverse_radial)
             frames.append(frame)
         doc = {"convention": CONVENTION, "frames": frames}
         files.path(out_dir / "cameras.json").write_text(json.dumps(doc, indent=1))

@@ -9,9 +9,9 @@ Conventions, and what scantex does with them:
   pixel at ``(0.5, 0.5)``: scantex's ``cx = cx - 0.5``, ``cy = cy - 0.5``. Models read: ``PINHOLE``,
   ``SIMPLE_PINHOLE``, and the distorted ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV``, ``FULL_OPENCV``,
   whose distortion is recorded in :attr:`PhotoSet.distortions` and ignored with a logged warning when
-  it moves no pixel by more than ``max_distortion_px`` (1 px), refused above that (run ``colmap
-  image_undistorter``, which writes a ``PINHOLE`` model and undistorted images). Fisheye and ``FOV``
-  models are refused.
+  it moves no pixel by more than ``max_distortion_px`` (1 px), undone above that when a photo is read
+  (:mod:`scantex.photos.lens`: as ``colmap image_undistorter`` would, which writes a ``PINHOLE`` model and
+  undistorted images). Fisheye and ``FOV`` models are refused.
 - Image names are relative to the image folder, which COLMAP keeps outside the model: scantex looks in
   ``<project>/images`` for a model in ``<project>/sparse/0`` (then ``<model>/../images``,
   ``<model>/images``, the model folder and its parents), or takes ``image_dir``.
@@ -36,9 +36,9 @@ from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import (
     CORNER_CONVENTION,
     MAX_DISTORTION_PX,
-    accept_distortion,
     check_intrinsics,
     intrinsics,
+    pinhole_camera,
     principal_point,
 )
 from scantex.photos.files import check_sizes, copy_into
@@ -121,7 +121,7 @@ def load_colmap(path: str | Path, *, image_dir: str | Path | None = None, binary
 
     from scipy.spatial.transform import Rotation
 
-    cameras, images, distortions = [], [], []
+    cameras, images, distortions, lenses = [], [], [], []
     for image in frames:
         what = f"image {image.name!r}"
         if image.camera_id not in models:
@@ -139,8 +139,10 @@ def load_colmap(path: str | Path, *, image_dir: str | Path | None = None, binary
         w2c = np.eye(4)
         w2c[:3, :3] = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()  # scipy: scalar last
         w2c[:3, 3] = t
-        camera = Camera(K, w2c, model.width, model.height)
-        distortions.append(accept_distortion(distortion, camera, max_distortion_px, cameras_file, what))
+        camera, lens = pinhole_camera(distortion, Camera(K, w2c, model.width, model.height), max_distortion_px,
+                                      cameras_file, what)
+        distortions.append(distortion)
+        lenses.append(lens)
         cameras.append(camera)
         file = root / image.name
         if not file.is_file():
@@ -148,7 +150,8 @@ def load_colmap(path: str | Path, *, image_dir: str | Path | None = None, binary
         images.append(file)
     check_sizes(cameras, images, images_file)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=model_dir,
-                    format="colmap-binary" if binary else "colmap-text", distortions=tuple(distortions))
+                    format="colmap-binary" if binary else "colmap-text", distortions=tuple(distortions),
+                    lenses=tuple(lenses))
 
 
 def _intrinsics(model: _CameraModel, where: Path, what: str) -> tuple[np.ndarray, Distortion | None]:
@@ -256,6 +259,7 @@ def write_colmap_text(photos: PhotoSet, out_dir: str | Path) -> Path:
     Raises:
         ValueError: a camera has skew, or a distortion COLMAP's models cannot hold.
     """
+    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
     out_dir = Path(out_dir)
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
@@ -362,6 +366,7 @@ def _read_images_bin(path: Path) -> list[_Image]:
 def write_colmap_binary(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Like :func:`write_colmap_text`, in COLMAP's binary format (``cameras.bin``, ``images.bin``,
     ``points3D.bin``). Returns the model folder."""
+    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
     out_dir = Path(out_dir)
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)

@@ -18,12 +18,16 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.photoset import Distortion
 from scantex.views.camera import Camera
+
+if TYPE_CHECKING:
+    from scantex.photos.lens import Lens
 
 log = logging.getLogger(__name__)
 
@@ -178,17 +182,25 @@ def opengl_camera_to_world(camera: Camera) -> np.ndarray:
     return np.linalg.inv(camera.world_to_camera) @ FLIP_YZ
 
 
-def accept_distortion(distortion: Distortion | None, camera: Camera, max_px: float, where: Path,
-                      what: str) -> Distortion | None:
-    """``distortion`` if it is small enough to ignore (warning when it is not zero), else a ScanError."""
+def pinhole_camera(distortion: Distortion | None, camera: Camera, max_px: float, where: Path,
+                   what: str) -> tuple[Camera, Lens | None]:
+    """``(camera, None)`` for a photo without distortion or with one that moves no pixel by more than ``max_px``
+    (ignored, with a warning); else its undistorted pinhole camera and the :class:`~scantex.photos.lens.Lens`
+    :meth:`PhotoSet.load_image` undoes the distortion with (``camera``: the photo's stored intrinsics).
+
+    Raises:
+        ScanError: a distortion model that cannot be undone (:func:`scantex.photos.lens.pinhole_lens`).
+    """
     if distortion is None or distortion.is_zero:
-        return distortion
+        return camera, None
     shift = distortion.max_shift_px(camera)
-    if shift > max_px:
-        raise ScanError(where, f"{what}: lens distortion ({distortion.model}) moves pixels by up to "
-                               f"{shift:.1f} px; scantex needs undistorted photos (e.g. `colmap "
-                               f"image_undistorter`), or allow it with --max-distortion {np.ceil(shift):.0f} "
-                               f"(max_distortion_px={np.ceil(shift):.0f} in Python) to ignore it")
-    log.warning("%s: %s: ignoring a small lens distortion (%s, at most %.2f px)", where, what,
-                distortion.model, shift)
-    return distortion
+    if shift <= max_px:
+        log.warning("%s: %s: ignoring a small lens distortion (%s, at most %.2f px)", where, what,
+                    distortion.model, shift)
+        return camera, None
+    from scantex.photos.lens import pinhole_lens
+
+    lens = pinhole_lens(camera, distortion, where, what)
+    log.debug("%s: %s: lens distortion (%s) moves pixels by up to %.1f px: the photo is undistorted when read",
+              where, what, distortion.model, shift)
+    return Camera(lens.K, camera.world_to_camera, camera.width, camera.height), lens

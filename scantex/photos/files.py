@@ -133,18 +133,33 @@ def copy_into(files, src: Path, dst: Path) -> None:
     shutil.copyfile(src, files.path(dst))
 
 
+def write_photo(files, photos: PhotoSet, i: int, stem: Path) -> Path:
+    """Photo ``i`` written through an :class:`~scantex.io.atomic.AtomicFiles` group as ``stem`` plus a suffix, for a
+    format whose cameras hold no lens distortion; returns the path. The file is copied as it is, unless the photo is
+    undistorted when read (:attr:`PhotoSet.lenses`): then its pinhole view, as a PNG."""
+    if photos.lenses[i] is None:
+        dst = stem.with_name(stem.name + photos.images[i].suffix.lower())
+        copy_into(files, photos.images[i], dst)
+        return dst
+    from PIL import Image
+
+    dst = stem.with_name(stem.name + ".png")
+    Image.fromarray(np.ascontiguousarray(photos.load_image(i))).save(files.path(dst), format="PNG")
+    return dst
+
+
 def write_depth(files, photos: PhotoSet, i: int, stem: Path, *, floats: bool) -> Path:
     """Photo ``i``'s depth map written through an :class:`~scantex.io.atomic.AtomicFiles` group as ``stem`` plus a
     suffix; returns the path. The file is copied as it is where a reader takes it so: an integer map in
     millimetres (kept as a ``.png`` only when it is one), or a float map in metres where the format reads ``floats``.
     Any other map (a float map for a format without floats, integers in other units) is written as what every
     format reads: a uint16 PNG of millimetres, 0 where there is no measurement or the depth is beyond 65.535 m. A map
-    of a lens of its own (:attr:`PhotoSet.depth_warps`) is written resampled into its photo's view, as every
-    format reads a map."""
+    of a lens of its own (:attr:`PhotoSet.depth_warps`), or of a photo undistorted when read (:attr:`PhotoSet.lenses`),
+    is written resampled into its photo's pinhole view, as every format reads a map."""
     src = photos.depths[i]
     stored = photos.stored_depth(i)
     millimetres = stored.dtype.kind in "ui" and photos.depth_scale == DEPTH_SCALE_MM
-    as_is = photos.depth_warps[i] is None and ((stored.dtype.kind == "f" and floats) or (
+    as_is = photos.depth_warps[i] is None and photos.lenses[i] is None and ((stored.dtype.kind == "f" and floats) or (
         millimetres and (floats or src.suffix.lower() == ".png")))
     if as_is:
         dst = stem.with_name(stem.name + src.suffix.lower())

@@ -110,8 +110,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
     Args:
         path: a camera file (``transforms.json``, ``cameras.json``, ``images.bin``, ``frame_00000.json``,
             ...) or a folder that holds one.
-        max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; stronger
-            ones are refused (scantex needs undistorted photos).
+        max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
+            one is undone when a photo is read (:mod:`scantex.photos.lens`).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed

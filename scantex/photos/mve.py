@@ -15,8 +15,8 @@ Conventions, and what scantex does with them:
   configuration (below).
 - ``d0 d1``: MVE's radial distortion of the focal-normalised point, ``1 + d0 r^2 + d1 r^4`` (OpenCV's ``k1,
   k2``); with ``d1`` zero, VisualSfM's one-term model, which undistorts by ``1 + d0 r^2`` (about OpenCV's
-  ``k1 = -d0``). texrecon undistorts such photos; scantex ignores a distortion that moves no pixel by more
-  than ``max_distortion_px`` and refuses a larger one (undistort the photos first).
+  ``k1 = -d0``). texrecon undistorts such photos, and so does scantex (:mod:`scantex.photos.lens`) where the
+  distortion moves pixels by more than ``max_distortion_px``; a smaller one is ignored.
 - A ``.cam`` of one line (G2LTex writes the pose alone) takes its intrinsics from a G2LTex configuration
   (a ``.yml`` with ``RGB_fx``, ``RGB_fy``, ``RGB_cx``, ``RGB_cy`` in pixels, OpenCV's pixel centres), the
   nearest in the folder, up to three above it, or a ``Config/`` beside one of them, as G2LTex reads them; one
@@ -40,11 +40,11 @@ from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import (
     CORNER_CONVENTION,
     MAX_DISTORTION_PX,
-    accept_distortion,
     check_intrinsics,
     check_pose,
+    pinhole_camera,
 )
-from scantex.photos.files import copy_into, folder_of
+from scantex.photos.files import folder_of, write_photo
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -89,7 +89,7 @@ def load_mve(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) 
         raise ScanError(folder, "no .cam file beside an image of its name (color_00.cam + color_00.jpg): not a "
                                 "texrecon scene folder")
     config, config_file = None, None
-    cameras, images, depths, distortions = [], [], [], []
+    cameras, images, depths, distortions, lenses = [], [], [], [], []
     for cam_file, image in found:
         pose, lens = _read_cam(cam_file)
         width, height = image_size(image)
@@ -107,14 +107,16 @@ def load_mve(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) 
         else:
             K, distortion = lens_intrinsics(lens, width, height, cam_file)
         width, height = check_intrinsics(K, width, height, cam_file, "intrinsics")
-        camera = Camera(K, pose, width, height)
-        distortions.append(accept_distortion(distortion, camera, max_distortion_px, cam_file, "line 2"))
+        camera, lens = pinhole_camera(distortion, Camera(K, pose, width, height), max_distortion_px, cam_file,
+                                      "line 2")
+        distortions.append(distortion)
+        lenses.append(lens)
         cameras.append(camera)
         images.append(image)
         depth = image.with_name(image.stem.replace("color", "depth", 1) + ".png")
         depths.append(depth if image.stem.startswith("color") and depth.is_file() else None)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=folder,
-                    format=FORMAT, distortions=tuple(distortions))
+                    format=FORMAT, distortions=tuple(distortions), lenses=tuple(lenses))
 
 
 def _read_cam(cam_file: Path) -> tuple[np.ndarray, list[float] | None]:
@@ -163,7 +165,7 @@ def lens_intrinsics(lens: list[float], width: int, height: int, cam_file: Path,
         return K, None
     if d1 != 0.0:
         return K, Distortion("MVE k2k4", (d0, d1))
-    return K, Distortion("VisualSfM", (-d0,))
+    return K, Distortion("VisualSfM", (-d0,), inverse_radial=(d0,))
 
 
 def _g2ltex_config(folder: Path, cam_file: Path) -> tuple[dict, Path]:
@@ -202,22 +204,23 @@ def _yml_numbers(yml: Path) -> dict:
 
 def write_mve(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write a texrecon scene folder: ``view_0000.<ext>`` beside ``view_0000.cam`` (both lines) per photo into
-    ``out_dir``; returns ``out_dir``. Depth maps are not written (the format has none); a lens distortion or a
-    skew is dropped with a warning (texrecon's line 2 holds MVE's radial terms, not OpenCV's)."""
+    ``out_dir``; returns ``out_dir``. Depth maps are not written (the format has none); a lens distortion ignored
+    when read or a skew is dropped with a warning (texrecon's line 2 holds MVE's radial terms, not OpenCV's; a
+    photo undistorted when read is written undistorted, as a PNG)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
         for i, (cam, image) in enumerate(zip(photos.cameras, photos.images)):
             warn_unwritten(photos, i, "the .cam file")
             stem = f"view_{i:04d}"
-            copy_into(files, image, out_dir / f"{stem}{image.suffix.lower()}")
+            write_photo(files, photos, i, out_dir / stem)
             files.path(out_dir / f"{stem}.cam").write_text(cam_lines(cam))
     return out_dir
 
 
 def warn_unwritten(photos: PhotoSet, i: int, where: str) -> None:
     """Warn that photo ``i``'s lens distortion or skew, which MVE's cameras cannot hold, is not written to ``where``."""
-    if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
+    if photos.lenses[i] is None and photos.distortions[i] is not None and not photos.distortions[i].is_zero:
         log.warning("photo %d: its lens distortion is not written to %s", i, where)
     if photos.cameras[i].K[0, 1] != 0.0:
         log.warning("photo %d: its skew is not written to %s (MVE's cameras have none)", i, where)

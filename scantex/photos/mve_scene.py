@@ -27,8 +27,8 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.atomic import atomic_files
-from scantex.photos.conventions import MAX_DISTORTION_PX, accept_distortion, check_intrinsics, check_pose
-from scantex.photos.files import copy_into
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, check_pose, pinhole_camera
+from scantex.photos.files import write_photo
 from scantex.photos.mve import lens_intrinsics, mve_lens, natural_key, warn_unwritten
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
@@ -62,7 +62,7 @@ def load_mve_scene(path: str | Path, *, max_distortion_px: float = MAX_DISTORTIO
     views = views_folder(Path(path))
     if views is None:
         raise ScanError(Path(path), "not an MVE scene: expected views/view_0000.mve/meta.ini")
-    cameras, images, distortions = [], [], []
+    cameras, images, distortions, lenses = [], [], [], []
     no_camera = no_image = 0
     folders = sorted((p for p in views.glob("*.mve") if (p / "meta.ini").is_file()), key=natural_key)
     for folder in folders:
@@ -78,11 +78,13 @@ def load_mve_scene(path: str | Path, *, max_distortion_px: float = MAX_DISTORTIO
         width, height = image_size(image)
         K, _ = lens_intrinsics([lens[0], 0.0, 0.0, *lens[3:]], width, height, meta, "[camera]")
         check_intrinsics(K, width, height, meta, "[camera]")
-        camera = Camera(K, pose, width, height)
         # MVE's radial distortion (k2k4) is the original photo's: its undistorted image has none left
         distortion = (Distortion("MVE k2k4", tuple(lens[1:3])) if any(lens[1:3]) and image.stem.lower() == "original"
                       else None)
-        distortions.append(accept_distortion(distortion, camera, max_distortion_px, meta, "radial_distortion"))
+        camera, lens = pinhole_camera(distortion, Camera(K, pose, width, height), max_distortion_px, meta,
+                                      "radial_distortion")
+        distortions.append(distortion)
+        lenses.append(lens)
         cameras.append(camera)
         images.append(image)
     if not images:
@@ -95,7 +97,7 @@ def load_mve_scene(path: str | Path, *, max_distortion_px: float = MAX_DISTORTIO
         log.warning("%s: %d of its %d views have no image (%s): skipped", views, no_image, len(folders),
                     " or ".join(IMAGES))
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=views, format=FORMAT,
-                    distortions=tuple(distortions))
+                    distortions=tuple(distortions), lenses=tuple(lenses))
 
 
 def _image(folder: Path) -> Path | None:
@@ -145,7 +147,8 @@ def _read_meta(meta: Path) -> tuple[list[float] | None, np.ndarray | None]:
 def write_mve_scene(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write an MVE scene: ``views/view_0000.mve/`` with ``meta.ini`` and the photo as ``undistorted.<ext>`` per
     photo, into ``out_dir``; returns ``out_dir``. Depth maps are not written (MVE's are its own ``.mvei``); a lens
-    distortion or a skew is dropped with a warning."""
+    distortion ignored when read or a skew is dropped with a warning (a photo undistorted when read is written
+    undistorted, as a PNG)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
@@ -163,5 +166,5 @@ def write_mve_scene(photos: PhotoSet, out_dir: str | Path) -> Path:
                 f"focal_length = {f!r}\npixel_aspect = {paspect!r}\nprincipal_point = {ppx!r} {ppy!r}\n"
                 f"radial_distortion = 0 0\nrotation = {row(cam.world_to_camera[:3, :3].reshape(-1))}\n"
                 f"translation = {row(cam.world_to_camera[:3, 3])}\n\n[view]\nid = {i}\nname = {image.stem}\n")
-            copy_into(files, image, folder / f"undistorted{image.suffix.lower()}")
+            write_photo(files, photos, i, folder / "undistorted")
     return out_dir

@@ -14,9 +14,8 @@ Conventions, and what scantex does with them:
 - ``camera_model``: ``OPENCV`` (the default; ``k1, k2, k3, k4`` radial as a polynomial in r^2 up to r^8,
   ``p1, p2`` tangential), ``PINHOLE`` or ``SIMPLE_PINHOLE``. The distortion is recorded in
   :attr:`PhotoSet.distortions`; one that moves no pixel by more than ``max_distortion_px`` (1 px) is
-  ignored with a logged warning, a larger one is refused (undistort the photos first, e.g. with
-  ``ns-process-data``'s undistorted output or ``colmap image_undistorter``). Fisheye and
-  equirectangular models are refused.
+  ignored with a logged warning, a larger one undone when a photo is read (:mod:`scantex.photos.lens`).
+  Fisheye and equirectangular models are refused.
 - ``file_path`` and ``depth_file_path`` are relative to the file's folder (absolute paths kept); a
   ``file_path`` without extension (Blender's ``./train/r_0``) gets ``.png``, then ``.jpg``. Depth maps
   are uint16 PNG in millimetres (nerfstudio's default ``depth_unit_scale_factor`` of 1e-3).
@@ -39,12 +38,12 @@ from scantex.io.atomic import atomic_files
 from scantex.photos.conventions import (
     CORNER_CONVENTION,
     MAX_DISTORTION_PX,
-    accept_distortion,
     check_intrinsics,
     pixel_count,
     check_pose,
     intrinsics,
     opengl_camera_to_world,
+    pinhole_camera,
     principal_point,
     world_to_camera_from_opengl,
 )
@@ -85,7 +84,7 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
             log.info("%s: cameras kept in the file's world frame (its applied_transform is not undone)",
                      path)
     base = path.parent
-    cameras, images, depths, distortions = [], [], [], []
+    cameras, images, depths, distortions, lenses = [], [], [], [], []
     for i, frame in enumerate(frames):
         what = f"frame {i}"
         if not isinstance(frame, dict):
@@ -133,14 +132,16 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
         else:
             raise ScanError(path, f"{what}: camera_model {model} is not supported (scantex takes "
                                   f"pinhole photos: {', '.join(PINHOLE_MODELS + DISTORTED_MODELS)})")
-        distortions.append(accept_distortion(distortion, camera, max_distortion_px, path, what))
+        camera, lens = pinhole_camera(distortion, camera, max_distortion_px, path, what)
+        distortions.append(distortion)
+        lenses.append(lens)
         cameras.append(camera)
         images.append(image)
         depth = frame.get("depth_file_path")
         depths.append(None if depth is None else resolve_file(base, str(depth), path, f"{what}'s depth"))
     check_sizes(cameras, images, path)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), depths=tuple(depths), source=path,
-                    format=FORMAT, distortions=tuple(distortions))
+                    format=FORMAT, distortions=tuple(distortions), lenses=tuple(lenses))
 
 
 def _image_path(base: Path, name: str, where: Path, what: str) -> Path:
@@ -159,6 +160,7 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
     Raises:
         ValueError: a camera has skew, or a distortion nerfstudio's OPENCV model cannot hold.
     """
+    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
     out_dir = Path(out_dir)
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
     if photos.has_depth:

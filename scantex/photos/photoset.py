@@ -6,10 +6,10 @@ forward, pixel ``(0, 0)`` = the centre of the top-left pixel) in the *mesh's* wo
 paths of the images (and, optionally, of depth maps). Images are read only when asked for.
 
 Lens distortion, where a format stores it, is kept in :class:`Distortion`; the cameras themselves are
-pinholes. Importers accept a distortion only when it moves no pixel by more than ``max_distortion_px``
-(default 1 px, logged as a warning and then ignored) and refuse larger ones with a :class:`ScanError`
-asking for undistorted photos: a texture fitted to distorted photos through pinhole cameras would be
-smeared by exactly that many pixels.
+pinholes. A distortion that moves no pixel by more than ``max_distortion_px`` (default 1 px) is logged as a
+warning and then ignored; a larger one is undone when a photo is read (:attr:`PhotoSet.lenses`,
+:mod:`scantex.photos.lens`): a texture fitted to distorted photos through pinhole cameras would be smeared by
+exactly that many pixels.
 """
 
 from __future__ import annotations
@@ -19,12 +19,16 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scantex.errors import ScanError
 from scantex.io.images import open_image, rgb8
 from scantex.views.camera import Camera
+
+if TYPE_CHECKING:
+    from scantex.photos.lens import Lens
 
 #: metres per unit of an integer depth map in every format scantex reads: uint16 PNG in millimetres (a float map,
 #: a 32-bit TIFF or a ``.npy``, is in metres)
@@ -132,19 +136,26 @@ class Distortion:
         radial: ``(k1, k2, ...)`` polynomial radial coefficients.
         tangential: ``(p1, p2)``.
         radial_denominator: ``(k4, k5, k6)`` of OpenCV's rational model (COLMAP ``FULL_OPENCV``), else empty.
+        inverse_radial: where the format's model maps distorted coordinates to undistorted ones (VisualSfM's
+            ``x = x_d (1 + d0 r_d^2)``): its coefficients ``(d0, ...)``, solved exactly by :meth:`distort`;
+            ``radial`` then holds its first-order forward twin (``k1 = -d0``) for the writers of OpenCV's model.
     """
 
     model: str
     radial: tuple[float, ...] = ()
     tangential: tuple[float, float] = (0.0, 0.0)
     radial_denominator: tuple[float, ...] = ()
+    inverse_radial: tuple[float, ...] = ()
 
     @property
     def is_zero(self) -> bool:
-        return not any(self.radial) and not any(self.tangential) and not any(self.radial_denominator)
+        return not any(self.radial) and not any(self.tangential) and not any(self.radial_denominator) and not any(
+            self.inverse_radial)
 
     def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distorted normalised coordinates of undistorted ``x, y`` (any shape)."""
+        if any(self.inverse_radial):
+            return self._solve_inverse(np.asarray(x, np.float64), np.asarray(y, np.float64))
         r2 = x * x + y * y
         num = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial))
         den = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial_denominator))
@@ -153,6 +164,20 @@ class Distortion:
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         return xd, yd
+
+    def _solve_inverse(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`inverse_radial`'s model solved for the distorted radius ``s`` of each undistorted radius ``r``:
+        ``s (1 + d0 s^2 + d1 s^4 + ...) = r``, by Newton's method from ``s = r`` (the model is monotonic where a
+        lens is: a radius it cannot reach keeps its last iterate)."""
+        r = np.sqrt(x * x + y * y)
+        s = r.copy()
+        for _ in range(20):
+            s2 = s * s
+            value = s * (1.0 + sum(d * s2 ** (i + 1) for i, d in enumerate(self.inverse_radial))) - r
+            slope = 1.0 + sum((2 * i + 3) * d * s2 ** (i + 1) for i, d in enumerate(self.inverse_radial))
+            s = s - value / np.where(np.abs(slope) > 1e-9, slope, 1e-9)
+        ratio = np.divide(s, r, out=np.ones_like(r), where=r > 0)
+        return x * ratio, y * ratio
 
     def max_shift_px(self, camera: Camera) -> float:
         """Largest distance in pixels that the distortion moves a pixel of ``camera``'s image
@@ -194,7 +219,11 @@ class PhotoSet:
             ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``,
             ``"rgbd-frames"``, ``"arkitscenes"``, ``"mve"``), or any label for sets made in code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
-            cameras ignore it (importers refuse distortions that move pixels by more than a limit).
+            cameras are pinholes: a distortion under the importer's limit is ignored, a larger one undone by
+            :attr:`lenses`.
+        lenses: ``(N,)`` per photo, ``None`` (the stored photo is its camera's pinhole image) or the
+            :class:`~scantex.photos.lens.Lens` it was taken through: :meth:`load_image` and :meth:`load_depth`
+            resample it into the camera's pinhole view. Fixed when the photos are read, as :attr:`depth_warps`.
         image_cache: the decoded photos :meth:`load_image` keeps when the set's photos all fit in it (a new
             set makes its own; the sets made from one by :func:`dataclasses.replace` share it).
         hidden: ``(N,)`` per photo, ``None`` or an ``(h, w) bool`` mask of the pixels where a surface that is
@@ -225,6 +254,7 @@ class PhotoSet:
     tones: tuple[float | None, ...] = ()
     numbers: tuple[int, ...] = ()
     depth_warps: tuple[np.ndarray | None, ...] = dataclasses.field(default=(), repr=False)
+    lenses: tuple[Lens | None, ...] = dataclasses.field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -238,9 +268,11 @@ class PhotoSet:
         set_(self, "tones", tuple(self.tones) or (None,) * n)
         set_(self, "depth_warps", tuple(None if a is None else np.array(a, np.float64).reshape(3, 3)
                                         for a in self.depth_warps) or (None,) * n)
+        set_(self, "lenses", tuple(self.lenses) or (None,) * n)
         set_(self, "source", Path(self.source))
         set_(self, "numbers", tuple(int(i) for i in self.numbers))
-        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones", "depth_warps") + (
+        for name in ("images", "depths", "distortions", "hidden", "depth_factors", "tones", "depth_warps",
+                     "lenses") + (
                 ("numbers",) if self.numbers else ()):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"PhotoSet: {len(getattr(self, name))} {name} for {n} cameras")
@@ -267,12 +299,22 @@ class PhotoSet:
                                    depth_factors=tuple(self.depth_factors[i] for i in idx),
                                    tones=tuple(self.tones[i] for i in idx),
                                    depth_warps=tuple(self.depth_warps[i] for i in idx),
+                                   lenses=tuple(self.lenses[i] for i in idx),
                                    numbers=tuple(self.numbers[i] for i in idx) if self.numbers else ())
 
+    def as_stored(self) -> PhotoSet:
+        """The set with each undistorted photo's camera as stored: its lens's intrinsics, which with
+        :attr:`distortions` describe the photo file as it is (what a writer writes beside the file)."""
+        if all(lens is None for lens in self.lenses):
+            return self
+        cameras = tuple(c if lens is None else Camera(lens.photo_K, c.world_to_camera, c.width, c.height)
+                        for c, lens in zip(self.cameras, self.lenses))
+        return dataclasses.replace(self, cameras=cameras, lenses=())
+
     def load_image(self, i: int) -> np.ndarray:
-        """``(H, W, 3) uint8`` RGB of photo ``i``, exactly as stored (no EXIF rotation: the cameras
-        describe the sensor's pixel grid), or brought to the common tone curve where :attr:`tones` gives the
-        photo's; read-only (it may be :attr:`image_cache`'s copy).
+        """``(H, W, 3) uint8`` RGB of photo ``i``, as stored (no EXIF rotation: the cameras describe the sensor's
+        pixel grid) or undistorted where :attr:`lenses` gives its lens, and brought to the common tone curve where
+        :attr:`tones` gives the photo's; read-only (it may be :attr:`image_cache`'s copy).
 
         Raises:
             ScanError: the file is missing, not an image, or not of its camera's size.
@@ -286,9 +328,16 @@ class PhotoSet:
                 if size != (cam.width, cam.height):
                     raise ScanError(path, f"photo is {size[0]}x{size[1]} but its camera is "
                                           f"{cam.width}x{cam.height}")
-                return rgb8(im)
+                image = rgb8(im)
+            if lens is not None:
+                from scantex.photos.lens import undistort_image
 
-        image = self.image_cache.get_or_decode(path, decode) if self.all_cached else decode()
+                image = undistort_image(image, lens)
+            return image
+
+        lens = self.lenses[i]
+        image = (self.image_cache.get_or_decode(path, decode, "photo" if lens is None else "undistorted photo")
+                 if self.all_cached else decode())
         if image.shape[:2] != (cam.height, cam.width):  # decoded for a set whose camera says another size
             raise ScanError(path, f"photo is {image.shape[1]}x{image.shape[0]} but its camera is "
                                   f"{cam.width}x{cam.height}")
@@ -345,7 +394,11 @@ class PhotoSet:
         else:
             depth = raw.astype(np.float32) * np.float32(self.depth_scale)
             depth[raw == 0] = np.nan
-        if self.depth_warps[i] is not None:
+        if self.lenses[i] is not None:
+            from scantex.photos.lens import undistort_depth
+
+            depth = undistort_depth(depth, self.lenses[i], self.depth_warps[i])
+        elif self.depth_warps[i] is not None:
             depth = into_photo_view(depth, self.depth_warps[i])
         return depth
 

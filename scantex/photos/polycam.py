@@ -36,7 +36,7 @@ from scantex.photos.conventions import (
     principal_point,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import check_sizes, copy_into, load_json, need, number, write_depth
+from scantex.photos.files import check_sizes, load_json, need, number, write_depth, write_photo
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera
 
@@ -104,8 +104,8 @@ def load_polycam(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_
 
 def write_polycam(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write ``out_dir/keyframes/{images,cameras,depth}/<id>.*`` with ids 1, 2, ...; returns the
-    ``keyframes`` folder. Lens distortions are not written (the format has none): a non-zero one is
-    dropped with a warning; skew raises ``ValueError``."""
+    ``keyframes`` folder. Lens distortions are not written (the format has none): a photo undistorted when read
+    is written undistorted, a small distortion ignored is dropped with a warning; skew raises ``ValueError``."""
     root = Path(out_dir) / "keyframes"
     for sub in ("images", "cameras") + (("depth",) if photos.has_depth else ()):
         (root / sub).mkdir(parents=True, exist_ok=True)
@@ -113,7 +113,7 @@ def write_polycam(photos: PhotoSet, out_dir: str | Path) -> Path:
         for i, (cam, image) in enumerate(zip(photos.cameras, photos.images)):
             if cam.K[0, 1] != 0:
                 raise ValueError(f"photo {i}: Polycam cameras have no skew")
-            if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
+            if photos.lenses[i] is None and photos.distortions[i] is not None and not photos.distortions[i].is_zero:
                 log.warning("photo %d: Polycam cameras hold no lens distortion; it is dropped", i)
             stem = str(i + 1)
             cx, cy = principal_point(cam.K, pixel_centre=CORNER_CONVENTION)
@@ -121,7 +121,7 @@ def write_polycam(photos: PhotoSet, out_dir: str | Path) -> Path:
             doc = {"fx": float(cam.K[0, 0]), "fy": float(cam.K[1, 1]), "cx": cx, "cy": cy,
                    "width": cam.width, "height": cam.height, "blur_score": 1.0}
             doc.update({f"t_{r}{c}": float(c2w[r, c]) for r in range(3) for c in range(4)})
-            copy_into(files, image, root / "images" / f"{stem}{image.suffix.lower()}")
+            write_photo(files, photos, i, root / "images" / stem)
             files.path(root / "cameras" / f"{stem}.json").write_text(json.dumps(doc, indent=1))
             if photos.depths[i] is not None:
                 write_depth(files, photos, i, root / "depth" / stem, floats=False)

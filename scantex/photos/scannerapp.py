@@ -36,7 +36,7 @@ from scantex.photos.conventions import (
     opengl_camera_to_world,
     world_to_camera_from_opengl,
 )
-from scantex.photos.files import copy_into, folder_of, load_json, need, write_depth
+from scantex.photos.files import folder_of, load_json, need, write_depth, write_photo
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -101,19 +101,20 @@ def load_3dscannerapp(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
 def write_3dscannerapp(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write ``frame_00000.<ext>`` + ``frame_00000.json`` (+ ``depth_00000.png``, uint16 millimetres as the app
     writes them: another map is converted) per photo into ``out_dir``; returns ``out_dir``. Lens distortions are
-    not written (the format has none): a non-zero one is dropped with a warning."""
+    not written (the format has none): a photo undistorted when read is written undistorted, a small distortion
+    ignored is dropped with a warning."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_files() as files:
         for i, (cam, image) in enumerate(zip(photos.cameras, photos.images)):
-            if photos.distortions[i] is not None and not photos.distortions[i].is_zero:
+            if photos.lenses[i] is None and photos.distortions[i] is not None and not photos.distortions[i].is_zero:
                 log.warning("photo %d: 3D Scanner App frames hold no lens distortion; it is dropped", i)
             stem = f"frame_{i:05d}"
             K = cam.K.copy()
             K[:2, 2] += CORNER_CONVENTION
             doc = {"cameraPoseARFrame": opengl_camera_to_world(cam).reshape(-1).tolist(),
                    "intrinsics": K.reshape(-1).tolist(), "frame_index": i}
-            copy_into(files, image, out_dir / f"{stem}{image.suffix.lower()}")
+            write_photo(files, photos, i, out_dir / stem)
             files.path(out_dir / f"{stem}.json").write_text(json.dumps(doc, indent=1))
             if photos.depths[i] is not None:
                 write_depth(files, photos, i, out_dir / f"depth_{i:05d}", floats=False)

@@ -52,7 +52,7 @@ def precompile(work: str | Path | None = None) -> Precompiled | None:
 
 def _run(folder: Path) -> None:
     """Mesh-only, then photo mode (4 photos with depth maps, the poses aligned to the input texture as for a
-    small capture), then a fresh UV layout, on a 2,400-face wall; the defaults otherwise."""
+    small capture), then a fresh UV layout, on a 2,400-face wall; the defaults otherwise; and a photo undistorted."""
     from scantex.io import load_scan
     from scantex.photos.alignment import check_alignment
     from scantex.pipeline.config import preset
@@ -74,3 +74,9 @@ def _run(folder: Path) -> None:
     enhance(scan, config.override(photos__holdout=0, photos__refine_poses="input", photos__check_alignment=False),
             photos=photos)
     plan_uvs(scan, "unwrap", texture_size=256, use_xatlas=False)  # its packing loop; xatlas is an optional extra
+    # a photo through a distorting lens (a capture straight from structure from motion) is undistorted when read
+    from scantex.photos.lens import pinhole_lens, undistort_image
+    from scantex.photos.photoset import Distortion
+
+    undistort_image(photos.load_image(0), pinhole_lens(photos.cameras[0], Distortion("OPENCV", (-0.05,)), folder,
+                                                       "precompile"))

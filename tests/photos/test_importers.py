@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 
 from scantex.errors import ScanError
-from scantex.photos.photoset import depth_warp
+from scantex.photos.photoset import Distortion, depth_warp
 from scantex.photos import (
     PhotoSet,
     detect_format,
@@ -286,16 +286,17 @@ def test_mve_portrait_and_defaults(tmp_path):
     assert photos.distortions == (None,)
 
 
-def test_mve_distortion_ignored_when_small_and_refused_when_strong(tmp_path, caplog):
+def test_mve_distortion_ignored_when_small_and_undone_when_strong(tmp_path, caplog):
     cam_file(tmp_path, "a", "1.0 0.0005 0.0001 1 0.5 0.5")
     with caplog.at_level(logging.WARNING):
         photos = load_photos(tmp_path)
     assert "ignoring a small lens distortion (MVE k2k4" in caplog.text
-    assert photos.distortions[0].radial == (0.0005, 0.0001)
+    assert photos.distortions[0].radial == (0.0005, 0.0001) and photos.lenses == (None,)
     cam_file(tmp_path, "a", "1.0 -0.2 0 1 0.5 0.5")  # VisualSfM's one term: undistorts by 1 - 0.2 r^2
-    with pytest.raises(ScanError, match=r"a\.cam: line 2: lens distortion \(VisualSfM\) moves pixels by up to "):
-        load_photos(tmp_path)
-    assert load_photos(tmp_path, max_distortion_px=20).distortions[0].radial == (0.2,)
+    photos = load_photos(tmp_path)
+    assert photos.distortions[0].radial == (0.2,) and photos.distortions[0].inverse_radial == (-0.2,)
+    assert photos.lenses[0] is not None and photos.lenses[0].distortion == photos.distortions[0]
+    assert load_photos(tmp_path, max_distortion_px=20).lenses == (None,)
 
 
 def test_g2ltex_one_line_cam_takes_the_configuration_and_depth(tmp_path):
@@ -629,8 +630,6 @@ def test_mve_scene_convention_views_without_a_camera_and_order(tmp_path, caplog)
 
 def test_mve_writers_say_what_they_cannot_hold(capture, tmp_path, caplog):
     """MVE's cameras hold no skew and texrecon's no OpenCV distortion: both writers warn, naming the photo."""
-    from scantex.photos import Distortion
-
     _, photos, _, _ = capture
     K = photos.cameras[1].K.copy()
     K[0, 1] = 0.5
@@ -647,14 +646,14 @@ def test_mve_writers_say_what_they_cannot_hold(capture, tmp_path, caplog):
 
 def test_mve_scene_distortion_is_the_original_photos(tmp_path):
     """MVE's radial distortion (k2k4) is the original photo's: a view read through its undistorted image has none
-    left; one read through its original has it checked (and refused when strong)."""
+    left; one read through its original has it checked (and undone when strong)."""
     views = tmp_path / "views"
     strong = "radial_distortion = -0.2 0.05"
     for n, image in ((0, "undistorted.png"), (1, "original.jpg")):
         folder = mve_view(views, n, 50 / W, image=image)
         (folder / "meta.ini").write_text((folder / "meta.ini").read_text().replace("radial_distortion = 0 0", strong))
-    with pytest.raises(ScanError, match=r"view_0001.mve.meta.ini: radial_distortion: lens distortion \(MVE k2k4\)"):
-        load_photos(views)
+    photos = load_photos(views)
+    assert photos.lenses[0] is None and photos.lenses[1].distortion == Distortion("MVE k2k4", (-0.2, 0.05))
     (views / "view_0001.mve" / "original.jpg").rename(views / "view_0001.mve" / "undistorted.jpg")
     photos = load_photos(views)
     assert photos.distortions == (None, None)
@@ -697,25 +696,28 @@ def test_a_frame_listed_twice_is_used_once(tmp_path, caplog):
     assert np.array_equal(photos.cameras[0].world_to_camera, np.asarray(doc["frames"][0]["world_to_camera"]))
 
 
-def test_strong_distortion_is_refused(tmp_path):
+def test_strong_distortion_is_undone(tmp_path):
+    """Refused before ('undistort the photos first'): read through a lens (:mod:`scantex.photos.lens`), unless
+    ``max_distortion_px`` takes it for small."""
     write_opencv_colmap(tmp_path, k1=0.2)
-    with pytest.raises(ScanError, match="undistorted photos"):
-        load_photos(tmp_path)
-    assert len(load_photos(tmp_path, max_distortion_px=10)) == 1
+    photos = load_photos(tmp_path)
+    assert photos.lenses[0] is not None and photos.cameras[0].K[0, 0] > 50  # a pincushion's narrower view
+    assert load_photos(tmp_path, max_distortion_px=10).lenses == (None,)
 
 
-def test_the_cli_says_how_to_allow_a_distortion_and_takes_it(tmp_path, capsys):
-    """The refusal named a Python argument the command line does not have; ``--max-distortion`` is its
-    option."""
-    from tests.io.hostile import assert_clean_error, run_cli, write_cube
+def test_the_cli_reads_a_strong_distortion_and_takes_max_distortion(tmp_path, capsys, caplog):
+    """The command line reads the photos through their lens; ``--max-distortion`` ignores one up to that many
+    pixels, with a warning."""
+    from tests.io.hostile import run_cli, write_cube
 
     write_opencv_colmap(tmp_path, k1=0.2)
     mesh = write_cube(tmp_path / "scan")
-    rc, err = run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q")
-    assert_clean_error(rc, err, "undistorted photos", "--max-distortion 3")
-    rc, err = run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q",
-                      "--max-distortion", "3")
-    assert "distortion" not in err  # the photos are read; what stops this toy capture comes later
+    with caplog.at_level(logging.WARNING):
+        run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q")
+    assert "distortion" not in caplog.text  # the photos are read; what stops this toy capture comes later
+    with caplog.at_level(logging.WARNING):
+        run_cli(capsys, "enhance", mesh, "--photos", tmp_path, "-o", tmp_path / "out", "-q", "--max-distortion", "3")
+    assert "ignoring a small lens distortion" in caplog.text
 
 
 def test_small_distortion_is_ignored_with_a_warning(tmp_path, caplog):
