@@ -12,6 +12,7 @@ from scantex.photos import (
     arkitscenes,
     cameras_json,
     colmap,
+    metashape,
     mve,
     mve_scene,
     nerfstudio,
@@ -29,7 +30,8 @@ log = logging.getLogger(__name__)
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
-           "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE) or photos beside .cam files (texrecon)")
+           "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape) or photos beside .cam "
+           "files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -59,6 +61,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         if (path.suffix.lower() in (".traj", ".pincam", ".png", ".jpg", ".jpeg")
                 and arkitscenes.capture_folder(path) is not None):
             return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
+        if path.suffix.lower() == ".xml" and metashape.is_cameras_xml(path):
+            return metashape.FORMAT, path
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -98,6 +102,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
     if mve_scene.views_folder(path) is not None:
         return mve_scene.FORMAT, mve_scene.views_folder(path)
+    if metashape.cameras_file(path) is not None:
+        return metashape.FORMAT, metashape.cameras_file(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
@@ -122,7 +128,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                cameras_json.FORMAT: cameras_json.load_cameras_json, polycam.FORMAT: polycam.load_polycam,
                scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve,
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
-               arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene}
+               arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
+               metashape.FORMAT: metashape.load_metashape}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

@@ -24,6 +24,7 @@ from scantex.photos import (
     write_cameras_json,
     write_colmap_binary,
     write_colmap_text,
+    write_metashape,
     write_mve,
     write_mve_scene,
     write_nerfstudio,
@@ -86,6 +87,7 @@ WRITERS = [  # writer, format read back, keeps depth
     (write_cameras_json, "cameras.json", True),
     (write_mve, "texrecon", False),
     (write_mve_scene, "mve", False),
+    (write_metashape, "metashape", False),
 ]
 
 

@@ -1,0 +1,316 @@
+"""Agisoft Metashape's (PhotoScan's) cameras: the XML of ``File > Export > Export Cameras`` beside the photos.
+
+Photogrammetry of façades and heritage sites is mostly made in Metashape; its mesh export and its cameras share one
+frame. Conventions, and what scantex does with them:
+
+- ``<document><chunk>``: the first chunk is read (a file of several is warned about). Its ``<sensors>`` hold each
+  camera model's ``<calibration>`` (``class="adjusted"`` preferred to ``"initial"``) at a ``<resolution>``:
+  ``f`` (``fx``, ``fy`` in PhotoScan's files), ``cx``, ``cy`` (the principal point's offset from the image's centre;
+  PhotoScan's ``fx`` files give it from the corner), ``b1``, ``b2`` (affinity and skew), ``k1``-``k4``, ``p1``,
+  ``p2``. Metashape's model (its manual's appendix): ``x' = x (1 + k1 r^2 + ... + k4 r^8) + p1 (r^2 + 2 x^2) + 2 p2
+  x y``, ``y' = y (...) + p2 (r^2 + 2 y^2) + 2 p1 x y``, ``u = w / 2 + cx + x' (f + b1) + y' b2``, ``v = h / 2 + cy
+  + y' f``, pixel centres at half pixels (the top-left pixel's centre at ``(0.5, 0.5)``): scantex's ``K = [[f + b1,
+  b2, w / 2 + cx - 0.5], [0, f, h / 2 + cy - 0.5]]``, OpenCV's tangential terms ``(p2, p1)`` (the two are swapped
+  against OpenCV's). A distortion over ``max_distortion_px`` is undone as each photo is read
+  (:mod:`scantex.photos.lens`). Only ``frame`` sensors are read: fisheye, spherical and cylindrical ones are
+  refused, as are ``p3``/``p4`` terms.
+- ``<camera label transform sensor_id component_id enabled>``: ``transform`` is the 4x4 camera-to-chunk matrix (row
+  by row; the camera's axes are OpenCV's: +x right, +y down, +z forward). The chunk's frame is carried to the
+  world by the camera's component's ``<transform>`` (Metashape 2) and the chunk's (``rotation``, ``translation``,
+  ``scale``: ``X = s R x + t``): the frame the mesh is exported in. A georeferenced chunk's world is geocentric
+  (its translation millions of metres): said in a warning, as a mesh exported in a projected or local frame is not
+  in it. Cameras without a transform (not aligned) or disabled are skipped, with a count.
+- ``label``: the photo's file name, with or without its extension, or a path; looked for beside the XML, in its
+  ``images/`` or ``photos/`` folder, or in ``image_dir``.
+"""
+
+from __future__ import annotations
+
+import logging
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera
+from scantex.photos.files import check_sizes
+from scantex.photos.photoset import Distortion, PhotoSet
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+FORMAT = "metashape"
+#: the photo file types looked for when a camera's label has no extension
+IMAGE_SUFFIXES = (".jpg", ".JPG", ".jpeg", ".JPEG", ".png", ".PNG", ".tif", ".TIF", ".tiff", ".TIFF")
+#: a larger XML is refused before it is parsed (a cameras file of 10,000 photos is a few MB)
+MAX_XML_BYTES = 256 * 2**20
+#: a world frame this far from its origin is taken for geocentric coordinates (metres)
+GEOCENTRIC_M = 1e5
+
+
+@dataclass(frozen=True)
+class _Sensor:
+    K: np.ndarray
+    size: tuple[int, int]
+    distortion: Distortion | None
+    refused: str | None  # why its cameras cannot be read (a fisheye), or None
+
+
+def is_cameras_xml(path: Path) -> bool:
+    """Whether ``path`` is a Metashape cameras XML (its opening names a ``document`` and a ``chunk``)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096).lower()
+    except OSError:
+        return False
+    return b"<document" in head and b"<chunk" in head
+
+
+def cameras_file(folder: Path) -> Path | None:
+    """The Metashape cameras XML in ``folder`` (the first by name), else ``None``."""
+    try:
+        candidates = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".xml" and p.is_file())
+    except OSError:
+        return None
+    return next((p for p in candidates if is_cameras_xml(p)), None)
+
+
+def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
+                   max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+    """Read a Metashape cameras XML (the file, or a folder holding one); conventions in the module docstring.
+
+    Raises:
+        ScanError: not a Metashape XML, no aligned camera, an unsupported sensor, a photo not found or of another
+            size than its sensor's calibration.
+    """
+    path = Path(path)
+    xml = cameras_file(path) if path.is_dir() else path
+    if xml is None:
+        raise ScanError(path, "no Metashape cameras XML in it")
+    chunk = _chunk(xml)
+    sensors = {s.get("id"): _sensor(s, xml) for s in chunk.iterfind("sensors/sensor")}
+    to_world = _transform(chunk.find("transform"), xml, "the chunk's transform")
+    components = {c.get("id"): _transform(c.find("transform"), xml, f"component {c.get('id')}'s transform")
+                  for c in chunk.iterfind("components/component")}
+    folders = [Path(image_dir)] if image_dir is not None else [xml.parent, xml.parent / "images",
+                                                               xml.parent / "photos"]
+    cameras, images, distortions, lenses = [], [], [], []
+    unaligned = disabled = 0
+    for element in chunk.iterfind("cameras//camera"):
+        label = element.get("label") or element.get("id") or "?"
+        what = f"camera {label!r}"
+        if element.get("enabled", "true").lower() in ("false", "0"):
+            disabled += 1
+            continue
+        if element.find("transform") is None:
+            unaligned += 1
+            continue
+        sensor = sensors.get(element.get("sensor_id"))
+        if sensor is None:
+            raise ScanError(xml, f"{what}: its sensor {element.get('sensor_id')!r} has no calibration in the file")
+        if sensor.refused:
+            raise ScanError(xml, f"{what}: {sensor.refused}")
+        component = components.get(element.get("component_id"), np.eye(4))
+        c2w = to_world @ component @ _matrix(element.find("transform").text, 16, xml, f"{what}'s transform")
+        camera = Camera(sensor.K, _world_to_camera(c2w, xml, what), *sensor.size)
+        camera, lens = pinhole_camera(sensor.distortion, camera, max_distortion_px, xml, what)
+        cameras.append(camera)
+        distortions.append(sensor.distortion)
+        lenses.append(lens)
+        images.append(_photo(label, folders, xml, what))
+    if not cameras:
+        raise ScanError(xml, "none of its cameras is aligned (no camera has a transform)" if unaligned else
+                        "lists no cameras")
+    for count, why in ((unaligned, "not aligned (no transform)"), (disabled, "disabled")):
+        if count:
+            log.warning("%s: %d of its cameras are %s: skipped", xml, count, why)
+    far = max(np.linalg.norm(c.world_to_camera[:3, :3].T @ c.world_to_camera[:3, 3]) for c in cameras)
+    if far > GEOCENTRIC_M:
+        log.warning("%s: the cameras are %.0f km from the frame's origin: a georeferenced chunk's geocentric "
+                    "coordinates; the mesh must be exported in that frame (EPSG::4978), not a projected or local "
+                    "one", xml, far / 1000)
+    check_sizes(cameras, images, xml)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=xml, format=FORMAT,
+                    distortions=tuple(distortions), lenses=tuple(lenses))
+
+
+def _chunk(xml: Path) -> ET.Element:
+    try:
+        size = xml.stat().st_size
+    except OSError as e:
+        raise ScanError(xml, f"cannot read it ({e.strerror})") from None
+    if size > MAX_XML_BYTES:
+        raise ScanError(xml, f"is {size / 2**20:.0f} MB, more than a cameras file scantex reads")
+    try:
+        root = ET.parse(xml).getroot()
+    except ET.ParseError as e:
+        raise ScanError(xml, f"not an XML file scantex can read ({e})") from None
+    chunks = root.findall("chunk") if root.tag == "document" else []
+    if not chunks:
+        raise ScanError(xml, "not a Metashape cameras file: no <document><chunk>")
+    if len(chunks) > 1:
+        log.warning("%s holds %d chunks: reading the first (%s)", xml, len(chunks), chunks[0].get("label", "?"))
+    return chunks[0]
+
+
+def _number(element: ET.Element, tag: str, xml: Path, what: str, default: float | None = 0.0) -> float:
+    child = element.find(tag)
+    if child is None or child.text is None:
+        if default is None:
+            raise ScanError(xml, f"{what}: no <{tag}>")
+        return default
+    try:
+        value = float(child.text)
+    except ValueError:
+        raise ScanError(xml, f"{what}: <{tag}> is not a number ({child.text.strip()[:20]!r})") from None
+    if not np.isfinite(value):
+        raise ScanError(xml, f"{what}: <{tag}> is not finite")
+    return value
+
+
+def _sensor(element: ET.Element, xml: Path) -> _Sensor | None:
+    what = f"sensor {element.get('label') or element.get('id')!r}"
+    kind = element.get("type", "frame")
+    calibrations = element.findall("calibration")
+    calib = next((c for c in calibrations if c.get("class") == "adjusted"), calibrations[0] if calibrations else None)
+    if calib is None:
+        return None
+    if kind != "frame" or calib.get("type", "frame") != "frame":
+        return _Sensor(np.eye(3), (0, 0), None, f"its sensor is a {calib.get('type', kind)} camera; scantex reads "
+                                                f"frame (pinhole) cameras")
+    resolution = calib.find("resolution")
+    if resolution is None:
+        resolution = element.find("resolution")
+    try:
+        w, h = int(resolution.get("width")), int(resolution.get("height"))
+    except (AttributeError, TypeError, ValueError):
+        raise ScanError(xml, f"{what}: no <resolution width height>") from None
+    if calib.find("f") is not None:  # Metashape: f, the principal point's offset from the centre
+        f = _number(calib, "f", xml, what, None)
+        fx, fy = f + _number(calib, "b1", xml, what), f
+        cx, cy = w / 2 + _number(calib, "cx", xml, what), h / 2 + _number(calib, "cy", xml, what)
+    else:  # PhotoScan: fx, fy, the principal point from the corner
+        fx, fy = _number(calib, "fx", xml, what, None), _number(calib, "fy", xml, what, None)
+        cx, cy = _number(calib, "cx", xml, what, w / 2), _number(calib, "cy", xml, what, h / 2)
+    K = np.array([[fx, _number(calib, "b2", xml, what), cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, w, h, xml, what)
+    if _number(calib, "p3", xml, what) or _number(calib, "p4", xml, what):
+        return _Sensor(K, (w, h), None, f"{what} has p3/p4 tangential terms, which scantex does not model")
+    radial = [_number(calib, f"k{i}", xml, what) for i in range(1, 5)]
+    while radial and radial[-1] == 0.0:
+        radial.pop()
+    p1, p2 = _number(calib, "p1", xml, what), _number(calib, "p2", xml, what)
+    distortion = Distortion("Metashape", tuple(radial), (p2, p1)) if radial or p1 or p2 else None
+    return _Sensor(K, (w, h), distortion, None)
+
+
+def _matrix(text: str | None, n: int, xml: Path, what: str) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in (text or "").split()])
+    except ValueError:
+        raise ScanError(xml, f"{what} is not {n} numbers") from None
+    if values.size != n or not np.isfinite(values).all():
+        raise ScanError(xml, f"{what} is not {n} finite numbers (got {values.size})")
+    return values.reshape(4, 4) if n == 16 else values
+
+
+def _transform(element: ET.Element | None, xml: Path, what: str) -> np.ndarray:
+    """``(4, 4)`` similarity of a chunk's or component's ``<transform>`` (rotation, translation, scale; or a
+    ``<matrix>``); the identity where there is none."""
+    out = np.eye(4)
+    if element is None:
+        return out
+    if element.find("matrix") is not None:
+        return _matrix(element.find("matrix").text, 16, xml, what)
+    rotation = element.find("rotation")
+    if rotation is not None:
+        out[:3, :3] = _matrix(rotation.text, 9, xml, f"{what}'s rotation").reshape(3, 3)
+    translation = element.find("translation")
+    if translation is not None:
+        out[:3, 3] = _matrix(translation.text, 3, xml, f"{what}'s translation")
+    out[:3, :3] *= _number(element, "scale", xml, what, 1.0)
+    return out
+
+
+def _world_to_camera(c2w: np.ndarray, xml: Path, what: str) -> np.ndarray:
+    """OpenCV world-to-camera of a camera-to-world similarity (the chunk's scale taken out of its rotation)."""
+    scale = np.cbrt(np.linalg.det(c2w[:3, :3]))
+    if not scale > 0:
+        raise ScanError(xml, f"{what}: its transform is no rigid motion (determinant {scale ** 3:.3g})")
+    R = c2w[:3, :3] / scale
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        raise ScanError(xml, f"{what}: its transform's rotation is not orthonormal")
+    w2c = np.eye(4)
+    w2c[:3, :3] = R.T
+    w2c[:3, 3] = -R.T @ c2w[:3, 3]
+    return w2c
+
+
+def _photo(label: str, folders: list[Path], xml: Path, what: str) -> Path:
+    """The photo file a camera's label names (with or without its extension, or a path), in ``folders``."""
+    named = Path(label)
+    if named.is_absolute() and named.is_file():
+        return named
+    for folder in folders:
+        for name in (label, named.name):
+            candidate = folder / name
+            if candidate.is_file():
+                return candidate
+            for suffix in IMAGE_SUFFIXES:
+                if candidate.with_name(candidate.name + suffix).is_file():
+                    return candidate.with_name(candidate.name + suffix)
+    raise ScanError(xml, f"{what}: its photo is not in {', '.join(str(f) for f in folders)} (with or without "
+                         f"{', '.join(IMAGE_SUFFIXES[::2])})")
+
+
+def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
+    """Write ``out_dir/cameras.xml`` (one chunk, its frame the world's; a sensor per distinct camera model) with
+    the photos copied beside it as ``photo_000.<ext>``; returns the XML's path. An undistorted photo is written as
+    stored, with its lens; a distortion Metashape's model cannot hold (a rational one) raises ``ValueError``."""
+    from scantex.io.atomic import atomic_files
+    from scantex.photos.files import copy_into
+
+    photos = photos.as_stored()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    document = ET.Element("document", version="2.0.0")
+    chunk = ET.SubElement(document, "chunk", label="scantex", enabled="true")
+    sensors = ET.SubElement(chunk, "sensors")
+    cameras = ET.SubElement(chunk, "cameras")
+    models: dict[tuple, str] = {}
+    with atomic_files() as files:
+        for i, (cam, image, distortion) in enumerate(zip(photos.cameras, photos.images, photos.distortions)):
+            model = _calibration(cam, distortion, i)
+            if model not in models:
+                models[model] = str(len(models))
+                sensor = ET.SubElement(sensors, "sensor", id=models[model], label=f"camera {models[model]}",
+                                       type="frame")
+                ET.SubElement(sensor, "resolution", width=str(cam.width), height=str(cam.height))
+                calib = ET.SubElement(sensor, "calibration", type="frame", **{"class": "adjusted"})
+                ET.SubElement(calib, "resolution", width=str(cam.width), height=str(cam.height))
+                for tag, value in model[2:]:
+                    ET.SubElement(calib, tag).text = repr(value)
+            name = f"photo_{i:03d}{image.suffix.lower()}"
+            copy_into(files, image, out_dir / name)
+            element = ET.SubElement(cameras, "camera", id=str(i), sensor_id=models[model], label=name)
+            c2w = np.linalg.inv(cam.world_to_camera)
+            ET.SubElement(element, "transform").text = " ".join(repr(float(v)) for v in c2w.ravel())
+        ET.indent(document)
+        files.path(out_dir / "cameras.xml").write_bytes(ET.tostring(document, encoding="UTF-8", xml_declaration=True))
+    return out_dir / "cameras.xml"
+
+
+def _calibration(cam: Camera, distortion: Distortion | None, i: int) -> tuple:
+    """``(width, height, (tag, value), ...)``: ``cam``'s model in Metashape's terms (the inverse of :func:`_sensor`)."""
+    (fx, b2, cx), (_, f, cy) = cam.K[0], cam.K[1]
+    tags = [("f", float(f)), ("cx", float(cx + 0.5 - cam.width / 2)), ("cy", float(cy + 0.5 - cam.height / 2))]
+    tags += [(t, float(v)) for t, v in (("b1", fx - f), ("b2", b2)) if v]
+    if distortion is not None and not distortion.is_zero:
+        if distortion.radial_denominator or distortion.inverse_radial or len(distortion.radial) > 4:
+            raise ValueError(f"photo {i}: Metashape's model cannot hold a {distortion.model} distortion")
+        tags += [(f"k{n + 1}", float(k)) for n, k in enumerate(distortion.radial)]
+        p1, p2 = distortion.tangential
+        tags += [("p1", float(p2)), ("p2", float(p1))]
+    return (cam.width, cam.height, *tags)
