@@ -14,8 +14,8 @@ Conventions: scantex's own, so no conversion at all.
   millimetres, or a float map in metres (a 32-bit TIFF, a ``.npy``). ``width``/``height`` default to the
   image's size.
 - ``distortion`` (optional, written by :func:`write_cameras_json` when a photo has one): ``{"model",
-  "radial", "tangential", "radial_denominator", "inverse_radial"?}`` as in
-  :class:`~scantex.photos.photoset.Distortion`.
+  "radial", "tangential", "radial_denominator", "inverse_radial"?, "projection"?}`` as in
+  :class:`~scantex.photos.photoset.Distortion` (``projection``: a fisheye's ``"equidistant"`` or ``"equisolid"``).
 - A frame without ``world_to_camera`` may give the pose as ``R`` (3x3, world to camera) and ``C`` (the camera's
   centre in the world: ``t = -R C``) or ``t``, as the bolster's file also does beside ``world_to_camera``.
   Where a frame gives both, ``world_to_camera`` is used, with a warning when ``R`` and ``C`` are another pose
@@ -131,10 +131,11 @@ def _distortion(d, where: Path, what: str) -> Distortion | None:
         return Distortion(str(d["model"]), tuple(float(v) for v in d.get("radial", ())),
                           tuple(float(v) for v in d.get("tangential", (0.0, 0.0))),
                           tuple(float(v) for v in d.get("radial_denominator", ())),
-                          tuple(float(v) for v in d.get("inverse_radial", ())))
+                          tuple(float(v) for v in d.get("inverse_radial", ())),
+                          str(d.get("projection", "perspective")))
     except (TypeError, ValueError, KeyError, AttributeError):
-        raise ScanError(where, f"{what}: distortion is not {{model, radial, tangential, "
-                               "radial_denominator, inverse_radial}") from None
+        raise ScanError(where, f"{what}: distortion is not {{model, radial, tangential, radial_denominator, "
+                               "inverse_radial, projection (perspective, equidistant or equisolid)}") from None
 
 
 def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bool = True) -> Path:
@@ -173,6 +174,8 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
                                        "radial_denominator": list(distortion.radial_denominator)}
                 if distortion.inverse_radial:
                     frame["distortion"]["inverse_radial"] = list(distortion.inverse_radial)
+                if distortion.is_fisheye:
+                    frame["distortion"]["projection"] = distortion.projection
             frames.append(frame)
         doc = {"convention": CONVENTION, "frames": frames}
         files.path(out_dir / "cameras.json").write_text(json.dumps(doc, indent=1))

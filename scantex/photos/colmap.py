@@ -8,10 +8,11 @@ Conventions, and what scantex does with them:
 - ``cameras``: ``MODEL WIDTH HEIGHT PARAMS``. COLMAP's pixel coordinates put the centre of the top-left
   pixel at ``(0.5, 0.5)``: scantex's ``cx = cx - 0.5``, ``cy = cy - 0.5``. Models read: ``PINHOLE``,
   ``SIMPLE_PINHOLE``, and the distorted ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV``, ``FULL_OPENCV``,
-  whose distortion is recorded in :attr:`PhotoSet.distortions` and ignored with a logged warning when
-  it moves no pixel by more than ``max_distortion_px`` (1 px), undone above that when a photo is read
-  (:mod:`scantex.photos.lens`: as ``colmap image_undistorter`` would, which writes a ``PINHOLE`` model and
-  undistorted images). Fisheye and ``FOV`` models are refused.
+  and the fisheyes ``OPENCV_FISHEYE``, ``SIMPLE_RADIAL_FISHEYE``, ``RADIAL_FISHEYE`` (equidistant: a polynomial
+  in the ray's angle), whose distortion is recorded in :attr:`PhotoSet.distortions` and ignored with a logged
+  warning when it moves no pixel by more than ``max_distortion_px`` (1 px), undone above that when a photo is
+  read (:mod:`scantex.photos.lens`: as ``colmap image_undistorter`` would, which writes a ``PINHOLE`` model and
+  undistorted images). ``FOV`` and the thin-prism models are refused.
 - Image names are relative to the image folder, which COLMAP keeps outside the model: scantex looks in
   ``<project>/images`` for a model in ``<project>/sparse/0`` (then ``<model>/../images``,
   ``<model>/images``, the model folder and its parents), or takes ``image_dir``.
@@ -53,7 +54,8 @@ MODELS = {0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 
           8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
           11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16)}
 MODEL_IDS = {name: (i, n) for i, (name, n) in MODELS.items()}
-SUPPORTED = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+SUPPORTED = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE",
+             "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 
 
 @dataclass(frozen=True)
@@ -158,11 +160,11 @@ def _intrinsics(model: _CameraModel, where: Path, what: str) -> tuple[np.ndarray
     p = model.params
     name = model.model
     if name not in SUPPORTED:
-        raise ScanError(where, f"{what}: camera model {name} is not supported (scantex takes pinhole "
-                               f"photos, possibly slightly distorted: {', '.join(SUPPORTED)})")
+        raise ScanError(where, f"{what}: camera model {name} is not supported (scantex reads "
+                               f"{', '.join(SUPPORTED)}; undistort the photos with `colmap image_undistorter`)")
     if not np.isfinite(p).all():
         raise ScanError(where, f"{what}: camera parameters are not finite")
-    if name in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+    if name in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE"):
         fx = fy = p[0]
         cx, cy = p[1], p[2]
         rest = p[3:]
@@ -177,6 +179,9 @@ def _intrinsics(model: _CameraModel, where: Path, what: str) -> tuple[np.ndarray
         "OPENCV": lambda: Distortion(name, (rest[0], rest[1]), (rest[2], rest[3])),
         "FULL_OPENCV": lambda: Distortion(name, (rest[0], rest[1], rest[4]), (rest[2], rest[3]),
                                           (rest[5], rest[6], rest[7])),
+        "OPENCV_FISHEYE": lambda: Distortion(name, tuple(rest[:4]), projection="equidistant"),
+        "SIMPLE_RADIAL_FISHEYE": lambda: Distortion(name, (rest[0],), projection="equidistant"),
+        "RADIAL_FISHEYE": lambda: Distortion(name, (rest[0], rest[1]), projection="equidistant"),
     }[name]()
     return intrinsics(fx, fy, cx, cy, pixel_centre=CORNER_CONVENTION), distortion
 
@@ -418,6 +423,10 @@ def _model_params(cam: Camera, distortion: Distortion | None, i: int) -> tuple[s
     cx, cy = principal_point(cam.K, pixel_centre=CORNER_CONVENTION)
     if distortion is None or distortion.is_zero:
         return "PINHOLE", (fx, fy, cx, cy)
+    if distortion.projection == "equidistant" and len(distortion.radial) <= 4 and not any(distortion.tangential):
+        return "OPENCV_FISHEYE", (fx, fy, cx, cy, *(tuple(distortion.radial) + (0.0,) * 4)[:4])
+    if distortion.is_fisheye:
+        raise ValueError(f"photo {i}: COLMAP's models cannot hold a {distortion.model} distortion")
     k = tuple(distortion.radial) + (0.0,) * 3
     d = tuple(distortion.radial_denominator)
     p1, p2 = distortion.tangential

@@ -12,8 +12,11 @@ when a photo is read, as ``colmap image_undistorter`` and texrecon's scene do ah
 - Each pixel of the pinhole view takes the photo's colour where the lens drew it (bilinear), the distortion
   model evaluated forward: nothing is inverted. A depth map of the photo's view is resampled the same way,
   nearest (no depth averaged across an edge).
+- A fisheye (``projection`` equidistant or equisolid) is undone the same way; where its view is wider than a
+  pinhole of half its focal length keeps (150 degrees and more across), the pinhole view stops there and the
+  photo's edges are cropped.
 - A model that folds the view (its mapping's Jacobian not positive somewhere in the photo: coefficients fitted
-  beyond the calibrated field) is refused, as is one no focal length within 1/3 to 3 times the photo's fits.
+  beyond the calibrated field) is refused, as is one that needs a focal length over 3 times the photo's.
 
 Why not OpenCV's ``initUndistortRectifyMap`` and ``remap``: they are the one piece scantex would take from OpenCV,
 whose wheel is larger than the rest of scantex's dependencies; the forward model is :meth:`Distortion.distort`, the
@@ -34,8 +37,10 @@ from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
 
-#: the range of focal-length scales searched for the pinhole view (a lens needing more is refused)
-SCALE_RANGE = (1 / 3, 3.0)
+#: the range of focal-length scales searched for the pinhole view: a lens needing a longer one is refused; one that
+#: would need a shorter one (a fisheye of 150 degrees: its edges' middles at a pinhole's 3.7 focal lengths) gets the
+#: shortest, its view cropped (no wider, or its middle would keep less than half the photo's resolution)
+SCALE_RANGE = (0.5, 3.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +93,7 @@ def pinhole_lens(camera: Camera, distortion: Distortion, where, what: str) -> Le
     intrinsics); the pinhole view's K as the module docstring says.
 
     Raises:
-        ScanError: the model folds the photo's view, or no focal length in :data:`SCALE_RANGE` fits.
+        ScanError: the model folds the photo's view, or needs a focal length beyond :data:`SCALE_RANGE`'s longest.
     """
     K0, size = np.asarray(camera.K, np.float64), (int(camera.width), int(camera.height))
 
@@ -101,10 +106,10 @@ def pinhole_lens(camera: Camera, distortion: Distortion, where, what: str) -> Le
         raise ScanError(where, f"{what}: lens distortion ({distortion.model}) leaves no pinhole view inside the "
                                f"photo: undistort the photos with the tool that calibrated the lens")
     if fits(lo):
-        raise ScanError(where, f"{what}: lens distortion ({distortion.model}) draws more than 3 times the view of "
-                               f"the photo's focal length: no lens scantex can undo; undistort the photos with the "
-                               f"tool that calibrated the lens")
-    for _ in range(40):  # bisection on the focal-length scale: the view's border just inside the photo
+        hi = lo
+        log.info("%s: %s: the lens (%s) draws a wider view than a pinhole of half its focal length keeps: the "
+                 "photo's edges are cropped", where, what, distortion.model)
+    for _ in range(40 if hi > lo else 0):  # bisection on the focal-length scale: the border just inside the photo
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if fits(mid) else (mid, hi)
     lens = Lens(K0, distortion, _scaled(K0, hi), size)
@@ -127,8 +132,9 @@ def _border_inside(lens: Lens, samples: int = 257) -> bool:
     v = np.concatenate([np.zeros(samples), np.full(samples, H - 1.0), t * (H - 1), t * (H - 1)])
     xd, yd = lens.distortion.distort(*normalised(lens.K, u, v))
     us, vs = pixels(lens.photo_K, xd, yd)
-    tol = 1e-6
-    return bool((us >= -tol).all() and (us <= W - 1 + tol).all() and (vs >= -tol).all() and (vs <= H - 1 + tol).all())
+    margin = 1e-3  # the border is sampled: a thousandth of a pixel keeps the points between samples inside too
+    return bool((us >= margin).all() and (us <= W - 1 - margin).all() and (vs >= margin).all()
+                and (vs <= H - 1 - margin).all())
 
 
 def _check_unfolded(lens: Lens, where, what: str) -> None:
@@ -141,7 +147,8 @@ def _check_unfolded(lens: Lens, where, what: str) -> None:
     (xa, ya), (xb, yb) = lens.distortion.distort(x + eps, y), lens.distortion.distort(x - eps, y)
     (xc, yc), (xe, ye) = lens.distortion.distort(x, y + eps), lens.distortion.distort(x, y - eps)
     det = (xa - xb) * (yc - ye) - (ya - yb) * (xc - xe)
-    if not (det > 0.1 * (2 * eps) ** 2).all():
+    # against the pinhole's own (a fisheye squeezes its edges to a few hundredths and is no fold)
+    if not (det > 1e-4 * (2 * eps) ** 2).all():
         raise ScanError(where, f"{what}: lens distortion ({lens.distortion.model}) folds the photo's view over "
                                f"(its coefficients do not describe a lens there): undistort the photos with the "
                                f"tool that calibrated the lens")

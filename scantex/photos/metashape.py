@@ -12,7 +12,8 @@ frame. Conventions, and what scantex does with them:
   + y' f``, pixel centres at half pixels (the top-left pixel's centre at ``(0.5, 0.5)``): scantex's ``K = [[f + b1,
   b2, w / 2 + cx - 0.5], [0, f, h / 2 + cy - 0.5]]``, OpenCV's tangential terms ``(p2, p1)`` (the two are swapped
   against OpenCV's). A distortion over ``max_distortion_px`` is undone as each photo is read
-  (:mod:`scantex.photos.lens`). Only ``frame`` sensors are read: fisheye, spherical and cylindrical ones are
+  (:mod:`scantex.photos.lens`). ``frame``, ``fisheye`` (equidistant: ``x = x0 atan(r0) / r0`` before the model
+  above, its manual's fisheye) and ``equisolid_fisheye`` sensors are read; spherical and cylindrical ones are
   refused, as are ``p3``/``p4`` terms.
 - ``<camera label transform sensor_id component_id enabled>``: ``transform`` is the 4x4 camera-to-chunk matrix (row
   by row; the camera's axes are OpenCV's: +x right, +y down, +z forward). The chunk's frame is carried to the
@@ -46,6 +47,8 @@ FORMAT = "metashape"
 IMAGE_SUFFIXES = (".jpg", ".JPG", ".jpeg", ".JPEG", ".png", ".PNG", ".tif", ".TIF", ".tiff", ".TIFF")
 #: a larger XML is refused before it is parsed (a cameras file of 10,000 photos is a few MB)
 MAX_XML_BYTES = 256 * 2**20
+#: Metashape's sensor types scantex reads, and their projection before the distortion polynomial
+PROJECTIONS = {"frame": "perspective", "fisheye": "equidistant", "equisolid_fisheye": "equisolid"}
 #: a world frame this far from its origin is taken for geocentric coordinates (metres)
 GEOCENTRIC_M = 1e5
 
@@ -177,9 +180,10 @@ def _sensor(element: ET.Element, xml: Path) -> _Sensor | None:
     calib = next((c for c in calibrations if c.get("class") == "adjusted"), calibrations[0] if calibrations else None)
     if calib is None:
         return None
-    if kind != "frame" or calib.get("type", "frame") != "frame":
-        return _Sensor(np.eye(3), (0, 0), None, f"its sensor is a {calib.get('type', kind)} camera; scantex reads "
-                                                f"frame (pinhole) cameras")
+    kind = calib.get("type", kind)
+    if kind not in PROJECTIONS:
+        return _Sensor(np.eye(3), (0, 0), None, f"its sensor is a {kind} camera; scantex reads frame and fisheye "
+                                                f"cameras")
     resolution = calib.find("resolution")
     if resolution is None:
         resolution = element.find("resolution")
@@ -202,7 +206,9 @@ def _sensor(element: ET.Element, xml: Path) -> _Sensor | None:
     while radial and radial[-1] == 0.0:
         radial.pop()
     p1, p2 = _number(calib, "p1", xml, what), _number(calib, "p2", xml, what)
-    distortion = Distortion("Metashape", tuple(radial), (p2, p1)) if radial or p1 or p2 else None
+    projection = PROJECTIONS[kind]
+    distortion = (Distortion("Metashape" if kind == "frame" else f"Metashape {kind}", tuple(radial), (p2, p1),
+                             projection=projection) if radial or p1 or p2 or kind != "frame" else None)
     return _Sensor(K, (w, h), distortion, None)
 
 
@@ -285,12 +291,13 @@ def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
             model = _calibration(cam, distortion, i)
             if model not in models:
                 models[model] = str(len(models))
+                kind = model[2]
                 sensor = ET.SubElement(sensors, "sensor", id=models[model], label=f"camera {models[model]}",
-                                       type="frame")
+                                       type=kind)
                 ET.SubElement(sensor, "resolution", width=str(cam.width), height=str(cam.height))
-                calib = ET.SubElement(sensor, "calibration", type="frame", **{"class": "adjusted"})
+                calib = ET.SubElement(sensor, "calibration", type=kind, **{"class": "adjusted"})
                 ET.SubElement(calib, "resolution", width=str(cam.width), height=str(cam.height))
-                for tag, value in model[2:]:
+                for tag, value in model[3:]:
                     ET.SubElement(calib, tag).text = repr(value)
             name = f"photo_{i:03d}{image.suffix.lower()}"
             copy_into(files, image, out_dir / name)
@@ -303,7 +310,8 @@ def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
 
 
 def _calibration(cam: Camera, distortion: Distortion | None, i: int) -> tuple:
-    """``(width, height, (tag, value), ...)``: ``cam``'s model in Metashape's terms (the inverse of :func:`_sensor`)."""
+    """``(width, height, sensor type, (tag, value), ...)``: ``cam``'s model in Metashape's terms (the inverse of
+    :func:`_sensor`)."""
     (fx, b2, cx), (_, f, cy) = cam.K[0], cam.K[1]
     tags = [("f", float(f)), ("cx", float(cx + 0.5 - cam.width / 2)), ("cy", float(cy + 0.5 - cam.height / 2))]
     tags += [(t, float(v)) for t, v in (("b1", fx - f), ("b2", b2)) if v]
@@ -313,4 +321,5 @@ def _calibration(cam: Camera, distortion: Distortion | None, i: int) -> tuple:
         tags += [(f"k{n + 1}", float(k)) for n, k in enumerate(distortion.radial)]
         p1, p2 = distortion.tangential
         tags += [("p1", float(p2)), ("p2", float(p1))]
-    return (cam.width, cam.height, *tags)
+    kind = next(k for k, p in PROJECTIONS.items() if p == (distortion.projection if distortion else "perspective"))
+    return (cam.width, cam.height, kind, *tags)

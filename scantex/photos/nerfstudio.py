@@ -12,10 +12,10 @@ Conventions, and what scantex does with them:
   and the principal point defaults to the image centre (``w / 2, h / 2`` in nerfstudio's convention).
   Without ``w, h`` the image's own size is used.
 - ``camera_model``: ``OPENCV`` (the default; ``k1, k2, k3, k4`` radial as a polynomial in r^2 up to r^8,
-  ``p1, p2`` tangential), ``PINHOLE`` or ``SIMPLE_PINHOLE``. The distortion is recorded in
-  :attr:`PhotoSet.distortions`; one that moves no pixel by more than ``max_distortion_px`` (1 px) is
-  ignored with a logged warning, a larger one undone when a photo is read (:mod:`scantex.photos.lens`).
-  Fisheye and equirectangular models are refused.
+  ``p1, p2`` tangential), ``OPENCV_FISHEYE`` (equidistant, ``k1``-``k4`` a polynomial in the ray's angle),
+  ``PINHOLE`` or ``SIMPLE_PINHOLE``. The distortion is recorded in :attr:`PhotoSet.distortions`; one that moves no
+  pixel by more than ``max_distortion_px`` (1 px) is ignored with a logged warning, a larger one undone when a
+  photo is read (:mod:`scantex.photos.lens`). Equirectangular models are refused.
 - ``file_path`` and ``depth_file_path`` are relative to the file's folder (absolute paths kept); a
   ``file_path`` without extension (Blender's ``./train/r_0``) gets ``.png``, then ``.jpg``. Depth maps
   are uint16 PNG in millimetres (nerfstudio's default ``depth_unit_scale_factor`` of 1e-3).
@@ -63,7 +63,7 @@ log = logging.getLogger(__name__)
 
 FORMAT = "nerfstudio"
 PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
-DISTORTED_MODELS = ("OPENCV",)
+DISTORTED_MODELS = ("OPENCV", "OPENCV_FISHEYE")
 RADIAL_KEYS = ("k1", "k2", "k3", "k4")
 
 
@@ -128,7 +128,9 @@ def load_nerfstudio(path: str | Path, *, max_distortion_px: float = MAX_DISTORTI
             radial = tuple(coeffs[k] for k in RADIAL_KEYS)
             while radial and radial[-1] == 0.0:
                 radial = radial[:-1]
-            distortion = Distortion(model, radial, (coeffs["p1"], coeffs["p2"]))
+            fisheye = model == "OPENCV_FISHEYE"  # its p1, p2 are not read: nerfstudio's fisheye has none
+            distortion = Distortion(model, radial, (0.0, 0.0) if fisheye else (coeffs["p1"], coeffs["p2"]),
+                                    projection="equidistant" if fisheye else "perspective")
         else:
             raise ScanError(path, f"{what}: camera_model {model} is not supported (scantex takes "
                                   f"pinhole photos: {', '.join(PINHOLE_MODELS + DISTORTED_MODELS)})")
@@ -189,9 +191,14 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
 def _distortion_keys(distortion: Distortion | None, i: int) -> dict:
     if distortion is None or distortion.is_zero:
         return {"camera_model": "PINHOLE"}
-    if distortion.radial_denominator or len(distortion.radial) > len(RADIAL_KEYS):
-        raise ValueError(f"photo {i}: nerfstudio's OPENCV model cannot hold a {distortion.model} "
+    fisheye = distortion.projection == "equidistant"
+    if (distortion.radial_denominator or len(distortion.radial) > len(RADIAL_KEYS)
+            or distortion.projection == "equisolid" or (fisheye and any(distortion.tangential))):
+        raise ValueError(f"photo {i}: nerfstudio's OPENCV models cannot hold a {distortion.model} "
                          "distortion")
+    if fisheye:
+        return {"camera_model": "OPENCV_FISHEYE", **dict.fromkeys(RADIAL_KEYS, 0.0),
+                **dict(zip(RADIAL_KEYS, distortion.radial))}
     keys = {"camera_model": "OPENCV", "p1": distortion.tangential[0], "p2": distortion.tangential[1]}
     keys.update({k: 0.0 for k in RADIAL_KEYS})
     keys.update(zip(RADIAL_KEYS, distortion.radial))

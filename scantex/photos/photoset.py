@@ -124,12 +124,19 @@ class ImageCache:
                 self._images.popitem(last=False)
 
 
+#: how a lens maps a ray's angle from its axis before its distortion polynomial (:attr:`Distortion.projection`)
+PROJECTIONS = ("perspective", "equidistant", "equisolid")
+
+
 @dataclass(frozen=True)
 class Distortion:
     """Lens distortion of normalised camera coordinates ``(x, y) = (X/Z, Y/Z)`` (OpenCV's model).
 
     ``r2 = x^2 + y^2``, ``radial = (1 + k1 r2 + k2 r2^2 + ...) / (1 + d1 r2 + d2 r2^2 + ...)``,
     ``x_d = x radial + 2 p1 x y + p2 (r2 + 2 x^2)``, ``y_d = y radial + p1 (r2 + 2 y^2) + 2 p2 x y``.
+    A fisheye lens first takes ``(x, y)`` to its angle from the axis, ``theta = atan(r)``: ``(x, y) theta / r``
+    (``projection`` ``"equidistant"``: OpenCV's and COLMAP's fisheye models, whose polynomial in ``theta^2`` is the
+    radial one above) or ``(x, y) 2 sin(theta / 2) / r`` (``"equisolid"``).
 
     Attributes:
         model: the format's own name for it (``"OPENCV"``, ``"SIMPLE_RADIAL"``, ...).
@@ -139,6 +146,8 @@ class Distortion:
         inverse_radial: where the format's model maps distorted coordinates to undistorted ones (VisualSfM's
             ``x = x_d (1 + d0 r_d^2)``): its coefficients ``(d0, ...)``, solved exactly by :meth:`distort`;
             ``radial`` then holds its first-order forward twin (``k1 = -d0``) for the writers of OpenCV's model.
+        projection: ``"perspective"`` (a pinhole's, distorted), or a fisheye's ``"equidistant"`` or ``"equisolid"``
+            mapping of the ray's angle, before the polynomial.
     """
 
     model: str
@@ -146,16 +155,31 @@ class Distortion:
     tangential: tuple[float, float] = (0.0, 0.0)
     radial_denominator: tuple[float, ...] = ()
     inverse_radial: tuple[float, ...] = ()
+    projection: str = "perspective"
+
+    def __post_init__(self) -> None:
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"Distortion: projection {self.projection!r} is none of {', '.join(PROJECTIONS)}")
 
     @property
     def is_zero(self) -> bool:
-        return not any(self.radial) and not any(self.tangential) and not any(self.radial_denominator) and not any(
-            self.inverse_radial)
+        return (self.projection == "perspective" and not any(self.radial) and not any(self.tangential)
+                and not any(self.radial_denominator) and not any(self.inverse_radial))
+
+    @property
+    def is_fisheye(self) -> bool:
+        return self.projection != "perspective"
 
     def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distorted normalised coordinates of undistorted ``x, y`` (any shape)."""
         if any(self.inverse_radial):
             return self._solve_inverse(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        if self.is_fisheye:
+            r = np.sqrt(x * x + y * y)
+            theta = np.arctan(r)
+            mapped = theta if self.projection == "equidistant" else 2.0 * np.sin(theta / 2.0)
+            ratio = np.divide(mapped, r, out=np.ones_like(r, dtype=np.float64), where=r > 0)
+            x, y = x * ratio, y * ratio
         r2 = x * x + y * y
         num = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial))
         den = 1.0 + sum(k * r2 ** (i + 1) for i, k in enumerate(self.radial_denominator))

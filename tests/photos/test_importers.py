@@ -887,11 +887,11 @@ def bad_truncated_binary(tmp_path):
     return tmp_path / "c", "COLMAP binary file"
 
 
-def bad_fisheye(tmp_path):
+def bad_thin_prism(tmp_path):
     blank_png(tmp_path / "a.png")
-    (tmp_path / "cameras.txt").write_text(f"1 OPENCV_FISHEYE {W} {H} 50 40 24 18 0 0 0 0\n")
+    (tmp_path / "cameras.txt").write_text(f"1 THIN_PRISM_FISHEYE {W} {H} 50 40 24 18 0 0 0 0 0 0 0 0\n")
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 4 1 a.png\n\n")
-    return tmp_path, "OPENCV_FISHEYE is not supported"
+    return tmp_path, "THIN_PRISM_FISHEYE is not supported"
 
 
 def bad_image_size(tmp_path):
@@ -963,7 +963,7 @@ def bad_image_path_a_folder(tmp_path):
 
 
 BAD = [bad_missing, bad_unknown_layout, bad_json, bad_missing_image, bad_nan_pose, bad_scaled_pose,
-       bad_truncated_binary, bad_fisheye, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
+       bad_truncated_binary, bad_thin_prism, bad_image_size, bad_polycam_without_camera, bad_intrinsics_of_another_size,
        bad_photo_turned, bad_empty_frames, bad_frame_without_pose, bad_empty_image_path,
        bad_image_path_a_folder, bad_cam_line, bad_cam_words, bad_cam_focal, bad_scannet_pose, bad_scannet_all_lost,
        bad_frames_without_intrinsics, bad_frames_colour_extrinsic, bad_frames_info_of_another_size,

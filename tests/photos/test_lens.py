@@ -19,7 +19,9 @@ W, H = 160, 120
 K0 = np.array([[120.0, 0.0, 81.0], [0.0, 118.0, 58.5], [0.0, 0.0, 1.0]])
 LENSES = {"barrel": Distortion("OPENCV", (-0.18, 0.03), (0.002, -0.001)),
           "pincushion": Distortion("OPENCV", (0.12,)),
-          "VisualSfM": Distortion("VisualSfM", (0.1,), inverse_radial=(-0.1,))}
+          "VisualSfM": Distortion("VisualSfM", (0.1,), inverse_radial=(-0.1,)),
+          "fisheye": Distortion("OPENCV_FISHEYE", (0.02, -0.01, 0.003, 0.0), projection="equidistant"),
+          "equisolid": Distortion("Metashape equisolid_fisheye", (0.01,), (0.001, 0.0), projection="equisolid")}
 
 
 def pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -80,7 +82,8 @@ def test_the_pinhole_view_reaches_the_photos_edges_and_no_further(name):
     assert gap < 0.01
     # a barrel lens's view is wider than its photo's K (the corners it drew inward are reached), a pincushion's
     # narrower
-    expected = {"barrel": lambda s: s < 1, "pincushion": lambda s: s > 1, "VisualSfM": lambda s: s > 1}
+    expected = {"barrel": lambda s: s < 1, "pincushion": lambda s: s > 1, "VisualSfM": lambda s: s > 1,
+                "fisheye": lambda s: 0.5 < s < 1, "equisolid": lambda s: 0.5 < s < 1}
     assert expected[name](lens.K[0, 0] / K0[0, 0])
 
 
@@ -116,6 +119,23 @@ def test_a_depth_map_is_undistorted_with_its_photo():
     np.testing.assert_array_equal(out, expect)
 
 
+def test_a_fisheye_wider_than_a_pinhole_can_keep_is_cropped(caplog):
+    """A fisheye of 230 degrees across (its edges beyond 90 degrees from the axis, where no pinhole sees): the
+    pinhole view takes half its focal length, the middle of the photo, with no pixel lacking a source."""
+    K = np.array([[40.0, 0.0, 79.5], [0.0, 40.0, 59.5], [0.0, 0.0, 1.0]])
+    with caplog.at_level(logging.INFO):
+        lens = pinhole_lens(Camera(K, np.eye(4), W, H), Distortion("OPENCV_FISHEYE", (), projection="equidistant"),
+                            "cameras.txt", "image 'a.png'")
+    assert "draws a wider view than a pinhole of half its focal length keeps: the photo's edges are cropped" in (
+        caplog.text)
+    assert lens.K[0, 0] == pytest.approx(20.0)
+    x, y = lens.source_pixels((W, H))
+    assert x.min() > 0 and y.min() > 0 and x.max() < W - 1 and y.max() < H - 1
+    stored = distorted_photo(lens.distortion, K)
+    middle = np.s_[42:78, 62:98]  # within 45 degrees of the axis: further out the fisheye squeezes the pattern
+    assert np.abs(undistort_image(stored, lens)[middle] - pinhole_photo(lens.K)[middle]).max() < 6
+
+
 def test_a_folding_model_is_refused():
     """Coefficients that fold the view over within the photo describe no lens: one line naming the file."""
     with pytest.raises(ScanError, match=r"cameras.txt: image 'a.png': lens distortion \(OPENCV\) folds"):
@@ -135,12 +155,14 @@ def test_visualsfm_is_solved_exactly():
 # ---- read through the importers ------------------------------------------------------------------------------
 
 def write_distorted_colmap(folder, distortion: Distortion, n: int = 2):
-    """A COLMAP text model of ``n`` photos of the pattern through an ``OPENCV`` lens (COLMAP's pixel centres)."""
+    """A COLMAP text model of ``n`` photos of the pattern through an ``OPENCV`` (``OPENCV_FISHEYE``) lens (COLMAP's
+    pixel centres)."""
     (folder / "images").mkdir(parents=True)
-    k1, k2 = (distortion.radial + (0.0, 0.0))[:2]
+    k = (distortion.radial + (0.0,) * 4)[:4]
     p1, p2 = distortion.tangential
-    (folder / "cameras.txt").write_text(f"1 OPENCV {W} {H} {K0[0, 0]} {K0[1, 1]} {K0[0, 2] + 0.5} {K0[1, 2] + 0.5} "
-                                        f"{k1} {k2} {p1} {p2}\n")
+    model, params = ("OPENCV_FISHEYE", k) if distortion.is_fisheye else ("OPENCV", (k[0], k[1], p1, p2))
+    (folder / "cameras.txt").write_text(f"1 {model} {W} {H} {K0[0, 0]} {K0[1, 1]} {K0[0, 2] + 0.5} {K0[1, 2] + 0.5} "
+                                        + " ".join(map(str, params)) + "\n")
     lines = []
     for i in range(n):
         Image.fromarray(distorted_photo(distortion)).save(folder / "images" / f"p{i}.png")
@@ -172,23 +194,26 @@ def test_colmap_photos_through_a_lens_are_read_undistorted(tmp_path, caplog):
     np.testing.assert_array_equal(ignored.load_image(0), distorted_photo(distortion))
 
 
-def test_writers_keep_an_undistorted_photo_right(tmp_path):
-    """A format that holds the lens (COLMAP, cameras.json, nerfstudio) gets the photo as stored with its lens; one
-    that does not (Polycam, 3D Scanner App, MVE, texrecon) gets the undistorted photo with the pinhole camera: read
-    back, each gives the same pinhole view as the set it was written from."""
-    from scantex.photos import (write_3dscannerapp, write_cameras_json, write_colmap_text, write_mve, write_mve_scene,
-                                write_nerfstudio, write_polycam)
+@pytest.mark.parametrize("name", ["barrel", "fisheye"])
+def test_writers_keep_an_undistorted_photo_right(tmp_path, name):
+    """A format that holds the lens (COLMAP, cameras.json, nerfstudio, Metashape) gets the photo as stored with its
+    lens; one that does not (Polycam, 3D Scanner App, MVE, texrecon) gets the undistorted photo with the pinhole
+    camera: read back, each gives the same pinhole view as the set it was written from."""
+    from scantex.photos import (write_3dscannerapp, write_cameras_json, write_colmap_text, write_metashape, write_mve,
+                                write_mve_scene, write_nerfstudio, write_polycam)
 
-    write_distorted_colmap(tmp_path / "in", LENSES["barrel"], n=1)
+    write_distorted_colmap(tmp_path / "in", LENSES[name], n=1)
     photos = load_photos(tmp_path / "in")
+    assert photos.distortions[0] == LENSES[name] if name == "barrel" else photos.distortions[0].is_fisheye
     view = photos.load_image(0).astype(int)
-    for writer in (write_colmap_text, write_cameras_json, write_nerfstudio, write_polycam, write_3dscannerapp,
-                   write_mve, write_mve_scene):
+    assert np.abs(view - pinhole_photo(photos.cameras[0].K)).max() < 4
+    for writer in (write_colmap_text, write_cameras_json, write_nerfstudio, write_metashape, write_polycam,
+                   write_3dscannerapp, write_mve, write_mve_scene):
         out = writer(photos, tmp_path / writer.__name__)
         again = load_photos(out)
         np.testing.assert_allclose(again.cameras[0].K, photos.cameras[0].K, atol=1e-6, err_msg=writer.__name__)
         assert np.abs(again.load_image(0).astype(int) - view).max() <= 1, writer.__name__
-        holds_lens = writer in (write_colmap_text, write_cameras_json, write_nerfstudio)
+        holds_lens = writer in (write_colmap_text, write_cameras_json, write_nerfstudio, write_metashape)
         assert (again.lenses[0] is not None) == holds_lens, writer.__name__
 
 

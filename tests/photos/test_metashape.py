@@ -71,13 +71,17 @@ def write_xml(folder, *, version="1.8.4", sensor_type="frame", extra_cameras="",
     (folder / "cameras.xml").write_text("".join(parts))
 
 
-def metashape_pixel(X_world, c2chunk: np.ndarray) -> np.ndarray:
-    """Metashape's manual's projection of world points (appendix "camera models", frame cameras), in scantex's
-    pixels (the top-left pixel's centre at 0, where Metashape puts it at 0.5)."""
+def metashape_pixel(X_world, c2chunk: np.ndarray, sensor_type: str = "frame") -> np.ndarray:
+    """Metashape's manual's projection of world points (appendix "camera models": frame cameras; fisheye cameras
+    first take ``x0 = X / Z`` to ``x0 atan(r0) / r0``), in scantex's pixels (the top-left pixel's centre at 0, where
+    Metashape puts it at 0.5)."""
     c = CALIB
     x_chunk = (CHUNK_R.T @ (np.asarray(X_world).T - CHUNK_T[:, None])) / CHUNK_S
     x_cam = np.linalg.inv(c2chunk)[:3, :3] @ x_chunk + np.linalg.inv(c2chunk)[:3, 3:]
     x, y = x_cam[0] / x_cam[2], x_cam[1] / x_cam[2]
+    if sensor_type == "fisheye":
+        r0 = np.hypot(x, y)
+        x, y = x * np.arctan(r0) / r0, y * np.arctan(r0) / r0
     r2 = x * x + y * y
     radial = 1 + c["k1"] * r2 + c["k2"] * r2**2 + c["k3"] * r2**3 + c["k4"] * r2**4
     xd = x * radial + c["p1"] * (r2 + 2 * x * x) + 2 * c["p2"] * x * y
@@ -96,11 +100,13 @@ def scantex_pixel(photos, i: int, X_world) -> np.ndarray:
     return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], 1)
 
 
-@pytest.mark.parametrize("components", [False, True], ids=["1.x chunk transform", "2.x component transform"])
-def test_cameras_project_as_metashape_projects(tmp_path, components):
+@pytest.mark.parametrize("components, sensor_type", [(False, "frame"), (True, "frame"), (False, "fisheye")],
+                         ids=["1.x chunk transform", "2.x component transform", "fisheye"])
+def test_cameras_project_as_metashape_projects(tmp_path, components, sensor_type):
     """World points land where Metashape's own model puts them (its f, cx, cy from the centre, b1, b2, k1-k4, its
-    tangential terms swapped against OpenCV's, the chunk's similarity), to a millionth of a pixel."""
-    write_xml(tmp_path, components=components)
+    tangential terms swapped against OpenCV's, the chunk's similarity; a fisheye's angle), to a millionth of a
+    pixel."""
+    write_xml(tmp_path, components=components, sensor_type=sensor_type)
     photos = load_photos(tmp_path)
     assert photos.format == "metashape" and len(photos) == 2
     assert [p.name for p in photos.images] == ["IMG_0001.JPG", "IMG_0002.JPG"]
@@ -108,7 +114,7 @@ def test_cameras_project_as_metashape_projects(tmp_path, components):
     points = np.array([0.5, 0.5, 0.5]) + rng.uniform(-0.4, 0.4, (50, 3))
     for i, (eye, target) in enumerate(EYES):
         np.testing.assert_allclose(scantex_pixel(photos, i, points),
-                                   metashape_pixel(points, chunk_camera(eye, target)), atol=1e-6)
+                                   metashape_pixel(points, chunk_camera(eye, target), sensor_type), atol=1e-6)
         # the camera sits where it was put in the world (the chunk's scale taken out of the pose)
         w2c = photos.cameras[i].world_to_camera
         np.testing.assert_allclose(-w2c[:3, :3].T @ w2c[:3, 3], eye, atol=1e-9)
@@ -160,9 +166,9 @@ def test_found_in_a_folder_and_beside_a_mesh(tmp_path):
     assert capture.photo_format == "metashape" and capture.photos == tmp_path / "survey" / "cameras.xml"
 
 
-def fisheye(tmp_path):
-    write_xml(tmp_path, sensor_type="equisolid_fisheye")
-    return tmp_path, "camera 'IMG_0001': its sensor is a equisolid_fisheye camera; scantex reads frame"
+def spherical(tmp_path):
+    write_xml(tmp_path, sensor_type="spherical")
+    return tmp_path, "camera 'IMG_0001': its sensor is a spherical camera; scantex reads frame and fisheye cameras"
 
 
 def not_xml(tmp_path):
@@ -193,7 +199,7 @@ def p3(tmp_path):
     return tmp_path, "sensor 'test (24mm)' has p3/p4 tangential terms"
 
 
-@pytest.mark.parametrize("make", [fisheye, not_xml, missing_photo, bad_transform, no_f, p3])
+@pytest.mark.parametrize("make", [spherical, not_xml, missing_photo, bad_transform, no_f, p3])
 def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     from tests.io.hostile import assert_clean_error, run_cli, write_cube
 
