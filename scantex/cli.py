@@ -610,9 +610,12 @@ def photos_summary(photos) -> list[str]:
     undistorted = sum(lens is not None for lens in photos.lenses)
     ignored = sum(d is not None and not d.is_zero for d in photos.distortions) - undistorted
     if undistorted:
-        lens = next(lens for lens in photos.lenses if lens is not None)
-        lines.append(f"lens distortion: {undistorted} photos undistorted when read ({lens.distortion.model}, the "
-                     f"pinhole view's focal length {lens.K[0, 0] / lens.photo_K[0, 0]:.3f} times the photo's)")
+        lenses = [lens for lens in photos.lenses if lens is not None]
+        models = sorted({lens.distortion.model for lens in lenses})
+        scales = [lens.K[0, 0] / lens.photo_K[0, 0] for lens in lenses]
+        scale = f"{min(scales):.3f}" + (f" to {max(scales):.3f}" if max(scales) - min(scales) > 5e-4 else "")
+        lines.append(f"lens distortion: {undistorted} photos undistorted when read ({', '.join(models)}, the "
+                     f"pinhole view's focal length {scale} times the photo's)")
     if ignored:
         lines.append(f"lens distortion: {ignored} photos (small enough to ignore, under --max-distortion)")
     return lines

@@ -39,7 +39,7 @@ from scantex.photos.conventions import (
     check_pose,
     pinhole_camera,
 )
-from scantex.photos.files import check_sizes, copy_into, load_frames_file, need, resolve_file, write_depth
+from scantex.photos.files import check_sizes, load_frames_file, need, resolve_file, write_depth, write_photo
 from scantex.photos.photoset import DEPTH_SCALE_MM, Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -127,6 +127,9 @@ def load_cameras_json(path: str | Path, *, max_distortion_px: float = MAX_DISTOR
 def _distortion(d, where: Path, what: str) -> Distortion | None:
     if d is None:
         return None
+    tangential = d.get("tangential", (0.0, 0.0)) if isinstance(d, dict) else None
+    if isinstance(tangential, (list, tuple)) and len(tangential) != 2:
+        raise ScanError(where, f"{what}: distortion's tangential is not 2 numbers (p1, p2)")
     try:
         return Distortion(str(d["model"]), tuple(float(v) for v in d.get("radial", ())),
                           tuple(float(v) for v in d.get("tangential", (0.0, 0.0))),
@@ -154,8 +157,7 @@ def write_cameras_json(photos: PhotoSet, out_dir: str | Path, *, copy_images: bo
     with atomic_files() as files:
         for i, (cam, image, depth) in enumerate(zip(photos.cameras, photos.images, photos.depths)):
             if copy_images:
-                name = f"photo_{i:03d}{image.suffix.lower()}"
-                copy_into(files, image, out_dir / name)
+                name = write_photo(files, photos, i, out_dir / f"photo_{i:03d}").name
             else:
                 name = str(image.resolve())
             frame = {"image": name, **cam.to_dict()}

@@ -42,7 +42,7 @@ from scantex.photos.conventions import (
     pinhole_camera,
     principal_point,
 )
-from scantex.photos.files import check_sizes, copy_into
+from scantex.photos.files import check_sizes, photo_suffix, write_photo
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -262,9 +262,11 @@ def write_colmap_text(photos: PhotoSet, out_dir: str | Path) -> Path:
     (named ``frame_00001.<ext>``...); identical intrinsics share a camera. Returns the model folder.
 
     Raises:
-        ValueError: a camera has skew, or a distortion COLMAP's models cannot hold.
+        ValueError: a camera has skew, or a small distortion ignored when read that COLMAP's models cannot hold (a
+            photo undistorted when read is written as stored with its lens where they hold it, else undistorted, as
+            a PNG).
     """
-    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
+    photos = photos.as_stored(_holds)  # an undistorted photo as stored with its lens, where a model holds it
     out_dir = Path(out_dir)
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
@@ -283,8 +285,8 @@ def write_colmap_text(photos: PhotoSet, out_dir: str | Path) -> Path:
                                   + [str(f.camera_id), f.name]))
         img_lines.append("")
     with atomic_files() as files:
-        for f, src in zip(frames, photos.images):
-            copy_into(files, src, out_dir / "images" / f.name)
+        for i, f in enumerate(frames):
+            write_photo(files, photos, i, out_dir / "images" / Path(f.name).stem)
         files.path(model_dir / "cameras.txt").write_text("\n".join(cam_lines) + "\n")
         files.path(model_dir / "images.txt").write_text("\n".join(img_lines) + "\n")
         files.path(model_dir / "points3D.txt").write_text(
@@ -371,7 +373,7 @@ def _read_images_bin(path: Path) -> list[_Image]:
 def write_colmap_binary(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Like :func:`write_colmap_text`, in COLMAP's binary format (``cameras.bin``, ``images.bin``,
     ``points3D.bin``). Returns the model folder."""
-    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
+    photos = photos.as_stored(_holds)  # an undistorted photo as stored with its lens, where a model holds it
     out_dir = Path(out_dir)
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
@@ -386,8 +388,8 @@ def write_colmap_binary(photos: PhotoSet, out_dir: str | Path) -> Path:
         imgs += struct.pack("<i7di", iid, *f.qvec, *f.tvec, f.camera_id)
         imgs += f.name.encode("utf-8") + b"\x00" + struct.pack("<Q", 0)
     with atomic_files() as files:
-        for f, src in zip(frames, photos.images):
-            copy_into(files, src, out_dir / "images" / f.name)
+        for i, f in enumerate(frames):
+            write_photo(files, photos, i, out_dir / "images" / Path(f.name).stem)
         files.path(model_dir / "cameras.bin").write_bytes(bytes(cams))
         files.path(model_dir / "images.bin").write_bytes(bytes(imgs))
         files.path(model_dir / "points3D.bin").write_bytes(struct.pack("<Q", 0))
@@ -414,8 +416,17 @@ def _to_colmap(photos: PhotoSet) -> tuple[dict[int, _CameraModel], list[_Image]]
             models[ids[model]] = model
         x, y, z, w = Rotation.from_matrix(cam.R).as_quat()
         frames.append(_Image((float(w), float(x), float(y), float(z)), tuple(float(v) for v in cam.t),
-                             ids[model], f"frame_{i + 1:05d}{image.suffix.lower()}"))
+                             ids[model], f"frame_{i + 1:05d}{photo_suffix(photos, i)}"))
     return models, frames
+
+
+def _holds(distortion: Distortion, cam: Camera) -> bool:
+    """Whether a COLMAP model holds a lens exactly (VisualSfM's inverse model only to first order: no)."""
+    try:
+        _model_params(cam, distortion, 0)
+    except ValueError:
+        return False
+    return cam.K[0, 1] == 0 and not distortion.inverse_radial
 
 
 def _model_params(cam: Camera, distortion: Distortion | None, i: int) -> tuple[str, tuple[float, ...]]:

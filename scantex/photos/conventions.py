@@ -193,6 +193,11 @@ def pinhole_camera(distortion: Distortion | None, camera: Camera, max_px: float,
     """
     if distortion is None or distortion.is_zero:
         return camera, None
+    coefficients = (distortion.radial + tuple(distortion.tangential) + distortion.radial_denominator
+                    + distortion.inverse_radial)
+    if not np.isfinite(coefficients).all():
+        raise ScanError(where, f"{what}: lens distortion ({distortion.model}) has coefficients that are not finite "
+                               f"numbers")
     shift = distortion.max_shift_px(camera)
     if shift <= max_px:
         log.warning("%s: %s: ignoring a small lens distortion (%s, at most %.2f px)", where, what,

@@ -133,17 +133,22 @@ def copy_into(files, src: Path, dst: Path) -> None:
     shutil.copyfile(src, files.path(dst))
 
 
+def photo_suffix(photos: PhotoSet, i: int) -> str:
+    """The suffix :func:`write_photo` writes photo ``i`` with: its file's, or ``.png`` for an undistorted photo."""
+    return photos.images[i].suffix.lower() if photos.lenses[i] is None else ".png"
+
+
 def write_photo(files, photos: PhotoSet, i: int, stem: Path) -> Path:
-    """Photo ``i`` written through an :class:`~scantex.io.atomic.AtomicFiles` group as ``stem`` plus a suffix, for a
-    format whose cameras hold no lens distortion; returns the path. The file is copied as it is, unless the photo is
-    undistorted when read (:attr:`PhotoSet.lenses`): then its pinhole view, as a PNG."""
+    """Photo ``i`` written through an :class:`~scantex.io.atomic.AtomicFiles` group as ``stem`` plus
+    :func:`photo_suffix`; returns the path. The file is copied as it is, unless the photo is undistorted when read
+    (:attr:`PhotoSet.lenses`, which a writer's :meth:`PhotoSet.as_stored` keeps where its format cannot hold the
+    lens): then its pinhole view, as a PNG."""
+    dst = stem.with_name(stem.name + photo_suffix(photos, i))
     if photos.lenses[i] is None:
-        dst = stem.with_name(stem.name + photos.images[i].suffix.lower())
         copy_into(files, photos.images[i], dst)
         return dst
     from PIL import Image
 
-    dst = stem.with_name(stem.name + ".png")
     Image.fromarray(np.ascontiguousarray(photos.load_image(i))).save(files.path(dst), format="PNG")
     return dst
 

@@ -6,12 +6,14 @@ scantex's cameras are pinholes; a distortion that moves pixels by more than ``ma
 when a photo is read, as ``colmap image_undistorter`` and texrecon's scene do ahead of texturing:
 
 - The pinhole camera keeps the photo's size and principal point; its focal lengths are the photo's scaled so
-  that the undistorted view reaches every edge of the photo and no further (no pixel of it without a source:
-  COLMAP's default ``blank_pixels 0``). A barrel lens (``k1 < 0``) gets a shorter focal length and keeps its
-  edges' middles; a pincushion one a longer.
+  that the undistorted view reaches the photo's nearest edge and no further: no pixel of it without a source
+  (COLMAP's default ``blank_pixels 0``), the other edges' last few pixels left out where the lens or its principal
+  point is not symmetric. A barrel lens (``k1 < 0``) gets a shorter focal length and keeps its edges' middles; a
+  pincushion one a longer.
 - Each pixel of the pinhole view takes the photo's colour where the lens drew it (bilinear), the distortion
-  model evaluated forward: nothing is inverted. A depth map of the photo's view is resampled the same way,
-  nearest (no depth averaged across an edge).
+  model evaluated forward (VisualSfM's, an inverse model, solved per point). A depth map of the photo's view is
+  resampled the same way, nearest (no depth averaged across an edge); one of a depth camera registered to the
+  photo's (:attr:`PhotoSet.depth_warps`), a pinhole of its own, through that camera alone.
 - A fisheye (``projection`` equidistant or equisolid) is undone the same way; where its view is wider than a
   pinhole of half its focal length keeps (150 degrees and more across), the pinhole view stops there and the
   photo's edges are cropped.
@@ -139,7 +141,8 @@ def _border_inside(lens: Lens, samples: int = 257) -> bool:
 
 def _check_unfolded(lens: Lens, where, what: str) -> None:
     """Refuse a model that folds the pinhole view over (its coefficients fitted beyond the calibrated field): the
-    Jacobian of the view's pixels -> the photo's pixels not positive somewhere on a 49 x 49 grid over the view."""
+    Jacobian of the view's normalised coordinates -> the photo's not positive (under a ten-thousandth of a
+    pinhole's, 1) somewhere on a 49 x 49 grid over the view."""
     W, H = lens.size
     u, v = np.meshgrid(np.linspace(0, W - 1, 49), np.linspace(0, H - 1, 49))
     x, y = normalised(lens.K, u, v)
@@ -220,10 +223,17 @@ def _undistort_kernel(image, x, y, out):
 
 
 def undistort_depth(depth: np.ndarray, lens: Lens, warp: np.ndarray | None = None) -> np.ndarray:
-    """``(h, w) float32`` depth map of the stored photo's view (or, with ``warp``, of a depth camera registered to
-    it: :attr:`PhotoSet.depth_warps`) -> its pinhole view at the map's size, nearest; NaN where no depth falls."""
+    """``(h, w) float32`` depth map of the stored photo's view -> its pinhole view at the map's size, nearest; NaN
+    where no depth falls. With ``warp`` (:attr:`PhotoSet.depth_warps`), the map is a depth camera's registered to
+    the photo's, a pinhole of its own: each pixel of the view goes to it along its ray, through no colour lens."""
     h, w = depth.shape
-    x, y = lens.source_pixels((w, h), lens.size)  # the photo's pixels
+    if warp is None:
+        x, y = lens.source_pixels((w, h), lens.size)  # the photo's pixels, through its lens
+    else:  # the view's rays as the photo's pinhole K would draw them: what the warp's K_photo stands for
+        (W, H) = lens.size
+        u = (np.arange(w) + 0.5) * (W / w) - 0.5
+        v = (np.arange(h) + 0.5) * (H / h) - 0.5
+        x, y = pixels(lens.photo_K, *np.broadcast_arrays(*normalised(lens.K, u[None, :], v[:, None])))
     sx, sy = (x + 0.5) / lens.size[0], (y + 0.5) / lens.size[1]  # shares of the photo
     if warp is not None:
         sx, sy = warp[0, 0] * sx + warp[0, 1] * sy + warp[0, 2], warp[1, 0] * sx + warp[1, 1] * sy + warp[1, 2]

@@ -13,8 +13,8 @@ frame. Conventions, and what scantex does with them:
   b2, w / 2 + cx - 0.5], [0, f, h / 2 + cy - 0.5]]``, OpenCV's tangential terms ``(p2, p1)`` (the two are swapped
   against OpenCV's). A distortion over ``max_distortion_px`` is undone as each photo is read
   (:mod:`scantex.photos.lens`). ``frame``, ``fisheye`` (equidistant: ``x = x0 atan(r0) / r0`` before the model
-  above, its manual's fisheye) and ``equisolid_fisheye`` sensors are read; spherical and cylindrical ones are
-  refused, as are ``p3``/``p4`` terms.
+  above, its manual's fisheye) and ``equisolid_fisheye`` sensors are read; the cameras of spherical and
+  cylindrical ones, or of one with ``p3``/``p4`` terms, are skipped with a warning (refused when no other is left).
 - ``<camera label transform sensor_id component_id enabled>``: ``transform`` is the 4x4 camera-to-chunk matrix (row
   by row; the camera's axes are OpenCV's: +x right, +y down, +z forward). The chunk's frame is carried to the
   world by the camera's component's ``<transform>`` (Metashape 2) and the chunk's (``rotation``, ``translation``,
@@ -101,6 +101,7 @@ def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
                                                                xml.parent / "photos"]
     cameras, images, distortions, lenses = [], [], [], []
     unaligned = disabled = 0
+    unread: dict[str, int] = {}  # cameras of sensors scantex does not read, by why
     for element in chunk.iterfind("cameras//camera"):
         label = element.get("label") or element.get("id") or "?"
         what = f"camera {label!r}"
@@ -114,8 +115,13 @@ def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
         if sensor is None:
             raise ScanError(xml, f"{what}: its sensor {element.get('sensor_id')!r} has no calibration in the file")
         if sensor.refused:
-            raise ScanError(xml, f"{what}: {sensor.refused}")
-        component = components.get(element.get("component_id"), np.eye(4))
+            unread[sensor.refused] = unread.get(sensor.refused, 0) + 1
+            continue
+        component_id = element.get("component_id")
+        if components and component_id is not None and component_id not in components:
+            raise ScanError(xml, f"{what}: its component {component_id!r} is not in the file (<components>): "
+                                 "export the cameras again with the chunk's components")
+        component = components.get(component_id, np.eye(4))
         c2w = to_world @ component @ _matrix(element.find("transform").text, 16, xml, f"{what}'s transform")
         camera = Camera(sensor.K, _world_to_camera(c2w, xml, what), *sensor.size)
         camera, lens = pinhole_camera(sensor.distortion, camera, max_distortion_px, xml, what)
@@ -124,8 +130,12 @@ def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
         lenses.append(lens)
         images.append(_photo(label, folders, xml, what))
     if not cameras:
+        if unread:
+            raise ScanError(xml, f"none of its cameras can be read: {'; '.join(unread)}")
         raise ScanError(xml, "none of its cameras is aligned (no camera has a transform)" if unaligned else
                         "lists no cameras")
+    for why, count in unread.items():
+        log.warning("%s: %d of its cameras skipped: %s", xml, count, why)
     for count, why in ((unaligned, "not aligned (no transform)"), (disabled, "disabled")):
         if count:
             log.warning("%s: %d of its cameras are %s: skipped", xml, count, why)
@@ -182,7 +192,7 @@ def _sensor(element: ET.Element, xml: Path) -> _Sensor | None:
         return None
     kind = calib.get("type", kind)
     if kind not in PROJECTIONS:
-        return _Sensor(np.eye(3), (0, 0), None, f"its sensor is a {kind} camera; scantex reads frame and fisheye "
+        return _Sensor(np.eye(3), (0, 0), None, f"{what} is a {kind} camera; scantex reads frame and fisheye "
                                                 f"cameras")
     resolution = calib.find("resolution")
     if resolution is None:
@@ -201,7 +211,8 @@ def _sensor(element: ET.Element, xml: Path) -> _Sensor | None:
     K = np.array([[fx, _number(calib, "b2", xml, what), cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
     check_intrinsics(K, w, h, xml, what)
     if _number(calib, "p3", xml, what) or _number(calib, "p4", xml, what):
-        return _Sensor(K, (w, h), None, f"{what} has p3/p4 tangential terms, which scantex does not model")
+        return _Sensor(K, (w, h), None, f"{what} has p3/p4 tangential terms, which scantex does not model "
+                                        f"(undistort its photos in Metashape: Export > Undistort Photos)")
     radial = [_number(calib, f"k{i}", xml, what) for i in range(1, 5)]
     while radial and radial[-1] == 0.0:
         radial.pop()
@@ -273,12 +284,13 @@ def _photo(label: str, folders: list[Path], xml: Path, what: str) -> Path:
 
 def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write ``out_dir/cameras.xml`` (one chunk, its frame the world's; a sensor per distinct camera model) with
-    the photos copied beside it as ``photo_000.<ext>``; returns the XML's path. An undistorted photo is written as
-    stored, with its lens; a distortion Metashape's model cannot hold (a rational one) raises ``ValueError``."""
+    the photos copied beside it as ``photo_000.<ext>``; returns the XML's path. A photo undistorted when read is
+    written as stored, with its lens, where Metashape's model holds it, else undistorted (a PNG); a small distortion
+    ignored when read that Metashape's model cannot hold (a rational one) raises ``ValueError``."""
     from scantex.io.atomic import atomic_files
-    from scantex.photos.files import copy_into
+    from scantex.photos.files import write_photo
 
-    photos = photos.as_stored()
+    photos = photos.as_stored(_holds)  # an undistorted photo as stored with its lens, where Metashape's model holds it
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     document = ET.Element("document", version="2.0.0")
@@ -299,14 +311,21 @@ def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
                 ET.SubElement(calib, "resolution", width=str(cam.width), height=str(cam.height))
                 for tag, value in model[3:]:
                     ET.SubElement(calib, tag).text = repr(value)
-            name = f"photo_{i:03d}{image.suffix.lower()}"
-            copy_into(files, image, out_dir / name)
+            name = write_photo(files, photos, i, out_dir / f"photo_{i:03d}").name
             element = ET.SubElement(cameras, "camera", id=str(i), sensor_id=models[model], label=name)
             c2w = np.linalg.inv(cam.world_to_camera)
             ET.SubElement(element, "transform").text = " ".join(repr(float(v)) for v in c2w.ravel())
         ET.indent(document)
         files.path(out_dir / "cameras.xml").write_bytes(ET.tostring(document, encoding="UTF-8", xml_declaration=True))
     return out_dir / "cameras.xml"
+
+
+def _holds(distortion: Distortion, cam: Camera) -> bool:
+    try:
+        _calibration(cam, distortion, 0)
+    except ValueError:
+        return False
+    return True
 
 
 def _calibration(cam: Camera, distortion: Distortion | None, i: int) -> tuple:

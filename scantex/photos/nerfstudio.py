@@ -48,13 +48,13 @@ from scantex.photos.conventions import (
     world_to_camera_from_opengl,
 )
 from scantex.photos.files import (
-    load_frames_file,
     check_sizes,
-    copy_into,
+    load_frames_file,
     need,
     number,
     resolve_file,
     write_depth,
+    write_photo,
 )
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
@@ -160,9 +160,11 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
     (and depth maps to ``out_dir/depth/``); per-frame intrinsics. Returns the ``transforms.json`` path.
 
     Raises:
-        ValueError: a camera has skew, or a distortion nerfstudio's OPENCV model cannot hold.
+        ValueError: a camera has skew, or a small distortion ignored when read that nerfstudio's models cannot hold
+            (a photo undistorted when read is written as stored with its lens where they hold it, else undistorted,
+            as a PNG).
     """
-    photos = photos.as_stored()  # an undistorted photo is written as stored, with its lens
+    photos = photos.as_stored(_holds)  # an undistorted photo as stored with its lens, where a model holds it
     out_dir = Path(out_dir)
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
     if photos.has_depth:
@@ -173,8 +175,8 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
             if cam.K[0, 1] != 0:
                 raise ValueError(f"photo {i}: nerfstudio cameras have no skew")
             cx, cy = principal_point(cam.K, pixel_centre=CORNER_CONVENTION)
-            name = f"images/frame_{i + 1:05d}{image.suffix.lower()}"
-            copy_into(files, image, out_dir / name)
+            name = write_photo(files, photos, i, out_dir / "images" / f"frame_{i + 1:05d}").relative_to(
+                out_dir).as_posix()
             frame = {"file_path": name, "w": cam.width, "h": cam.height, "fl_x": float(cam.K[0, 0]),
                      "fl_y": float(cam.K[1, 1]), "cx": cx, "cy": cy,
                      "transform_matrix": opengl_camera_to_world(cam).tolist()}
@@ -186,6 +188,15 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
         doc = {"camera_model": "OPENCV", "frames": frames}
         files.path(out_dir / "transforms.json").write_text(json.dumps(doc, indent=1))
     return out_dir / "transforms.json"
+
+
+def _holds(distortion: Distortion, cam: Camera) -> bool:
+    """Whether nerfstudio's models hold a lens exactly (VisualSfM's inverse model only to first order: no)."""
+    try:
+        _distortion_keys(distortion, 0)
+    except ValueError:
+        return False
+    return cam.K[0, 1] == 0 and not distortion.inverse_radial
 
 
 def _distortion_keys(distortion: Distortion | None, i: int) -> dict:

@@ -326,14 +326,25 @@ class PhotoSet:
                                    lenses=tuple(self.lenses[i] for i in idx),
                                    numbers=tuple(self.numbers[i] for i in idx) if self.numbers else ())
 
-    def as_stored(self) -> PhotoSet:
-        """The set with each undistorted photo's camera as stored: its lens's intrinsics, which with
-        :attr:`distortions` describe the photo file as it is (what a writer writes beside the file)."""
+    def as_stored(self, holds: Callable[[Distortion, Camera], bool] | None = None) -> PhotoSet:
+        """The set as a writer writes it. Each photo undistorted when read (:attr:`lenses`) whose lens the format
+        ``holds`` (its distortion at the camera as stored; default: any) gets its camera as stored, the lens's
+        intrinsics, which with :attr:`distortions` describe the photo file as it is (written as it is); one whose lens
+        the format cannot hold keeps its pinhole camera and its lens, and loses its distortion
+        (:func:`~scantex.photos.files.write_photo` writes its undistorted photo). The intrinsics are those read:
+        a focal length refined since is not carried over."""
         if all(lens is None for lens in self.lenses):
             return self
-        cameras = tuple(c if lens is None else Camera(lens.photo_K, c.world_to_camera, c.width, c.height)
-                        for c, lens in zip(self.cameras, self.lenses))
-        return dataclasses.replace(self, cameras=cameras, lenses=())
+        cameras, distortions, lenses = list(self.cameras), list(self.distortions), list(self.lenses)
+        for i, (c, lens) in enumerate(zip(self.cameras, self.lenses)):
+            if lens is None:
+                continue
+            stored = Camera(lens.photo_K, c.world_to_camera, c.width, c.height)
+            if holds is None or holds(lens.distortion, stored):
+                cameras[i], lenses[i] = stored, None
+            else:
+                distortions[i] = None
+        return dataclasses.replace(self, cameras=tuple(cameras), distortions=tuple(distortions), lenses=tuple(lenses))
 
     def load_image(self, i: int) -> np.ndarray:
         """``(H, W, 3) uint8`` RGB of photo ``i``, as stored (no EXIF rotation: the cameras describe the sensor's

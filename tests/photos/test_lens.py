@@ -194,27 +194,76 @@ def test_colmap_photos_through_a_lens_are_read_undistorted(tmp_path, caplog):
     np.testing.assert_array_equal(ignored.load_image(0), distorted_photo(distortion))
 
 
-@pytest.mark.parametrize("name", ["barrel", "fisheye"])
-def test_writers_keep_an_undistorted_photo_right(tmp_path, name):
-    """A format that holds the lens (COLMAP, cameras.json, nerfstudio, Metashape) gets the photo as stored with its
-    lens; one that does not (Polycam, 3D Scanner App, MVE, texrecon) gets the undistorted photo with the pinhole
-    camera: read back, each gives the same pinhole view as the set it was written from."""
-    from scantex.photos import (write_3dscannerapp, write_cameras_json, write_colmap_text, write_metashape, write_mve,
-                                write_mve_scene, write_nerfstudio, write_polycam)
+def write_visualsfm_scene(folder, distortion: Distortion) -> None:
+    """A texrecon scene of one photo of the pattern through VisualSfM's one-term lens (``.cam`` line 2: ``f d0 0
+    paspect ppx ppy``, ``f`` over the larger side, the principal point a share from the corner)."""
+    folder.mkdir(parents=True)
+    Image.fromarray(distorted_photo(distortion)).save(folder / "view.png")
+    lens = (K0[0, 0] / W, distortion.inverse_radial[0], 0.0, K0[1, 1] / K0[0, 0], (K0[0, 2] + 0.5) / W,
+            (K0[1, 2] + 0.5) / H)
+    (folder / "view.cam").write_text("0 0 0 1 0 0 0 1 0 0 0 1\n" + " ".join(repr(float(v)) for v in lens) + "\n")
 
-    write_distorted_colmap(tmp_path / "in", LENSES[name], n=1)
+
+@pytest.mark.parametrize("name", ["barrel", "fisheye", "VisualSfM"])
+def test_writers_keep_an_undistorted_photo_right(tmp_path, name):
+    """A format that holds the lens exactly (COLMAP, nerfstudio and Metashape an OpenCV lens or a fisheye,
+    cameras.json any) gets the photo as stored with its lens; one that does not (Polycam, 3D Scanner App, MVE,
+    texrecon; VisualSfM's inverse model but in cameras.json) gets the undistorted photo with the pinhole camera: read
+    back, each gives the same pinhole view as the set it was written from."""
+    from scantex.photos import (write_3dscannerapp, write_cameras_json, write_colmap_binary, write_colmap_text,
+                                write_metashape, write_mve, write_mve_scene, write_nerfstudio, write_polycam)
+
+    if name == "VisualSfM":
+        write_visualsfm_scene(tmp_path / "in", LENSES[name])
+        holding = (write_cameras_json,)
+    else:
+        write_distorted_colmap(tmp_path / "in", LENSES[name], n=1)
+        holding = (write_colmap_text, write_colmap_binary, write_cameras_json, write_nerfstudio, write_metashape)
     photos = load_photos(tmp_path / "in")
-    assert photos.distortions[0] == LENSES[name] if name == "barrel" else photos.distortions[0].is_fisheye
+    assert photos.distortions[0].model == LENSES[name].model and photos.lenses[0] is not None
     view = photos.load_image(0).astype(int)
     assert np.abs(view - pinhole_photo(photos.cameras[0].K)).max() < 4
-    for writer in (write_colmap_text, write_cameras_json, write_nerfstudio, write_metashape, write_polycam,
-                   write_3dscannerapp, write_mve, write_mve_scene):
+    for writer in (write_colmap_text, write_colmap_binary, write_cameras_json, write_nerfstudio, write_metashape,
+                   write_polycam, write_3dscannerapp, write_mve, write_mve_scene):
         out = writer(photos, tmp_path / writer.__name__)
         again = load_photos(out)
         np.testing.assert_allclose(again.cameras[0].K, photos.cameras[0].K, atol=1e-6, err_msg=writer.__name__)
         assert np.abs(again.load_image(0).astype(int) - view).max() <= 1, writer.__name__
-        holds_lens = writer in (write_colmap_text, write_cameras_json, write_nerfstudio, write_metashape)
-        assert (again.lenses[0] is not None) == holds_lens, writer.__name__
+        assert (again.lenses[0] is not None) == (writer in holding), writer.__name__
+
+
+def test_bad_distortion_in_cameras_json_is_one_line(tmp_path):
+    """A ``tangential`` of 3 numbers crashed on unpacking; NaN coefficients were refused as 'no pinhole view'."""
+    from tests.io.hostile import write_photos
+
+    cams = write_photos(tmp_path, n=1)
+    doc = json.loads(cams.read_text())
+    for distortion, message in (({"model": "OPENCV", "tangential": [0, 0, 0]}, "tangential is not 2 numbers"),
+                                ({"model": "OPENCV", "radial": [float("nan")]}, "coefficients that are not finite")):
+        doc["frames"][0]["distortion"] = distortion
+        cams.write_text(json.dumps(doc))
+        with pytest.raises(ScanError, match=f"cameras.json: frame 0: .*{message}"):
+            load_photos(cams)
+
+
+def test_a_registered_depth_camera_sees_through_no_colour_lens():
+    """A depth map of a depth camera registered to a distorted photo (its own pinhole K): each pixel of the pinhole
+    view takes the depth along its ray through that K alone."""
+    from scantex.photos.photoset import depth_warp
+
+    lens = pinhole_lens(Camera(K0, np.eye(4), W, H), LENSES["barrel"], "cameras.json", "frame 0")
+    K_depth, (w, h) = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.0], [0.0, 0.0, 1.0]]), (80, 60)
+    depth = np.arange(w * h, dtype=np.float32).reshape(h, w)
+    out = undistort_depth(depth, lens, depth_warp(K_depth, (w, h), K0, (W, H)))
+    u = (np.arange(w) + 0.5) * (W / w) - 0.5  # the view's pixels at the map's size, at the photo's
+    v = (np.arange(h) + 0.5) * (H / h) - 0.5
+    x, y = (u[None, :] - lens.K[0, 2]) / lens.K[0, 0], (v[:, None] - lens.K[1, 2]) / lens.K[1, 1]
+    ud, vd = np.floor(K_depth[0, 0] * x + K_depth[0, 2] + 0.5), np.floor(K_depth[1, 1] * y + K_depth[1, 2] + 0.5)
+    ud, vd = np.broadcast_arrays(ud, vd)
+    inside = (ud >= 0) & (ud < w) & (vd >= 0) & (vd < h)
+    expect = np.full((h, w), np.nan, np.float32)
+    expect[inside] = depth[vd[inside].astype(int), ud[inside].astype(int)]
+    np.testing.assert_array_equal(out, expect)
 
 
 def test_cli_info_says_the_photos_are_undistorted(tmp_path, capsys):

@@ -144,6 +144,24 @@ def test_labels_with_extension_or_path_and_photoscan_calibration(tmp_path):
     assert photos.lenses == (None, None) and photos.distortions == (None, None)
 
 
+def test_cameras_of_a_sensor_scantex_does_not_read_are_skipped(tmp_path, caplog):
+    """A 360-degree camera beside the frame cameras (a spherical sensor): its cameras are left out, with a warning."""
+    write_xml(tmp_path)
+    text = (tmp_path / "cameras.xml").read_text()
+    sphere = ('<sensor id="1" label="360" type="spherical"><resolution width="64" height="32"/>'
+              '<calibration type="spherical" class="adjusted"><resolution width="64" height="32"/><f>10</f>'
+              '</calibration></sensor></sensors>')
+    text = text.replace("</sensors>", sphere, 1).replace(
+        '</group>', '<camera id="7" sensor_id="1" label="IMG_0001"><transform>'
+        + " ".join(map(str, np.eye(4).ravel())) + '</transform></camera></group>', 1)
+    (tmp_path / "cameras.xml").write_text(text)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path)
+    assert len(photos) == 2
+    assert "1 of its cameras skipped: sensor '360' is a spherical camera; scantex reads frame and fisheye" in (
+        caplog.text)
+
+
 def test_a_georeferenced_chunk_is_said(tmp_path, caplog, monkeypatch):
     import tests.photos.test_metashape as me
 
@@ -168,7 +186,16 @@ def test_found_in_a_folder_and_beside_a_mesh(tmp_path):
 
 def spherical(tmp_path):
     write_xml(tmp_path, sensor_type="spherical")
-    return tmp_path, "camera 'IMG_0001': its sensor is a spherical camera; scantex reads frame and fisheye cameras"
+    return tmp_path, ("cameras.xml: none of its cameras can be read: sensor 'test (24mm)' is a spherical camera; "
+                      "scantex reads frame and fisheye cameras")
+
+
+def missing_component(tmp_path):
+    write_xml(tmp_path, components=True)
+    text = (tmp_path / "cameras.xml").read_text()
+    (tmp_path / "cameras.xml").write_text(text.replace('component_id="0" label="IMG_0002"',
+                                                       'component_id="7" label="IMG_0002"'))
+    return tmp_path, "cameras.xml: camera 'IMG_0002': its component '7' is not in the file"
 
 
 def not_xml(tmp_path):
@@ -199,7 +226,7 @@ def p3(tmp_path):
     return tmp_path, "sensor 'test (24mm)' has p3/p4 tangential terms"
 
 
-@pytest.mark.parametrize("make", [spherical, not_xml, missing_photo, bad_transform, no_f, p3])
+@pytest.mark.parametrize("make", [spherical, missing_component, not_xml, missing_photo, bad_transform, no_f, p3])
 def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     from tests.io.hostile import assert_clean_error, run_cli, write_cube
 
