@@ -15,6 +15,7 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.mve` texrecon's scene folder (photos beside ``.cam`` files; G2LTex's too),
 - :mod:`~scantex.photos.mve_scene` MVE's scene (``views/view_0000.mve/meta.ini``),
 - :mod:`~scantex.photos.metashape` Agisoft Metashape's cameras XML,
+- :mod:`~scantex.photos.meshroom` Meshroom's (AliceVision's) ``cameras.sfm``,
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
 ::
@@ -34,6 +35,7 @@ from scantex.photos.arkitscenes import load_arkitscenes
 from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
 from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
 from scantex.photos.load import detect_format, load_photos
+from scantex.photos.meshroom import load_meshroom, write_meshroom
 from scantex.photos.metashape import load_metashape, write_metashape
 from scantex.photos.mve import load_mve, write_mve
 from scantex.photos.mve_scene import load_mve_scene, write_mve_scene
@@ -45,8 +47,8 @@ from scantex.photos.scannerapp import load_3dscannerapp, write_3dscannerapp
 from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment", "detect_format",
-           "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_metashape", "load_mve",
-           "load_mve_scene", "load_nerfstudio", "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet",
-           "require_alignment", "write_3dscannerapp", "write_cameras_json", "write_colmap_binary",
-           "write_colmap_text", "write_metashape", "write_mve", "write_mve_scene", "write_nerfstudio",
-           "write_polycam"]
+           "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_meshroom",
+           "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_photos", "load_polycam",
+           "load_rgbd_frames", "load_scannet", "require_alignment", "write_3dscannerapp", "write_cameras_json",
+           "write_colmap_binary", "write_colmap_text", "write_meshroom", "write_metashape", "write_mve",
+           "write_mve_scene", "write_nerfstudio", "write_polycam"]

@@ -12,6 +12,7 @@ from scantex.photos import (
     arkitscenes,
     cameras_json,
     colmap,
+    meshroom,
     metashape,
     mve,
     mve_scene,
@@ -30,8 +31,8 @@ log = logging.getLogger(__name__)
 LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + images .txt/.bin (COLMAP, "
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
-           "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape) or photos beside .cam "
-           "files (texrecon)")
+           "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape), cameras.sfm (Meshroom) "
+           "or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -63,6 +64,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
         if path.suffix.lower() == ".xml" and metashape.is_cameras_xml(path):
             return metashape.FORMAT, path
+        if path.suffix.lower() == ".sfm":
+            return meshroom.FORMAT, path
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -72,6 +75,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         doc = load_json(path)
         if cameras_json.is_cameras_json(doc):
             return cameras_json.FORMAT, path
+        if meshroom.is_sfm(doc):
+            return meshroom.FORMAT, path
         frames = doc.get("frames") if isinstance(doc, dict) else None
         if frames == []:
             raise ScanError(path, "its 'frames' list is empty: no photos")
@@ -104,6 +109,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return mve_scene.FORMAT, mve_scene.views_folder(path)
     if metashape.cameras_file(path) is not None:
         return metashape.FORMAT, metashape.cameras_file(path)
+    if meshroom.sfm_file(path) is not None:
+        return meshroom.FORMAT, meshroom.sfm_file(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
@@ -129,7 +136,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                scannerapp.FORMAT: scannerapp.load_3dscannerapp, mve.FORMAT: mve.load_mve,
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
                arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
-               metashape.FORMAT: metashape.load_metashape}
+               metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom}
     return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
 
 

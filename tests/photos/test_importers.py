@@ -24,6 +24,7 @@ from scantex.photos import (
     write_cameras_json,
     write_colmap_binary,
     write_colmap_text,
+    write_meshroom,
     write_metashape,
     write_mve,
     write_mve_scene,
@@ -88,6 +89,7 @@ WRITERS = [  # writer, format read back, keeps depth
     (write_mve, "texrecon", False),
     (write_mve_scene, "mve", False),
     (write_metashape, "metashape", False),
+    (write_meshroom, "meshroom", False),
 ]
 
 

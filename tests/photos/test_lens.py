@@ -206,25 +206,27 @@ def write_visualsfm_scene(folder, distortion: Distortion) -> None:
 
 @pytest.mark.parametrize("name", ["barrel", "fisheye", "VisualSfM"])
 def test_writers_keep_an_undistorted_photo_right(tmp_path, name):
-    """A format that holds the lens exactly (COLMAP, nerfstudio and Metashape an OpenCV lens or a fisheye,
+    """A format that holds the lens exactly (COLMAP, nerfstudio, Metashape and Meshroom an OpenCV lens or a fisheye,
     cameras.json any) gets the photo as stored with its lens; one that does not (Polycam, 3D Scanner App, MVE,
     texrecon; VisualSfM's inverse model but in cameras.json) gets the undistorted photo with the pinhole camera: read
     back, each gives the same pinhole view as the set it was written from."""
     from scantex.photos import (write_3dscannerapp, write_cameras_json, write_colmap_binary, write_colmap_text,
-                                write_metashape, write_mve, write_mve_scene, write_nerfstudio, write_polycam)
+                                write_meshroom, write_metashape, write_mve, write_mve_scene, write_nerfstudio,
+                                write_polycam)
 
     if name == "VisualSfM":
         write_visualsfm_scene(tmp_path / "in", LENSES[name])
         holding = (write_cameras_json,)
     else:
         write_distorted_colmap(tmp_path / "in", LENSES[name], n=1)
-        holding = (write_colmap_text, write_colmap_binary, write_cameras_json, write_nerfstudio, write_metashape)
+        holding = (write_colmap_text, write_colmap_binary, write_cameras_json, write_nerfstudio, write_metashape,
+                   write_meshroom)
     photos = load_photos(tmp_path / "in")
     assert photos.distortions[0].model == LENSES[name].model and photos.lenses[0] is not None
     view = photos.load_image(0).astype(int)
     assert np.abs(view - pinhole_photo(photos.cameras[0].K)).max() < 4
     for writer in (write_colmap_text, write_colmap_binary, write_cameras_json, write_nerfstudio, write_metashape,
-                   write_polycam, write_3dscannerapp, write_mve, write_mve_scene):
+                   write_meshroom, write_polycam, write_3dscannerapp, write_mve, write_mve_scene):
         out = writer(photos, tmp_path / writer.__name__)
         again = load_photos(out)
         np.testing.assert_allclose(again.cameras[0].K, photos.cameras[0].K, atol=1e-6, err_msg=writer.__name__)
