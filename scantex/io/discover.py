@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".usdz", ".usdc", ".usda", ".usd", ".ply", ".off", ".stl", ".dae", ".3mf")
 #: file names capture apps give their textured mesh, preferred over any other mesh in an export
 APP_MESH_NAMES = ("textured_output.obj", "textured_output.glb", "textured_output.usdz", "raw.glb", "mesh.glb",
-                  "model.obj", "model.glb", "scene.obj", "export.obj")
+                  "texturedmesh.obj", "model.obj", "model.glb", "scene.obj", "export.obj")
 #: folders searched below the root for a mesh
 MAX_DEPTH = 3
 #: folders that hold no mesh worth enhancing (photos, previews, macOS zip metadata)
@@ -194,10 +194,13 @@ def _meshes(root: Path) -> list[Path]:
 def _photos_near(folder: Path, *, root: Path | None = None, app_layouts_only: bool = False):
     """``(path, format)`` of posed photos in ``folder``, else in ``root`` or a folder just below it;
     ``(None, None)`` when there are none. ``app_layouts_only``: only the layouts capture apps write next
-    to their mesh (3D Scanner App frames, Polycam keyframes), not a stray ``cameras.json``."""
-    from scantex.photos import polycam, scannerapp
+    to their mesh (3D Scanner App frames, Polycam keyframes, Meshroom's cache), not a stray ``cameras.json``."""
+    from scantex.photos import meshroom, polycam, scannerapp
     from scantex.photos.load import detect_format
 
+    sfm = meshroom.cache_sfm(folder)  # a mesh in Meshroom's cache: its reconstruction's cameras
+    if sfm is not None:
+        return sfm, meshroom.FORMAT
     candidates = [folder]
     if root is not None:
         candidates.append(root)

@@ -1,7 +1,8 @@
 """Meshroom's (AliceVision's) reconstruction: a ``cameras.sfm`` (or any ``.sfm``/``.json`` of ``ConvertSfMFormat``).
 
 Meshroom's free photogrammetry pipeline leaves its cameras in ``MeshroomCache/StructureFromMotion/<id>/cameras.sfm``
-and its mesh, in the same frame, in ``MeshroomCache/Texturing/<id>/texturedMesh.obj``. Conventions (AliceVision's
+and its mesh, in the same frame, in ``MeshroomCache/Texturing/<id>/texturedMesh.obj``: ``scantex enhance`` given the
+project folder, its cache or that mesh finds both (:func:`cache_sfm`). Conventions (AliceVision's
 ``sfmDataIO/jsonIO``), and what scantex does with them:
 
 - Every value is a string (boost's property tree); ``version`` (``["1", "2", "5"]``) says how the intrinsics are kept.
@@ -55,6 +56,25 @@ def sfm_file(folder: Path) -> Path | None:
         return next(iter(sorted(p for p in folder.glob("*.sfm") if p.is_file())), None)
     except OSError:
         return None
+
+
+def cache_sfm(folder: Path) -> Path | None:
+    """The ``cameras.sfm`` of the Meshroom cache that ``folder`` is, holds (a project folder) or lies in (a node's
+    output folder, ``Texturing/<id>/``): ``StructureFromMotion/<id>/cameras.sfm``, the newest where several are;
+    ``None`` if none."""
+    folder = Path(folder)
+    for cache in (folder, folder / "MeshroomCache", folder.parent.parent, folder.parent.parent.parent):
+        try:
+            found = [p for p in (cache / "StructureFromMotion").glob("*/cameras.sfm") if p.is_file()]
+        except OSError:
+            continue
+        if found:
+            newest = max(found, key=lambda p: p.stat().st_mtime)
+            if len(found) > 1:
+                log.warning("%s holds %d StructureFromMotion results: reading the newest, %s", cache, len(found),
+                            newest.parent.name)
+            return newest
+    return None
 
 
 def load_meshroom(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:

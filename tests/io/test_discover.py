@@ -151,6 +151,24 @@ def test_mve_scene_beside_its_mesh(exports, tmp_path):
         assert capture.photos == tmp_path / "views" and len(load_photos(capture.photos)) == 4
 
 
+def test_meshroom_cache(exports, tmp_path):
+    """Meshroom's project: its textured mesh in MeshroomCache/Texturing/<id>/ and its cameras in
+    StructureFromMotion/<id>/cameras.sfm, found from the project, the cache or the mesh file itself."""
+    from scantex.photos import write_meshroom
+
+    cache = tmp_path / "project" / "MeshroomCache"
+    for node, name in (("Meshing/11aa", "mesh.obj"), ("MeshFiltering/22bb", "mesh.obj"),
+                       ("Texturing/33cc", "texturedMesh.obj")):
+        (cache / node).mkdir(parents=True)
+        save_scan(exports["scan"], cache / node / name)
+    sfm = write_meshroom(photographs(exports["scan"], tmp_path / "renders"), cache / "StructureFromMotion" / "44dd")
+    for where in (tmp_path / "project", cache, cache / "Texturing" / "33cc" / "texturedMesh.obj"):
+        with find_capture(where) as capture:
+            assert capture.mesh == cache / "Texturing" / "33cc" / "texturedMesh.obj", where
+            assert capture.photo_format == "meshroom" and capture.photos == sfm, where
+    assert len(load_photos(sfm)) == 4
+
+
 def test_arkitscenes_video_folder(exports, tmp_path):
     """ARKitScenes' video folder: the ARKit mesh <video_id>_3dod_mesh.ply beside <video_id>_frames/."""
     from tests.photos.test_importers import arkitscenes_capture
