@@ -238,7 +238,7 @@ def _enhance_capture(args, config, capture) -> int:
     if photos_path:
         from scantex.photos import load_photos
 
-        photos = load_photos(photos_path, **distortion_setting(args))
+        photos = load_photos(photos_path, **photo_read_settings(args))
         if capture.extracted is not None:  # named inside the zip in messages and metrics, not where it was unpacked
             photos = dataclasses.replace(photos, source=capture.shown(photos.source))
         _echo(args, f"{capture.shown(photos_path)}: {len(photos)} photos ({photos.format})")
@@ -531,7 +531,7 @@ def cmd_compare(args) -> int:
     if args.cameras:
         from scantex.photos import load_photos
 
-        photos = load_photos(args.cameras, **distortion_setting(args))
+        photos = load_photos(args.cameras, **photo_read_settings(args))
         _echo(args, f"{args.cameras}: {len(photos)} photos ({photos.format})")
         if not args.no_alignment_check:
             from scantex.photos.alignment import check_alignment
@@ -579,7 +579,7 @@ def cmd_info(args) -> int:
         if photos_path:
             from scantex.photos import load_photos
 
-            photos = load_photos(photos_path, **distortion_setting(args))
+            photos = load_photos(photos_path, **photo_read_settings(args))
             for line in photos_summary(photos):
                 print(f"{capture.shown(photos_path)}: {line}")
     return 0
@@ -688,17 +688,22 @@ def texture_settings(args) -> dict:
     return {"output__texture_format": texture_format, "output__jpeg_quality": args.jpeg_quality}
 
 
-def add_distortion_option(p, photos_option: str) -> None:
-    """``--max-distortion``: enhance and compare read the photos alike."""
+def add_photo_read_options(p, photos_option: str) -> None:
+    """``--max-distortion`` and ``--images``: enhance, compare and info read the photos alike."""
     p.add_argument("--max-distortion", type=real(0, 1e6), default=None, metavar="PX",
                    help=f"with {photos_option}: the largest lens distortion of the photos' camera model scantex "
                         "ignores, in pixels it moves a pixel by (with a warning: it treats the photos as pinhole "
                         "images); stronger distortion is undone when the photos are read (default: 1)")
+    p.add_argument("--images", type=Path, default=None, metavar="DIR",
+                   help=f"with {photos_option}: the folder holding the photos a COLMAP model, a Metashape XML or a "
+                        "Meshroom cameras.sfm names, where it is not beside the camera file (default: looked for "
+                        "there, in its images/ folder, and where the format says)")
 
 
-def distortion_setting(args) -> dict:
-    """:func:`scantex.photos.load_photos`' ``max_distortion_px`` where ``--max-distortion`` is given."""
-    return {} if args.max_distortion is None else {"max_distortion_px": args.max_distortion}
+def photo_read_settings(args) -> dict:
+    """:func:`scantex.photos.load_photos`' ``max_distortion_px`` and ``image_dir`` where the options give them."""
+    settings = {} if args.max_distortion is None else {"max_distortion_px": args.max_distortion}
+    return settings | ({} if args.images is None else {"image_dir": args.images})
 
 
 def add_executor_options(p, job: str) -> None:
@@ -815,11 +820,12 @@ def build_parser() -> argparse.ArgumentParser:
                              "binary), a 3D Scanner App or Polycam export, a cameras.json, or a folder holding one; "
                              "or ScanNet's exported frames, RGB-D frame files (frame-000000.color.png + .pose.txt: "
                              "Intrinsic3D, a .sens export), an ARKitScenes capture (lowres_wide.traj), an MVE scene "
-                             "(views/*.mve), or texrecon's scene folder (photos beside .cam files); "
+                             "(views/*.mve), texrecon's scene folder (photos beside .cam files), a Metashape "
+                             "cameras .xml or a Meshroom cameras.sfm; "
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")
-    add_distortion_option(p, "--photos")
+    add_photo_read_options(p, "--photos")
     p.add_argument("--holdout", type=real(0, 1e6), metavar="X",
                    help="with --photos: photos held out for scoring, a share (default 0.1) or a count if >= 1")
     p.add_argument("--final-texture", choices=("auto", "training", "all"), default=None,
@@ -946,7 +952,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "beside .cam files): both meshes' "
                         "renders are scored against the photos, on the pixels A covers (photos that see none of A "
                         "are left out with a warning; none seeing it is an error: A is not in the cameras' frame)")
-    add_distortion_option(p, "--cameras")
+    add_photo_read_options(p, "--cameras")
     p.add_argument("--no-alignment-check", action="store_true",
                    help="with --cameras: skip the check that A sits where the photos see it (a misfit is warned "
                         "about, not refused)")
@@ -979,7 +985,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "enhance finds them)")
     p.add_argument("--photos", type=Path, metavar="PATH", help="the capture's posed photos, read as 'enhance "
                                                                 "--photos' reads them")
-    add_distortion_option(p, "--photos")
+    add_photo_read_options(p, "--photos")
     p.set_defaults(func=cmd_info)
     return parser
 

@@ -116,7 +116,12 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 
-def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+#: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)
+IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT)
+
+
+def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX,
+                image_dir: str | Path | None = None) -> PhotoSet:
     """Read posed photos in any supported format (see :data:`LAYOUTS`), as a :class:`PhotoSet` in
     scantex's camera convention.
 
@@ -125,6 +130,9 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
             ...) or a folder that holds one.
         max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
             one is undone when a photo is read (:mod:`scantex.photos.lens`).
+        image_dir: the folder holding the photos a COLMAP model, a Metashape XML or a Meshroom ``cameras.sfm``
+            names, where they are elsewhere than the formats look (the photo-taking folder of a Metashape project);
+            other formats name their photos' files themselves (a warning says it is not used).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
@@ -137,7 +145,16 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
                arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
                metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom}
-    return without_repeats(loaders[fmt](target, max_distortion_px=max_distortion_px))
+    options = {"max_distortion_px": max_distortion_px}
+    if image_dir is not None:
+        if not Path(image_dir).is_dir():
+            raise ScanError(Path(image_dir), "no such folder (the photos' folder)")
+        if fmt in IMAGE_DIR_FORMATS:
+            options["image_dir"] = image_dir
+        else:
+            log.warning("%s: %s cameras name their photos' files themselves: the photos' folder %s is not used",
+                        target, fmt, image_dir)
+    return without_repeats(loaders[fmt](target, **options))
 
 
 def without_repeats(photos: PhotoSet) -> PhotoSet:

@@ -19,7 +19,7 @@ project folder, its cache or that mesh finds both (:func:`cache_sfm`). Conventio
   *world-to-camera* rotation ``R``) and ``center`` (the camera's centre ``C``): ``x_cam = R (X - C)``, OpenCV's axes.
 - ``views[]``: ``viewId``, ``poseId``, ``intrinsicId``, ``path`` (the photo, as it was where Meshroom ran: looked for
   there, then by name beside the file, in its ``images/`` folder or the folder above's). A view without a pose (not
-  reconstructed) or of a rig (``rigId``) is skipped, with a count.
+  reconstructed) or of a rig (``rigId``) is skipped, with a count. ``--images DIR`` names another folder to look in.
 """
 
 from __future__ import annotations
@@ -77,9 +77,10 @@ def cache_sfm(folder: Path) -> Path | None:
     return None
 
 
-def load_meshroom(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+def load_meshroom(path: str | Path, *, image_dir: str | Path | None = None,
+                  max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
     """Read a Meshroom / AliceVision SfM file (or a folder holding ``cameras.sfm``); conventions in the module
-    docstring.
+    docstring. ``image_dir``: where the photos are, by name, when they are not where Meshroom read them.
 
     Raises:
         ScanError: not an SfM file, no reconstructed view, an unsupported camera model, a photo not found or of
@@ -117,7 +118,7 @@ def load_meshroom(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION
         cameras.append(camera)
         distortions.append(distortion)
         lenses.append(lens)
-        images.append(_photo(str(view.get("path", "")), file, what))
+        images.append(_photo(str(view.get("path", "")), file, what, image_dir))
     for count, why in ((unposed, "have no pose (not reconstructed)"), (rig, "belong to a rig, which scantex does not "
                                                                             "read")):
         if count:
@@ -202,13 +203,14 @@ def _world_to_camera(pose: dict, file: Path, what: str) -> np.ndarray:
     return w2c
 
 
-def _photo(recorded: str, file: Path, what: str) -> Path:
-    """The photo a view names: where Meshroom read it, else by its name beside the SfM file or in an ``images/``
-    folder there or a folder up."""
+def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = None) -> Path:
+    """The photo a view names: where Meshroom read it, else by its name in ``image_dir``, beside the SfM file or in
+    an ``images/`` folder there or a folder up."""
     named = Path(recorded.replace("\\", "/"))
     if named.is_file():
         return named
-    folders = [file.parent, file.parent / "images", file.parent.parent / "images"]
+    folders = ([Path(image_dir)] if image_dir is not None else []) + [file.parent, file.parent / "images",
+                                                                       file.parent.parent / "images"]
     for folder in folders:
         if (folder / named.name).is_file():
             return folder / named.name

@@ -236,3 +236,24 @@ def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     mesh = write_cube(tmp_path / "scan")
     rc, err = run_cli(capsys, "enhance", mesh, "--photos", path, "-o", tmp_path / "out", "-q")
     assert_clean_error(rc, err, message)
+
+
+def test_photos_elsewhere_are_named_by_images(tmp_path, capsys, caplog):
+    """A Metashape project's photos stay where they were taken: ``--images DIR`` names that folder (an error named
+    the folders looked in); a format that names its photos' files itself says the option is not used."""
+    from scantex.cli import main
+    from tests.io.hostile import write_cube, write_photos
+
+    write_xml(tmp_path / "export")
+    (tmp_path / "export" / "images").rename(tmp_path / "DCIM")
+    mesh = write_cube(tmp_path / "scan")
+    assert main(["info", str(mesh), "--photos", str(tmp_path / "export")]) == 2
+    assert "its photo is not in" in capsys.readouterr().err
+    assert main(["info", str(mesh), "--photos", str(tmp_path / "export"), "--images", str(tmp_path / "DCIM")]) == 0
+    assert "2 photos (metashape)" in capsys.readouterr().out
+    assert main(["info", str(mesh), "--photos", str(tmp_path / "export"), "--images", str(tmp_path / "nope")]) == 2
+    assert "nope: no such folder (the photos' folder)" in capsys.readouterr().err
+    cams = write_photos(tmp_path / "json", n=2)
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(cams, image_dir=tmp_path / "DCIM")
+    assert len(photos) == 2 and "cameras name their photos' files themselves" in caplog.text
