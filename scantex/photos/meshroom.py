@@ -7,14 +7,15 @@ project folder, its cache or that mesh finds both (:func:`cache_sfm`). Conventio
 
 - Every value is a string (boost's property tree); ``version`` (``["1", "2", "5"]``) says how the intrinsics are kept.
 - ``intrinsics[]``: ``width``, ``height``, ``type``; the focal length in pixels (``pxFocalLength``, one number before
-  1.2.0, ``[fx, fy]`` before 1.2.2) or in millimetres (``focalLength`` over ``sensorWidth``, times the width: ``fx``;
-  ``fy = fx * pixelRatio``, which held the focal ratio ``fx / fy`` before 1.2.5); ``principalPoint`` from the image's
-  corner before 1.2.1, else its offset from the image's centre (``w / 2, h / 2``); AliceVision's pixel coordinates are
-  scantex's (the top-left pixel's centre at 0). Distortion (``distortionParams``): ``radial1`` (``k1``), ``radial3``
-  (``k1, k2, k3``), ``brown`` (``k1, k2, k3, t1, t2``: OpenCV's ``p1, p2``), ``fisheye4`` (OpenCV's equidistant
-  fisheye, ``k1``-``k4``), none for ``pinhole``; undone as each photo is read where it moves pixels by more than
-  ``max_distortion_px`` (:mod:`scantex.photos.lens`). Other models (``fisheye1``, ``equidistant``, ``equirectangular``,
-  3DE's) are refused.
+  1.2.0, ``[fx, fy]`` before 1.2.2) or in millimetres (``focalLength`` over ``sensorWidth``, times the width: ``fx``,
+  ``fy = fx * pixelRatio``, which held the focal ratio ``fx / fy`` before 1.2.5; since 1.2.11 ``fy``, and ``fx = fy /
+  pixelRatio``); ``principalPoint`` from the image's corner before 1.2.1, else its offset from the image's centre (``w
+  / 2, h / 2``); AliceVision's pixel coordinates are scantex's (the top-left pixel's centre at 0). The lens: the
+  ``type`` before 1.2.8 (``pinhole``, ``radial1``, ``radial3``, ``brown``, ``fisheye4``), ``distortionType`` since
+  (``none``, ``radialk1``, ``radialk3``, ``brown``, ``fisheye``), with ``distortionParams``: ``k1``; ``k1, k2, k3``;
+  ``k1, k2, k3, t1, t2`` (OpenCV's ``p1, p2``); OpenCV's equidistant fisheye ``k1``-``k4``; undone as each photo is
+  read where it moves pixels by more than ``max_distortion_px`` (:mod:`scantex.photos.lens`). Other models
+  (``fisheye1``, ``radialk3pt``, the ``equidistant`` camera, an ``undistortionType`` such as 3DE's) are refused.
 - ``poses[]``: ``poseId`` and ``pose.transform``: ``rotation`` (9 numbers, Eigen's column-major order of the
   *world-to-camera* rotation ``R``) and ``center`` (the camera's centre ``C``): ``x_cam = R (X - C)``, OpenCV's axes.
 - ``views[]``: ``viewId``, ``poseId``, ``intrinsicId``, ``path`` (the photo, as it was where Meshroom ran: looked for
@@ -39,8 +40,12 @@ from scantex.views.camera import Camera
 log = logging.getLogger(__name__)
 
 FORMAT = "meshroom"
-#: AliceVision's distortion models scantex reads: the number of their parameters
-MODELS = {"pinhole": 0, "radial1": 1, "radial3": 3, "brown": 5, "fisheye4": 4}
+#: AliceVision's distortion models scantex reads (``distortionType`` since version 1.2.8): their parameters' number
+DISTORTIONS = {"none": 0, "radialk1": 1, "radialk3": 3, "brown": 5, "fisheye": 4}
+#: the camera ``type`` of files before 1.2.8, as the distortion it names (AliceVision's compatibilityStringToEnums)
+MODELS = {"pinhole": "none", "radial1": "radialk1", "radial3": "radialk3", "brown": "brown", "fisheye4": "fisheye"}
+#: the newest file version whose conventions scantex knows
+NEWEST = (1, 2, 14)
 
 
 def is_sfm(doc) -> bool:
@@ -124,17 +129,24 @@ def load_meshroom(path: str | Path, *, image_dir: str | Path | None = None,
         if count:
             log.warning("%s: %d of its %d views %s: skipped", file, count, len(doc["views"]), why)
     if not cameras:
-        raise ScanError(file, "none of its views has a pose (not reconstructed)" if unposed else "lists no views")
+        raise ScanError(file, "none of its views has a pose (not reconstructed)" if unposed else
+                        "all its views belong to a rig, which scantex does not read" if rig else "lists no views")
     check_sizes(cameras, images, file)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=file, format=FORMAT,
                     distortions=tuple(distortions), lenses=tuple(lenses))
 
 
 def _version(value, file: Path) -> tuple[int, ...]:
+    if value is None:
+        raise ScanError(file, "no 'version': not an AliceVision SfM file (Meshroom writes one in every cameras.sfm)")
     try:
-        return tuple(int(v) for v in value) if value is not None else (1, 0, 0)
+        version = tuple(int(v) for v in value)
     except (TypeError, ValueError):
         raise ScanError(file, f"its version is not three integers ({value!r})") from None
+    if version > NEWEST:
+        log.warning("%s: version %s, newer than scantex knows (%s): read by %s's conventions", file,
+                    ".".join(map(str, version)), ".".join(map(str, NEWEST)), ".".join(map(str, NEWEST)))
+    return version
 
 
 def _numbers(value, n: int | None, file: Path, what: str) -> np.ndarray:
@@ -150,11 +162,14 @@ def _numbers(value, n: int | None, file: Path, what: str) -> np.ndarray:
 
 def _intrinsic(intrinsic: dict, version: tuple[int, ...], file: Path, what: str):
     """``(K, (width, height), distortion)`` of an AliceVision intrinsic, by its file's version."""
-    model = str(intrinsic.get("type", ""))
-    if model not in MODELS:
-        raise ScanError(file, f"{what}: camera model {model!r} is not supported (scantex reads "
-                              f"{', '.join(MODELS)}; undistort the photos in Meshroom: PrepareDenseScene)")
-    w, h = (int(_numbers(intrinsic.get(k), 1, file, f"{what}: {k}")[0]) for k in ("width", "height"))
+    kind, distortion_type, undistortion = _model_of(intrinsic, version, file, what)
+    if kind != "pinhole" or distortion_type not in DISTORTIONS or undistortion != "none":
+        named = distortion_type if kind == "pinhole" and undistortion == "none" else (
+            kind if kind != "pinhole" else undistortion)
+        raise ScanError(file, f"{what}: camera model {named!r} is not supported (scantex reads pinhole cameras with "
+                              f"{', '.join(DISTORTIONS)} distortion; undistort the photos in Meshroom: "
+                              "PrepareDenseScene)")
+    w, h = (_count(intrinsic.get(k), file, f"{what}: {k}") for k in ("width", "height"))
     centre = np.array([w / 2.0, h / 2.0])
     pp = _numbers(intrinsic.get("principalPoint"), 2, file, f"{what}: principalPoint")
     pp = pp if version < (1, 2, 1) else pp + centre
@@ -168,23 +183,47 @@ def _intrinsic(intrinsic: dict, version: tuple[int, ...], file: Path, what: str)
         if sensor <= 0:
             raise ScanError(file, f"{what}: sensorWidth is {sensor}, not a size in millimetres")
         ratio = _numbers(intrinsic.get("pixelRatio", "1"), 1, file, f"{what}: pixelRatio")[0]
-        fx = mm / sensor * w
-        fy = fx / ratio if version < (1, 2, 5) else fx * ratio
+        if version < (1, 2, 5):  # pixelRatio held the focal ratio fx / fy
+            fx = mm / sensor * w
+            fy = fx / ratio
+        elif version < (1, 2, 11):  # the pixel ratio, the focal length fx's
+            fx = mm / sensor * w
+            fy = fx * ratio
+        else:  # the focal length fy's
+            fy = mm / sensor * w
+            fx = fy / ratio
     K = np.array([[fx, 0.0, pp[0]], [0.0, fy, pp[1]], [0.0, 0.0, 1.0]])
     check_intrinsics(K, w, h, file, what)
     params = _numbers(intrinsic.get("distortionParams", []), None, file, f"{what}: distortionParams") if (
         intrinsic.get("distortionParams")) else np.zeros(0)
-    if params.size and params.size != MODELS[model]:
-        raise ScanError(file, f"{what}: a {model} camera has {MODELS[model]} distortion parameters, not {params.size}")
+    expected = DISTORTIONS[distortion_type]
+    if params.size and params.size != expected:
+        raise ScanError(file, f"{what}: a {distortion_type} distortion has {expected} parameters, not {params.size}")
     if not params.any():
         return K, (w, h), None
-    if model == "fisheye4":
-        distortion = Distortion(model, tuple(params), projection="equidistant")
-    elif model == "brown":
-        distortion = Distortion(model, tuple(params[:3]), (params[3], params[4]))
+    if distortion_type == "fisheye":
+        distortion = Distortion("fisheye4", tuple(params), projection="equidistant")
+    elif distortion_type == "brown":
+        distortion = Distortion("brown", tuple(params[:3]), (params[3], params[4]))
     else:
-        distortion = Distortion(model, tuple(params))
+        distortion = Distortion(distortion_type, tuple(params))
     return K, (w, h), distortion
+
+
+def _model_of(intrinsic: dict, version: tuple[int, ...], file: Path, what: str) -> tuple[str, str, str]:
+    """``(camera type, distortion type, undistortion type)`` of an intrinsic: from its ``type`` before 1.2.8, from
+    ``type``, ``distortionType`` and ``undistortionType`` since."""
+    kind = str(intrinsic.get("type", ""))
+    if version < (1, 2, 8):
+        return ("pinhole", MODELS[kind], "none") if kind in MODELS else (kind, "", "none")
+    return kind, str(intrinsic.get("distortionType", "none")), str(intrinsic.get("undistortionType", "none"))
+
+
+def _count(value, file: Path, what: str) -> int:
+    number = _numbers(value, 1, file, what)[0]
+    if not number.is_integer() or number < 1:
+        raise ScanError(file, f"{what} is not a whole number of pixels ({value!r})")
+    return int(number)
 
 
 def _world_to_camera(pose: dict, file: Path, what: str) -> np.ndarray:
@@ -207,8 +246,11 @@ def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = 
     """The photo a view names: where Meshroom read it, else by its name in ``image_dir``, beside the SfM file or in
     an ``images/`` folder there or a folder up."""
     named = Path(recorded.replace("\\", "/"))
-    if named.is_file():
-        return named
+    try:
+        if named.is_file():
+            return named
+    except OSError:  # a name too long for this system: looked for by its last part below
+        pass
     folders = ([Path(image_dir)] if image_dir is not None else []) + [file.parent, file.parent / "images",
                                                                        file.parent.parent / "images"]
     for folder in folders:
@@ -218,7 +260,7 @@ def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = 
 
 
 def write_meshroom(photos: PhotoSet, out_dir: str | Path) -> Path:
-    """Write ``out_dir/cameras.sfm`` (version 1.2.5) with the photos copied beside it as ``photo_000.<ext>``; returns
+    """Write ``out_dir/cameras.sfm`` (version 1.2.5, which AliceVision reads to this day) with the photos copied beside it as ``photo_000.<ext>``; returns
     its path. A photo undistorted when read is written as stored with its lens where AliceVision's models hold it,
     else undistorted (a PNG)."""
     from scantex.io.atomic import atomic_files
@@ -236,6 +278,7 @@ def write_meshroom(photos: PhotoSet, out_dir: str | Path) -> Path:
             image = write_photo(files, photos, i, out_dir / f"photo_{i:03d}")
             fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
             intrinsics.append({"intrinsicId": str(i), "width": str(cam.width), "height": str(cam.height),
+                               "serialNumber": f"scantex {i}",
                                "sensorWidth": "36", "sensorHeight": str(36 * cam.height / cam.width),
                                "type": model, "initializationMode": "calibrated",
                                "initialFocalLength": repr(fx * 36 / cam.width),

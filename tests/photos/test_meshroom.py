@@ -33,6 +33,9 @@ def write_sfm(folder, *, version=(1, 2, 5), model="radial3", photos_at=None, ext
     rng = np.random.default_rng(0)
     intrinsic = {"intrinsicId": "4021", "width": str(W), "height": str(H), "serialNumber": "x", "type": model,
                  "initializationMode": "estimated", "distortionParams": strings(DISTORTIONS[model]), "locked": "0"}
+    if version >= (1, 2, 8):  # the camera's type, its distortion's apart
+        intrinsic.update(type="pinhole", undistortionType="none", distortionType={
+            "radial3": "radialk3", "brown": "brown", "fisheye4": "fisheye", "pinhole": "none"}[model])
     if version < (1, 2, 0):
         intrinsic.update(pxFocalLength=repr(FX), pxInitialFocalLength="-1")
     elif version < (1, 2, 2):
@@ -40,7 +43,8 @@ def write_sfm(folder, *, version=(1, 2, 5), model="radial3", photos_at=None, ext
     else:
         sensor = 6.17
         ratio = FX / FY if version < (1, 2, 5) else FY / FX  # the focal ratio before 1.2.5, the pixel ratio since
-        intrinsic.update(focalLength=repr(FX * sensor / W), initialFocalLength="-1", sensorWidth=repr(sensor),
+        focal = FX if version < (1, 2, 11) else FY  # fx's in millimetres, fy's since 1.2.11
+        intrinsic.update(focalLength=repr(focal * sensor / W), initialFocalLength="-1", sensorWidth=repr(sensor),
                          sensorHeight=repr(sensor * H / W), pixelRatio=repr(ratio), pixelRatioLocked="1")
     centre = (W / 2 + OFFSET[0], H / 2 + OFFSET[1])
     intrinsic["principalPoint"] = strings(centre if version < (1, 2, 1) else OFFSET)
@@ -90,11 +94,14 @@ def scantex_pixel(photos, i: int, points) -> np.ndarray:
 
 
 @pytest.mark.parametrize("version, model", [((1, 2, 5), "radial3"), ((1, 2, 5), "brown"), ((1, 2, 5), "fisheye4"),
-                                            ((1, 2, 4), "radial3"), ((1, 2, 1), "pinhole"), ((1, 0, 0), "radial3")])
+                                            ((1, 2, 4), "radial3"), ((1, 2, 1), "pinhole"), ((1, 0, 0), "radial3"),
+                                            ((1, 2, 8), "brown"), ((1, 2, 11), "radial3"), ((1, 2, 11), "fisheye4")])
 def test_cameras_project_as_alicevision_projects(tmp_path, version, model):
     """World points land where AliceVision puts them, whichever version wrote the file: the focal length in pixels
-    (one, then two) or millimetres with the pixel ratio (a focal ratio before 1.2.5), the principal point from the
-    corner (before 1.2.1) or its offset from the centre, the rotation in Eigen's column-major order."""
+    (one, then two) or millimetres with the pixel ratio (a focal ratio before 1.2.5; fy's since 1.2.11), the
+    principal point from the corner (before 1.2.1) or its offset from the centre, the lens in the camera's type or
+    (since 1.2.8) a distortionType of its own, the rotation in Eigen's column-major order. (AliceVision's own
+    compatibility scenes, versions 1.2.0 to 1.2.11, read by hand: fx 1000, fy 2000, principal point 2020, 1040.)"""
     write_sfm(tmp_path, version=version, model=model)
     photos = load_photos(tmp_path)
     assert photos.format == "meshroom" and len(photos) == 2
@@ -118,6 +125,13 @@ def test_views_without_a_pose_are_skipped_and_photos_found_by_name(tmp_path, cap
         photos = load_photos(tmp_path / "cameras.sfm")
     assert [p.name for p in photos.images] == ["IMG_0000.JPG", "IMG_0001.JPG"]
     assert "1 of its 3 views have no pose (not reconstructed): skipped" in caplog.text
+
+
+def test_a_newer_version_is_read_with_a_warning(tmp_path, caplog):
+    write_sfm(tmp_path, version=(1, 3, 0))
+    with caplog.at_level(logging.WARNING):
+        assert len(load_photos(tmp_path)) == 2
+    assert "version 1.3.0, newer than scantex knows (1.2.14)" in caplog.text
 
 
 def test_found_as_a_json_file_and_in_a_folder(tmp_path):
@@ -155,7 +169,7 @@ def wrong_parameters(tmp_path):
     doc = json.loads((tmp_path / "cameras.sfm").read_text())
     doc["intrinsics"][0]["distortionParams"] = ["0.1", "0.2"]
     (tmp_path / "cameras.sfm").write_text(json.dumps(doc))
-    return tmp_path, "a radial3 camera has 3 distortion parameters, not 2"
+    return tmp_path, "a radialk3 distortion has 3 parameters, not 2"
 
 
 def not_numbers(tmp_path):
@@ -166,7 +180,32 @@ def not_numbers(tmp_path):
     return tmp_path, "focalLength is not numbers"
 
 
-@pytest.mark.parametrize("make", [unsupported_model, bad_rotation, missing_photo, wrong_parameters, not_numbers])
+def undistortion_model(tmp_path):
+    write_sfm(tmp_path, version=(1, 2, 11))
+    doc = json.loads((tmp_path / "cameras.sfm").read_text())
+    doc["intrinsics"][0]["undistortionType"] = "3deanamorphic4"
+    (tmp_path / "cameras.sfm").write_text(json.dumps(doc))
+    return tmp_path, "camera model '3deanamorphic4' is not supported"
+
+
+def no_version(tmp_path):
+    write_sfm(tmp_path)
+    doc = json.loads((tmp_path / "cameras.sfm").read_text())
+    del doc["version"]
+    (tmp_path / "cameras.sfm").write_text(json.dumps(doc))
+    return tmp_path, "no 'version': not an AliceVision SfM file"
+
+
+def fractional_width(tmp_path):
+    write_sfm(tmp_path)
+    doc = json.loads((tmp_path / "cameras.sfm").read_text())
+    doc["intrinsics"][0]["width"] = "64.9"
+    (tmp_path / "cameras.sfm").write_text(json.dumps(doc))
+    return tmp_path, "width is not a whole number of pixels"
+
+
+@pytest.mark.parametrize("make", [unsupported_model, bad_rotation, missing_photo, wrong_parameters, not_numbers,
+                                  undistortion_model, no_version, fractional_width])
 def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     from tests.io.hostile import assert_clean_error, run_cli, write_cube
 
