@@ -260,9 +260,9 @@ def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = 
 
 
 def write_meshroom(photos: PhotoSet, out_dir: str | Path) -> Path:
-    """Write ``out_dir/cameras.sfm`` (version 1.2.5, which AliceVision reads to this day) with the photos copied beside it as ``photo_000.<ext>``; returns
-    its path. A photo undistorted when read is written as stored with its lens where AliceVision's models hold it,
-    else undistorted (a PNG)."""
+    """Write ``out_dir/cameras.sfm`` (version 1.2.5, which AliceVision reads to this day) with the photos copied
+    beside it as ``photo_000.<ext>``; returns its path. A photo undistorted when read is written as stored with its
+    lens where AliceVision's models hold it, else undistorted (a PNG)."""
     from scantex.io.atomic import atomic_files
     from scantex.photos.files import write_photo
 
