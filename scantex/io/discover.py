@@ -3,8 +3,8 @@
 :func:`find_capture` takes what a user has after exporting a scan and finds the mesh to enhance and,
 when the export holds them, the posed photos (any layout :func:`scantex.photos.detect_format` knows,
 :data:`scantex.photos.load.LAYOUTS`: 3D Scanner App "All Data" ``frame_XXXXX.jpg`` + ``.json``, Polycam
-``keyframes/``, nerfstudio, COLMAP, ScanNet, RGB-D frame files, ARKitScenes, MVE, Metashape, Meshroom, texrecon,
-``cameras.json``):
+``keyframes/``, nerfstudio, COLMAP, ScanNet, RGB-D frame files, ARKitScenes, MVE, Metashape, Meshroom, OpenMVS,
+texrecon, ``cameras.json``):
 
 - a **mesh file** (``textured_output.obj``, ``raw.glb``, a ``.gltf`` with its buffers, ...): that mesh;
   photos only when the app wrote its frames next to it (3D Scanner App frames or a Polycam

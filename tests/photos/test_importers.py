@@ -29,6 +29,7 @@ from scantex.photos import (
     write_mve,
     write_mve_scene,
     write_nerfstudio,
+    write_openmvs,
     write_polycam,
 )
 from scantex.views.camera import Camera
@@ -90,6 +91,7 @@ WRITERS = [  # writer, format read back, keeps depth
     (write_mve_scene, "mve", False),
     (write_metashape, "metashape", False),
     (write_meshroom, "meshroom", False),
+    (write_openmvs, "openmvs", False),
 ]
 
 
