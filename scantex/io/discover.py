@@ -36,9 +36,12 @@ log = logging.getLogger(__name__)
 
 #: mesh formats in order of preference (textured and exact first)
 MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".usdz", ".usdc", ".usda", ".usd", ".ply", ".off", ".stl", ".dae", ".3mf")
-#: file names capture apps give their textured mesh, preferred over any other mesh in an export
+#: file names capture apps (and Meshroom's and OpenMVS's texturing) give their textured mesh, preferred over any other
+#: mesh in an export
 APP_MESH_NAMES = ("textured_output.obj", "textured_output.glb", "textured_output.usdz", "raw.glb", "mesh.glb",
-                  "texturedmesh.obj", "model.obj", "model.glb", "scene.obj", "export.obj")
+                  "texturedmesh.obj", "scene_dense_mesh_refine_texture.obj", "scene_dense_mesh_refine_texture.ply",
+                  "scene_dense_mesh_texture.obj", "scene_dense_mesh_texture.ply", "model.obj", "model.glb", "scene.obj",
+                  "export.obj")
 #: folders searched below the root for a mesh
 MAX_DEPTH = 3
 #: folders that hold no mesh worth enhancing (photos, previews, macOS zip metadata)

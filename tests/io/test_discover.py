@@ -169,6 +169,23 @@ def test_meshroom_cache(exports, tmp_path):
     assert len(load_photos(sfm)) == 4
 
 
+def test_openmvs_working_folder(exports, tmp_path):
+    """OpenMVS's folder: its scenes (scene.mvs and the later steps' .mvs) and meshes, the textured one preferred to
+    the larger untextured ones."""
+    import shutil
+
+    from scantex.photos import write_openmvs
+
+    scene = write_openmvs(photographs(exports["scan"], tmp_path / "renders"), tmp_path / "work")
+    shutil.copy(scene, tmp_path / "work" / "scene_dense.mvs")
+    big = trimesh.creation.icosphere(subdivisions=5)
+    big.export(tmp_path / "work" / "scene_dense_mesh.ply")
+    save_scan(exports["scan"], tmp_path / "work" / "scene_dense_mesh_refine_texture.obj")
+    with find_capture(tmp_path / "work") as capture:
+        assert capture.mesh.name == "scene_dense_mesh_refine_texture.obj"
+        assert capture.photo_format == "openmvs" and capture.photos == scene and len(load_photos(capture.photos)) == 4
+
+
 def test_arkitscenes_video_folder(exports, tmp_path):
     """ARKitScenes' video folder: the ARKit mesh <video_id>_3dod_mesh.ply beside <video_id>_frames/."""
     from tests.photos.test_importers import arkitscenes_capture
