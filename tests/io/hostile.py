@@ -11,9 +11,11 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from scantex.cli import main
+from scantex.errors import ScanError
 from scantex.io import save_scan
 from scantex.pipeline.config import (BakeConfig, EnhanceConfig, FieldSettings, TrainConfig, UVConfig,
                                      ViewsConfig, save_config)
@@ -47,6 +49,20 @@ def assert_clean_error(rc: int, err: str, *needles: str) -> None:
     assert "Traceback" not in err
     for needle in needles:
         assert needle in lines[0], lines[0]
+
+
+def assert_photos_refused(capsys, tmp_path: Path, photos: Path, message: str) -> None:
+    """``load_photos(photos)`` raises a ScanError holding ``message``, and ``scantex enhance`` given them exits with
+    that one line (a cube as the mesh)."""
+    import re
+
+    from scantex.photos import load_photos
+
+    with pytest.raises(ScanError, match=re.escape(message)):
+        load_photos(photos)
+    mesh = write_cube(tmp_path / "scan")
+    rc, err = run_cli(capsys, "enhance", mesh, "--photos", photos, "-o", tmp_path / "out", "-q")
+    assert_clean_error(rc, err, message)
 
 
 def write_cube(folder: Path, name: str = "m.obj") -> Path:

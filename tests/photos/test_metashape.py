@@ -10,7 +10,6 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from scantex.errors import ScanError
 from scantex.photos import detect_format, load_photos
 
 W, H = 64, 48
@@ -228,14 +227,9 @@ def p3(tmp_path):
 
 @pytest.mark.parametrize("make", [spherical, missing_component, not_xml, missing_photo, bad_transform, no_f, p3])
 def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
-    from tests.io.hostile import assert_clean_error, run_cli, write_cube
+    from tests.io.hostile import assert_photos_refused
 
-    path, message = make(tmp_path / "capture")
-    with pytest.raises(ScanError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        load_photos(path)
-    mesh = write_cube(tmp_path / "scan")
-    rc, err = run_cli(capsys, "enhance", mesh, "--photos", path, "-o", tmp_path / "out", "-q")
-    assert_clean_error(rc, err, message)
+    assert_photos_refused(capsys, tmp_path, *make(tmp_path / "capture"))
 
 
 def test_photos_elsewhere_are_named_by_images(tmp_path, capsys, caplog):

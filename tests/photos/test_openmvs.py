@@ -11,7 +11,6 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from scantex.errors import ScanError
 from scantex.photos import detect_format, load_photos
 
 W, H = 64, 48
@@ -139,11 +138,6 @@ def huge_count(tmp_path):
 
 @pytest.mark.parametrize("make", [truncated, future, missing_photo, huge_count])
 def test_bad_scenes_are_one_line_naming_the_file(tmp_path, make, capsys):
-    from tests.io.hostile import assert_clean_error, run_cli, write_cube
+    from tests.io.hostile import assert_photos_refused
 
-    path, message = make(tmp_path / "capture")
-    with pytest.raises(ScanError, match=message.replace("(", r"\(").replace(")", r"\)")):
-        load_photos(path)
-    mesh = write_cube(tmp_path / "scan")
-    rc, err = run_cli(capsys, "enhance", mesh, "--photos", path, "-o", tmp_path / "out", "-q")
-    assert_clean_error(rc, err, message)
+    assert_photos_refused(capsys, tmp_path, *make(tmp_path / "capture"))
