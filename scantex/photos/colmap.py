@@ -194,8 +194,8 @@ def _image_root(model_dir: Path, first: str, image_dir, where: Path) -> Path:
     for folder in candidates:
         if (folder / first).is_file():
             return folder
-    raise ScanError(where, f"image {first!r} not found in {candidates[0]} nor next to the model "
-                           "(pass image_dir)")
+    raise ScanError(where, f"image {first!r} not found in {candidates[0]} nor next to the model (name the "
+                           "images' folder with --images DIR)")
 
 
 # ---- text ---------------------------------------------------------------------------------------

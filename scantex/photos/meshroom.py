@@ -256,7 +256,8 @@ def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = 
     for folder in folders:
         if (folder / named.name).is_file():
             return folder / named.name
-    raise ScanError(file, f"{what}: its photo is neither at {recorded} nor in {', '.join(str(f) for f in folders)}")
+    raise ScanError(file, f"{what}: its photo is neither at {recorded} nor in {', '.join(str(f) for f in folders)} "
+                          "(name the photos' folder with --images DIR)")
 
 
 def write_meshroom(photos: PhotoSet, out_dir: str | Path) -> Path:

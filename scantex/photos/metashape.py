@@ -279,7 +279,7 @@ def _photo(label: str, folders: list[Path], xml: Path, what: str) -> Path:
                 if candidate.with_name(candidate.name + suffix).is_file():
                     return candidate.with_name(candidate.name + suffix)
     raise ScanError(xml, f"{what}: its photo is not in {', '.join(str(f) for f in folders)} (with or without "
-                         f"{', '.join(IMAGE_SUFFIXES[::2])})")
+                         f"{', '.join(IMAGE_SUFFIXES[::2])}; name the photos' folder with --images DIR)")
 
 
 def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:

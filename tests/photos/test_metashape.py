@@ -242,7 +242,7 @@ def test_photos_elsewhere_are_named_by_images(tmp_path, capsys, caplog):
     (tmp_path / "export" / "images").rename(tmp_path / "DCIM")
     mesh = write_cube(tmp_path / "scan")
     assert main(["info", str(mesh), "--photos", str(tmp_path / "export")]) == 2
-    assert "its photo is not in" in capsys.readouterr().err
+    assert "name the photos' folder with --images DIR)" in capsys.readouterr().err
     assert main(["info", str(mesh), "--photos", str(tmp_path / "export"), "--images", str(tmp_path / "DCIM")]) == 0
     assert "2 photos (metashape)" in capsys.readouterr().out
     assert main(["info", str(mesh), "--photos", str(tmp_path / "export"), "--images", str(tmp_path / "nope")]) == 2
