@@ -169,6 +169,24 @@ def test_meshroom_cache(exports, tmp_path):
     assert len(load_photos(sfm)) == 4
 
 
+def test_colmap_dense_workspace(exports, tmp_path):
+    """COLMAP's dense workspace (``image_undistorter``, ``patch_match_stereo``, ``poisson_mesher``): its
+    undistorted images, the PINHOLE model in ``sparse/`` and the meshes beside them."""
+    from scantex.photos import write_colmap_binary
+
+    written = write_colmap_binary(photographs(exports["scan"], tmp_path / "renders"), tmp_path / "stage")
+    dense = tmp_path / "dense" / "0"
+    (dense / "sparse").mkdir(parents=True)
+    for name in ("cameras.bin", "images.bin", "points3D.bin"):
+        (written / name).rename(dense / "sparse" / name)
+    (tmp_path / "stage" / "images").rename(dense / "images")
+    scan = exports["scan"]
+    trimesh.Trimesh(scan.positions, scan.faces, process=False).export(dense / "meshed-poisson.ply")
+    with find_capture(dense) as capture:
+        assert capture.mesh.name == "meshed-poisson.ply" and capture.photo_format == "colmap"
+        assert len(load_photos(capture.photos)) == 4
+
+
 def test_openmvs_working_folder(exports, tmp_path):
     """OpenMVS's folder: its scenes (scene.mvs and the later steps' .mvs) and meshes, the textured one preferred to
     the larger untextured ones."""
