@@ -491,6 +491,8 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
             lines.append(f"texture written: made from all {final['photos']} photos, the held-out ones included (the "
                          f"held-out photos' scores above are the texture made without them{views}; photos.final "
                          f"{final.get('setting', 'all')})")
+    if m.get("photos", {}).get("undistorted"):
+        lines.append(f"lens: {undistorted_words(m['photos']['undistorted'])}")
     poses = corrections_summary(m.get("photos", {}).get("pose_refinement", "off"),
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
@@ -607,18 +609,23 @@ def photos_summary(photos) -> list[str]:
                      + ")")
     else:
         lines.append("depth maps: none")
-    undistorted = sum(lens is not None for lens in photos.lenses)
-    ignored = sum(d is not None and not d.is_zero for d in photos.distortions) - undistorted
+    from scantex.photos.lens import lens_summary
+
+    undistorted = lens_summary(photos.lenses)
+    ignored = sum(d is not None and not d.is_zero for d in photos.distortions) - (undistorted or {}).get("photos", 0)
     if undistorted:
-        lenses = [lens for lens in photos.lenses if lens is not None]
-        models = sorted({lens.distortion.model for lens in lenses})
-        scales = [lens.K[0, 0] / lens.photo_K[0, 0] for lens in lenses]
-        scale = f"{min(scales):.3f}" + (f" to {max(scales):.3f}" if max(scales) - min(scales) > 5e-4 else "")
-        lines.append(f"lens distortion: {undistorted} photos undistorted when read ({', '.join(models)}, the "
-                     f"pinhole view's focal length {scale} times the photo's)")
+        lines.append("lens distortion: " + undistorted_words(undistorted))
     if ignored:
         lines.append(f"lens distortion: {ignored} photos (small enough to ignore, under --max-distortion)")
     return lines
+
+
+def undistorted_words(summary: dict) -> str:
+    """:func:`scantex.photos.lens.lens_summary` in words."""
+    low, high = summary["focal_scale"]
+    scale = f"{low:.3f}" + (f" to {high:.3f}" if high - low > 5e-4 else "")
+    return (f"{summary['photos']} photos undistorted when read ({', '.join(summary['models'])}, the pinhole view's "
+            f"focal length {scale} times the photo's)")
 
 
 def colour_source(scan) -> str:

@@ -79,6 +79,18 @@ class Lens:
         return (us + 0.5) * (source_size[0] / W) - 0.5, (vs + 0.5) * (source_size[1] / H) - 0.5
 
 
+def lens_summary(lenses) -> dict | None:
+    """``{"photos", "models", "focal_scale": [min, max]}`` of the photos undistorted when read (``lenses``:
+    :attr:`PhotoSet.lenses`): how many, through which models, their pinhole views' focal lengths over the photos';
+    ``None`` when none is."""
+    used = [lens for lens in lenses if lens is not None]
+    if not used:
+        return None
+    scales = [float(lens.K[0, 0] / lens.photo_K[0, 0]) for lens in used]
+    return {"photos": len(used), "models": sorted({lens.distortion.model for lens in used}),
+            "focal_scale": [round(min(scales), 4), round(max(scales), 4)]}
+
+
 def normalised(K: np.ndarray, u, v) -> tuple[np.ndarray, np.ndarray]:
     """Normalised camera coordinates ``(X/Z, Y/Z)`` of pixels ``u, v`` through ``K`` (skew included)."""
     y = (v - K[1, 2]) / K[1, 1]

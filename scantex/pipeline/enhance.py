@@ -1189,6 +1189,11 @@ def photo_metrics(scan: Scan, enhanced: Scan, ground_truth: Scan | None, photo: 
         "repeated": photo.repeated,
         "blurred": photo.blurred,
     }}
+    from scantex.photos.lens import lens_summary
+
+    undistorted = lens_summary(photo.photos.lenses)
+    if undistorted:
+        out["photos"]["undistorted"] = undistorted
     if photo.held_out:
         # where the training photos' poses were refined, each held-out photo's pose is aligned too, to each texture
         # on its own, for a second score: the texture's, where the recorded pose's error no longer counts

@@ -329,3 +329,23 @@ def test_compare_scores_photos_through_a_lens_as_pinhole_ones(tmp_path, capsys):
     undistorted, as_stored = truth_psnr(), truth_psnr("--max-distortion", "100")
     assert undistorted > 30
     assert undistorted > as_stored + 8
+
+
+def test_the_run_records_and_says_the_photos_it_undistorted(tmp_path):
+    """``metrics.json``'s photos say how many were undistorted, through which model, at what focal-length scale; the
+    terminal's summary says it in words."""
+    from scantex.cli import enhance_summary
+    from scantex.photos.lens import lens_summary
+
+    write_distorted_colmap(tmp_path, LENSES["barrel"])
+    photos = load_photos(tmp_path)
+    summary = lens_summary(photos.lenses)
+    scale = photos.lenses[0].K[0, 0] / K0[0, 0]
+    assert summary == {"photos": 2, "models": ["OPENCV"], "focal_scale": [round(scale, 4)] * 2}
+    assert lens_summary((None, None)) is None
+    metrics = {"geometry": {"arrays_identical": True, "vertices": [8, 8], "faces": [12, 12],
+                            "distance": {"hausdorff": 0.0, "mean": 0.0}},
+               "seam_visibility": {"input": 1.0, "enhanced": 0.5}, "photos": {"undistorted": summary},
+               "timings_s": {"total": 1.0}}
+    assert f"lens: 2 photos undistorted when read (OPENCV, the pinhole view's focal length {scale:.3f} times" in (
+        enhance_summary(metrics))
