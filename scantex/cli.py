@@ -428,7 +428,7 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
     inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
-    from scantex.report.html import blurred_words, fine_detail, left_out_words, repeated_words
+    from scantex.report.html import blurred_words, fine_detail, left_out_words, repeated_words, undistorted_words
 
     g = m["geometry"]
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
@@ -610,6 +610,7 @@ def photos_summary(photos) -> list[str]:
     else:
         lines.append("depth maps: none")
     from scantex.photos.lens import lens_summary
+    from scantex.report.html import undistorted_words
 
     undistorted = lens_summary(photos.lenses)
     ignored = sum(d is not None and not d.is_zero for d in photos.distortions) - (undistorted or {}).get("photos", 0)
@@ -618,14 +619,6 @@ def photos_summary(photos) -> list[str]:
     if ignored:
         lines.append(f"lens distortion: {ignored} photos (small enough to ignore, under --max-distortion)")
     return lines
-
-
-def undistorted_words(summary: dict) -> str:
-    """:func:`scantex.photos.lens.lens_summary` in words."""
-    low, high = summary["focal_scale"]
-    scale = f"{low:.3f}" + (f" to {high:.3f}" if high - low > 5e-4 else "")
-    return (f"{summary['photos']} photos undistorted when read ({', '.join(summary['models'])}, the pinhole view's "
-            f"focal length {scale} times the photo's)")
 
 
 def colour_source(scan) -> str:

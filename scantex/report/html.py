@@ -113,6 +113,14 @@ def repeated_words(m: dict) -> str:
             "photos.repeated)")
 
 
+def undistorted_words(summary: dict) -> str:
+    """:func:`scantex.photos.lens.lens_summary` in words."""
+    low, high = summary["focal_scale"]
+    scale = f"{low:.3f}" + (f" to {high:.3f}" if high - low > 5e-4 else "")
+    return (f"{summary['photos']} photos undistorted when read ({', '.join(summary['models'])}, the pinhole view's "
+            f"focal length {scale} times the photo's)")
+
+
 def blurred_words(m: dict) -> str:
     """The photos named shaken or out of focus (``photos.blurred``) and what became of them, in words; ``""``:
     none."""
@@ -295,6 +303,10 @@ def _headline(m: dict) -> str:
                                 m.get("photos", {}).get("pose_corrections", []))
     if poses:
         rows.append(("Poses", poses, ""))
+    undistorted = m.get("photos", {}).get("undistorted")
+    if undistorted:
+        words = undistorted_words(undistorted)
+        rows.append(("Lens", words[0].upper() + words[1:], ""))
     for title, said in (("Keyframes", repeated_words(m)), ("Photos left out", left_out_words(m)),
                         ("Blurred photos", blurred_words(m))):
         if said:
