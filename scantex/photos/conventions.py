@@ -182,6 +182,18 @@ def opengl_camera_to_world(camera: Camera) -> np.ndarray:
     return np.linalg.inv(camera.world_to_camera) @ FLIP_YZ
 
 
+def world_to_camera_from(R: np.ndarray, centre: np.ndarray, where: Path, what: str,
+                         problem: str = "its rotation is no rotation") -> np.ndarray:
+    """``(4, 4)`` OpenCV world-to-camera of a world-to-camera rotation ``R`` and the camera's centre (``x_cam = R (X -
+    C)``), as the photogrammetry formats keep a pose; a ScanError saying ``problem`` where ``R`` is no rotation
+    (orthonormal to 1e-3, determinant positive)."""
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise ScanError(where, f"{what}: {problem}")
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = R, -R @ centre
+    return w2c
+
+
 def pinhole_camera(distortion: Distortion | None, camera: Camera, max_px: float, where: Path,
                    what: str) -> tuple[Camera, Lens | None]:
     """``(camera, None)`` for a photo without distortion or with one that moves no pixel by more than ``max_px``

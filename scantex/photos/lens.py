@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.photoset import Distortion
+from scantex.photos.photoset import Distortion, nearest_at_shares
 from scantex.views.camera import Camera
 
 log = logging.getLogger(__name__)
@@ -249,8 +249,4 @@ def undistort_depth(depth: np.ndarray, lens: Lens, warp: np.ndarray | None = Non
     sx, sy = (x + 0.5) / lens.size[0], (y + 0.5) / lens.size[1]  # shares of the photo
     if warp is not None:
         sx, sy = warp[0, 0] * sx + warp[0, 1] * sy + warp[0, 2], warp[1, 0] * sx + warp[1, 1] * sy + warp[1, 2]
-    ud, vd = np.floor(sx * w), np.floor(sy * h)
-    inside = (ud >= 0) & (ud < w) & (vd >= 0) & (vd < h)
-    out = np.full((h, w), np.nan, np.float32)
-    out[inside] = depth[vd[inside].astype(np.intp), ud[inside].astype(np.intp)]
-    return out
+    return nearest_at_shares(depth, sx, sy)

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
 from scantex.photos.files import check_sizes, load_json
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
@@ -68,7 +68,7 @@ def cache_sfm(folder: Path) -> Path | None:
     output folder, ``Texturing/<id>/``): ``StructureFromMotion/<id>/cameras.sfm``, the newest where several are;
     ``None`` if none."""
     folder = Path(folder)
-    for cache in (folder, folder / "MeshroomCache", folder.parent.parent, folder.parent.parent.parent):
+    for cache in (folder, folder / "MeshroomCache", folder.parent.parent):
         try:
             found = [p for p in (cache / "StructureFromMotion").glob("*/cameras.sfm") if p.is_file()]
         except OSError:
@@ -234,12 +234,7 @@ def _world_to_camera(pose: dict, file: Path, what: str) -> np.ndarray:
         raise ScanError(file, f"{what}: its pose has no transform (rotation, center)") from None
     R = _numbers(rotation, 9, file, f"{what}: rotation").reshape(3, 3, order="F")  # Eigen's column-major order
     C = _numbers(centre, 3, file, f"{what}: center")
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-        raise ScanError(file, f"{what}: its rotation is no rotation")
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ C
-    return w2c
+    return world_to_camera_from(R, C, file, what)
 
 
 def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = None) -> Path:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
 from scantex.photos.files import check_sizes
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
@@ -256,13 +256,8 @@ def _world_to_camera(c2w: np.ndarray, xml: Path, what: str) -> np.ndarray:
     scale = np.cbrt(np.linalg.det(c2w[:3, :3]))
     if not scale > 0:
         raise ScanError(xml, f"{what}: its transform is no rigid motion (determinant {scale ** 3:.3g})")
-    R = c2w[:3, :3] / scale
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
-        raise ScanError(xml, f"{what}: its transform's rotation is not orthonormal")
-    w2c = np.eye(4)
-    w2c[:3, :3] = R.T
-    w2c[:3, 3] = -R.T @ c2w[:3, 3]
-    return w2c
+    return world_to_camera_from((c2w[:3, :3] / scale).T, c2w[:3, 3], xml, what,
+                                "its transform's rotation is not orthonormal")
 
 
 def _photo(label: str, folders: list[Path], xml: Path, what: str) -> Path:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from scantex.errors import ScanError
-from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, world_to_camera_from
 from scantex.photos.files import check_sizes
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
@@ -150,12 +150,7 @@ def load_openmvs(path: str | Path, *, image_dir: str | Path | None = None,
         width, height = image_size(image)
         K = _full_K(cam, width, height)
         check_intrinsics(K, width, height, file, what)
-        R = cam.R @ R_pose
-        if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-            raise ScanError(file, f"{what}: its rotation is no rotation")
-        centre = R_pose.T @ cam.C + C_pose
-        w2c = np.eye(4)
-        w2c[:3, :3], w2c[:3, 3] = R, -R @ centre
+        w2c = world_to_camera_from(cam.R @ R_pose, R_pose.T @ cam.C + C_pose, file, what)
         if not np.isfinite(w2c).all():
             raise ScanError(file, f"{what}: its pose is not finite")
         cameras.append(Camera(K, w2c, width, height))

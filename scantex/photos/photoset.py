@@ -483,9 +483,16 @@ def into_photo_view(depth: np.ndarray, warp: np.ndarray) -> np.ndarray:
     y, x = (np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w
     qx = warp[0, 0] * x[None, :] + warp[0, 1] * y[:, None] + warp[0, 2]
     qy = np.broadcast_to(warp[1, 1] * y[:, None] + warp[1, 2], qx.shape)
-    ud, vd = np.floor(qx * w), np.floor(qy * h)  # the pixel a share falls in: nearest sampling
+    return nearest_at_shares(depth, qx, qy)
+
+
+def nearest_at_shares(depth: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+    """``depth`` sampled, nearest (no depth averaged across an edge), at shares of it (``(u + 0.5) / w``, ``(v + 0.5)
+    / h``; ``sx``, ``sy`` of one shape): ``float32`` of that shape, NaN where a share falls outside the map."""
+    h, w = depth.shape
+    ud, vd = np.floor(sx * w), np.floor(sy * h)  # the pixel a share falls in
     inside = (ud >= 0) & (ud < w) & (vd >= 0) & (vd < h)
-    out = np.full((h, w), np.nan, np.float32)
+    out = np.full(np.shape(sx), np.nan, np.float32)
     out[inside] = depth[vd[inside].astype(np.intp), ud[inside].astype(np.intp)]
     return out
 
