@@ -17,6 +17,7 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.metashape` Agisoft Metashape's cameras XML,
 - :mod:`~scantex.photos.meshroom` Meshroom's (AliceVision's) ``cameras.sfm``,
 - :mod:`~scantex.photos.openmvs` OpenMVS's ``scene.mvs``,
+- :mod:`~scantex.photos.openmvg` OpenMVG's ``sfm_data.json``,
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
 ::
@@ -41,6 +42,7 @@ from scantex.photos.metashape import load_metashape, write_metashape
 from scantex.photos.mve import load_mve, write_mve
 from scantex.photos.mve_scene import load_mve_scene, write_mve_scene
 from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
+from scantex.photos.openmvg import load_openmvg, write_openmvg
 from scantex.photos.openmvs import load_openmvs, write_openmvs
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.photos.polycam import load_polycam, write_polycam
@@ -50,7 +52,7 @@ from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment", "detect_format",
            "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_meshroom",
-           "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_openmvs", "load_photos",
-           "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment", "write_3dscannerapp",
+           "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_openmvg", "load_openmvs",
+           "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment", "write_3dscannerapp",
            "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_meshroom", "write_metashape",
-           "write_mve", "write_mve_scene", "write_nerfstudio", "write_openmvs", "write_polycam"]
+           "write_mve", "write_mve_scene", "write_nerfstudio", "write_openmvg", "write_openmvs", "write_polycam"]

@@ -25,6 +25,24 @@ def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
     return path
 
 
+def find_photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = None) -> Path:
+    """The photo a photogrammetry file names by the path it had where the reconstruction ran (Meshroom's, OpenMVG's):
+    there, else by its name in ``image_dir``, beside ``file`` or in an ``images/`` folder there or a folder up."""
+    named = Path(recorded.replace("\\", "/"))
+    try:
+        if named.is_file():
+            return named
+    except OSError:  # a name too long for this system: looked for by its last part below
+        pass
+    folders = ([Path(image_dir)] if image_dir is not None else []) + [file.parent, file.parent / "images",
+                                                                       file.parent.parent / "images"]
+    for folder in folders:
+        if (folder / named.name).is_file():
+            return folder / named.name
+    raise ScanError(file, f"{what}: its photo is neither at {recorded} nor in {', '.join(str(f) for f in folders)} "
+                          "(name the photos' folder with --images DIR)")
+
+
 def folder_of(path: Path) -> Path:
     """The folder ``path`` is, or holds it when it is a file (one frame's file names its capture's folder); a
     ScanError when there is none."""

@@ -17,6 +17,7 @@ from scantex.photos import (
     mve,
     mve_scene,
     nerfstudio,
+    openmvg,
     openmvs,
     polycam,
     rgbd_frames,
@@ -33,7 +34,7 @@ LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + imag
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
            "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape), cameras.sfm "
-           "(Meshroom), scene.mvs (OpenMVS) or photos beside .cam files (texrecon)")
+           "(Meshroom), sfm_data.json (OpenMVG), scene.mvs (OpenMVS) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -69,6 +70,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return meshroom.FORMAT, path
         if path.suffix.lower() == ".mvs":
             return openmvs.FORMAT, path
+        if path.suffix.lower() == ".bin" and path.stem.lower().startswith("sfm_data"):
+            return openmvg.FORMAT, path
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -78,6 +81,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         doc = load_json(path)
         if cameras_json.is_cameras_json(doc):
             return cameras_json.FORMAT, path
+        if openmvg.is_sfm_data(doc):  # before Meshroom's: both hold views and intrinsics
+            return openmvg.FORMAT, path
         if meshroom.is_sfm(doc):
             return meshroom.FORMAT, path
         frames = doc.get("frames") if isinstance(doc, dict) else None
@@ -116,13 +121,15 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return meshroom.FORMAT, meshroom.sfm_file(path)
     if openmvs.scene_file(path) is not None:
         return openmvs.FORMAT, openmvs.scene_file(path)
+    if openmvg.sfm_data_file(path) is not None:
+        return openmvg.FORMAT, openmvg.sfm_data_file(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 
 #: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)
-IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvs.FORMAT)
+IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvg.FORMAT, openmvs.FORMAT)
 
 
 def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX,
@@ -135,9 +142,10 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
             ...) or a folder that holds one.
         max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
             one is undone when a photo is read (:mod:`scantex.photos.lens`).
-        image_dir: the folder holding the photos a COLMAP model, a Metashape XML, a Meshroom ``cameras.sfm`` or an
-            OpenMVS scene names, where they are elsewhere than the formats look (the photo-taking folder of a
-            Metashape project); other formats name their photos' files themselves (a warning says it is not used).
+        image_dir: the folder holding the photos a COLMAP model, a Metashape XML, a Meshroom ``cameras.sfm``, an
+            OpenMVG ``sfm_data.json`` or an OpenMVS scene names, where they are elsewhere than the formats look (the
+            photo-taking folder of a Metashape project); other formats name their photos' files themselves (a warning
+            says it is not used).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
@@ -150,7 +158,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
                arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
                metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom,
-               openmvs.FORMAT: openmvs.load_openmvs}
+               openmvs.FORMAT: openmvs.load_openmvs, openmvg.FORMAT: openmvg.load_openmvg}
     options = {"max_distortion_px": max_distortion_px}
     if image_dir is not None:
         if not Path(image_dir).is_dir():

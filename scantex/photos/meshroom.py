@@ -33,7 +33,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, load_json
+from scantex.photos.files import check_sizes, find_photo, load_json
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -123,7 +123,7 @@ def load_meshroom(path: str | Path, *, image_dir: str | Path | None = None,
         cameras.append(camera)
         distortions.append(distortion)
         lenses.append(lens)
-        images.append(_photo(str(view.get("path", "")), file, what, image_dir))
+        images.append(find_photo(str(view.get("path", "")), file, what, image_dir))
     for count, why in ((unposed, "have no pose (not reconstructed)"), (rig, "belong to a rig, which scantex does not "
                                                                             "read")):
         if count:
@@ -235,24 +235,6 @@ def _world_to_camera(pose: dict, file: Path, what: str) -> np.ndarray:
     R = _numbers(rotation, 9, file, f"{what}: rotation").reshape(3, 3, order="F")  # Eigen's column-major order
     C = _numbers(centre, 3, file, f"{what}: center")
     return world_to_camera_from(R, C, file, what)
-
-
-def _photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = None) -> Path:
-    """The photo a view names: where Meshroom read it, else by its name in ``image_dir``, beside the SfM file or in
-    an ``images/`` folder there or a folder up."""
-    named = Path(recorded.replace("\\", "/"))
-    try:
-        if named.is_file():
-            return named
-    except OSError:  # a name too long for this system: looked for by its last part below
-        pass
-    folders = ([Path(image_dir)] if image_dir is not None else []) + [file.parent, file.parent / "images",
-                                                                       file.parent.parent / "images"]
-    for folder in folders:
-        if (folder / named.name).is_file():
-            return folder / named.name
-    raise ScanError(file, f"{what}: its photo is neither at {recorded} nor in {', '.join(str(f) for f in folders)} "
-                          "(name the photos' folder with --images DIR)")
 
 
 def write_meshroom(photos: PhotoSet, out_dir: str | Path) -> Path:
