@@ -696,9 +696,9 @@ def add_photo_read_options(p, photos_option: str) -> None:
                         "images); stronger distortion is undone when the photos are read (default: 1)")
     p.add_argument("--images", type=Path, default=None, metavar="DIR",
                    help=f"with {photos_option}: the folder holding the photos a COLMAP model, a Metashape XML, a "
-                        "Meshroom cameras.sfm, an OpenMVG sfm_data.json or an OpenMVS scene names, where it is not "
-                        "beside the camera file (default: looked for there, in its images/ folder, and where the "
-                        "format says)")
+                        "Meshroom cameras.sfm, an OpenMVG sfm_data.json, an OpenMVS scene, a Bundler list or a "
+                        "VisualSfM .nvm names, where it is not beside the camera file (default: looked for there, in "
+                        "its images/ folder, and where the format says)")
 
 
 def photo_read_settings(args) -> dict:
@@ -822,7 +822,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "or ScanNet's exported frames, RGB-D frame files (frame-000000.color.png + .pose.txt: "
                              "Intrinsic3D, a .sens export), an ARKitScenes capture (lowres_wide.traj), an MVE scene "
                              "(views/*.mve), texrecon's scene folder (photos beside .cam files), a Metashape "
-                             "cameras .xml, a Meshroom cameras.sfm, an OpenMVG sfm_data.json or an OpenMVS scene.mvs; "
+                             "cameras .xml, a Meshroom cameras.sfm, an OpenMVG sfm_data.json, an OpenMVS scene.mvs, a "
+                             "Bundler bundle.out with its list.txt (RealityCapture's export) or a VisualSfM .nvm; "
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")

@@ -18,6 +18,8 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.meshroom` Meshroom's (AliceVision's) ``cameras.sfm``,
 - :mod:`~scantex.photos.openmvs` OpenMVS's ``scene.mvs``,
 - :mod:`~scantex.photos.openmvg` OpenMVG's ``sfm_data.json``,
+- :mod:`~scantex.photos.bundler` Bundler's ``bundle.out`` with its image list (RealityCapture's, Metashape's export),
+- :mod:`~scantex.photos.nvm` VisualSfM's ``.nvm``,
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
 ::
@@ -34,6 +36,7 @@ from scantex.photos.alignment import (
            require_alignment,
 )
 from scantex.photos.arkitscenes import load_arkitscenes
+from scantex.photos.bundler import load_bundler, write_bundler
 from scantex.photos.cameras_json import load_cameras_json, write_cameras_json
 from scantex.photos.colmap import load_colmap, write_colmap_binary, write_colmap_text
 from scantex.photos.load import detect_format, load_photos
@@ -42,6 +45,7 @@ from scantex.photos.metashape import load_metashape, write_metashape
 from scantex.photos.mve import load_mve, write_mve
 from scantex.photos.mve_scene import load_mve_scene, write_mve_scene
 from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
+from scantex.photos.nvm import load_nvm, write_nvm
 from scantex.photos.openmvg import load_openmvg, write_openmvg
 from scantex.photos.openmvs import load_openmvs, write_openmvs
 from scantex.photos.photoset import Distortion, PhotoSet
@@ -51,8 +55,9 @@ from scantex.photos.scannerapp import load_3dscannerapp, write_3dscannerapp
 from scantex.photos.scannet import load_scannet
 
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment", "detect_format",
-           "load_3dscannerapp", "load_arkitscenes", "load_cameras_json", "load_colmap", "load_meshroom",
-           "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_openmvg", "load_openmvs",
-           "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment", "write_3dscannerapp",
-           "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_meshroom", "write_metashape",
-           "write_mve", "write_mve_scene", "write_nerfstudio", "write_openmvg", "write_openmvs", "write_polycam"]
+           "load_3dscannerapp", "load_arkitscenes", "load_bundler", "load_cameras_json", "load_colmap", "load_meshroom",
+           "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_nvm", "load_openmvg",
+           "load_openmvs", "load_photos", "load_polycam", "load_rgbd_frames", "load_scannet", "require_alignment",
+           "write_3dscannerapp", "write_bundler", "write_cameras_json", "write_colmap_binary", "write_colmap_text",
+           "write_meshroom", "write_metashape", "write_mve", "write_mve_scene", "write_nerfstudio", "write_nvm",
+           "write_openmvg", "write_openmvs", "write_polycam"]

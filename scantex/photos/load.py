@@ -10,6 +10,7 @@ import numpy as np
 from scantex.errors import ScanError
 from scantex.photos import (
     arkitscenes,
+    bundler,
     cameras_json,
     colmap,
     meshroom,
@@ -17,6 +18,7 @@ from scantex.photos import (
     mve,
     mve_scene,
     nerfstudio,
+    nvm,
     openmvg,
     openmvs,
     polycam,
@@ -34,7 +36,8 @@ LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + imag
            "also under sparse/0), keyframes/ (Polycam raw data), frame_*.json (3D Scanner App), color/ + pose/ + "
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
            "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape), cameras.sfm "
-           "(Meshroom), sfm_data.json (OpenMVG), scene.mvs (OpenMVS) or photos beside .cam files (texrecon)")
+           "(Meshroom), sfm_data.json (OpenMVG), scene.mvs (OpenMVS), bundle.out + list.txt (Bundler), a .nvm "
+           "(VisualSfM) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -72,6 +75,10 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return openmvs.FORMAT, path
         if path.suffix.lower() == ".bin" and path.stem.lower().startswith("sfm_data"):
             return openmvg.FORMAT, path
+        if path.suffix.lower() == ".out" or bundler.is_bundle(path):
+            return bundler.FORMAT, path
+        if path.suffix.lower() == ".nvm" or nvm.is_nvm(path):
+            return nvm.FORMAT, path
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -123,13 +130,18 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return openmvs.FORMAT, openmvs.scene_file(path)
     if openmvg.sfm_data_file(path) is not None:
         return openmvg.FORMAT, openmvg.sfm_data_file(path)
+    if bundler.bundle_file(path) is not None:
+        return bundler.FORMAT, bundler.bundle_file(path)
+    if nvm.nvm_file(path) is not None:
+        return nvm.FORMAT, nvm.nvm_file(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 
 #: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)
-IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvg.FORMAT, openmvs.FORMAT)
+IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvg.FORMAT, openmvs.FORMAT, bundler.FORMAT,
+                     nvm.FORMAT)
 
 
 def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX,
@@ -143,9 +155,9 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
         max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
             one is undone when a photo is read (:mod:`scantex.photos.lens`).
         image_dir: the folder holding the photos a COLMAP model, a Metashape XML, a Meshroom ``cameras.sfm``, an
-            OpenMVG ``sfm_data.json`` or an OpenMVS scene names, where they are elsewhere than the formats look (the
-            photo-taking folder of a Metashape project); other formats name their photos' files themselves (a warning
-            says it is not used).
+            OpenMVG ``sfm_data.json``, an OpenMVS scene, a Bundler file's list or a VisualSfM ``.nvm`` names, where
+            they are elsewhere than the formats look (the photo-taking folder of a Metashape project); other formats
+            name their photos' files themselves (a warning says it is not used).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
@@ -158,7 +170,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                scannet.FORMAT: scannet.load_scannet, rgbd_frames.FORMAT: rgbd_frames.load_rgbd_frames,
                arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
                metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom,
-               openmvs.FORMAT: openmvs.load_openmvs, openmvg.FORMAT: openmvg.load_openmvg}
+               openmvs.FORMAT: openmvs.load_openmvs, openmvg.FORMAT: openmvg.load_openmvg,
+               bundler.FORMAT: bundler.load_bundler, nvm.FORMAT: nvm.load_nvm}
     options = {"max_distortion_px": max_distortion_px}
     if image_dir is not None:
         if not Path(image_dir).is_dir():
