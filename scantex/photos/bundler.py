@@ -27,7 +27,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, find_photo
+from scantex.photos.files import check_sizes, converts, find_photo
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -216,8 +216,4 @@ def _radial(distortion: Distortion | None, i: int) -> tuple[float, float]:
 
 
 def _holds(distortion: Distortion, cam: Camera) -> bool:
-    try:
-        _radial(distortion, 0)
-    except ValueError:
-        return False
-    return True
+    return converts(lambda: _radial(distortion, 0))

@@ -42,7 +42,7 @@ from scantex.photos.conventions import (
     pinhole_camera,
     principal_point,
 )
-from scantex.photos.files import check_sizes, photo_suffix, write_photo
+from scantex.photos.files import check_sizes, converts, photo_suffix, write_photo
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -422,11 +422,7 @@ def _to_colmap(photos: PhotoSet) -> tuple[dict[int, _CameraModel], list[_Image]]
 
 def _holds(distortion: Distortion, cam: Camera) -> bool:
     """Whether a COLMAP model holds a lens exactly (VisualSfM's inverse model only to first order: no)."""
-    try:
-        _model_params(cam, distortion, 0)
-    except ValueError:
-        return False
-    return cam.K[0, 1] == 0 and not distortion.inverse_radial
+    return converts(lambda: _model_params(cam, distortion, 0)) and cam.K[0, 1] == 0 and not distortion.inverse_radial
 
 
 def _model_params(cam: Camera, distortion: Distortion | None, i: int) -> tuple[str, tuple[float, ...]]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -149,6 +149,16 @@ def copy_into(files, src: Path, dst: Path) -> None:
     import shutil
 
     shutil.copyfile(src, files.path(dst))
+
+
+def converts(convert: Callable[[], object]) -> bool:
+    """Whether a writer's conversion of a lens into its format's terms succeeds (each raises ValueError for a lens its
+    format cannot hold): the writers' ``holds`` test of :meth:`PhotoSet.as_stored`."""
+    try:
+        convert()
+    except ValueError:
+        return False
+    return True
 
 
 def photo_suffix(photos: PhotoSet, i: int) -> str:

@@ -33,7 +33,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, find_photo, load_json
+from scantex.photos.files import check_sizes, converts, find_photo, load_json
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -291,8 +291,4 @@ def _model(distortion: Distortion | None, i: int) -> tuple[str, tuple[float, ...
 
 
 def _holds(distortion: Distortion, cam: Camera) -> bool:
-    try:
-        _model(distortion, 0)
-    except ValueError:
-        return False
-    return cam.K[0, 1] == 0
+    return converts(lambda: _model(distortion, 0)) and cam.K[0, 1] == 0

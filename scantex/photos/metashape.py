@@ -36,7 +36,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes
+from scantex.photos.files import check_sizes, converts
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -316,11 +316,7 @@ def write_metashape(photos: PhotoSet, out_dir: str | Path) -> Path:
 
 
 def _holds(distortion: Distortion, cam: Camera) -> bool:
-    try:
-        _calibration(cam, distortion, 0)
-    except ValueError:
-        return False
-    return True
+    return converts(lambda: _calibration(cam, distortion, 0))
 
 
 def _calibration(cam: Camera, distortion: Distortion | None, i: int) -> tuple:

@@ -49,6 +49,7 @@ from scantex.photos.conventions import (
 )
 from scantex.photos.files import (
     check_sizes,
+    converts,
     load_frames_file,
     need,
     number,
@@ -192,11 +193,7 @@ def write_nerfstudio(photos: PhotoSet, out_dir: str | Path) -> Path:
 
 def _holds(distortion: Distortion, cam: Camera) -> bool:
     """Whether nerfstudio's models hold a lens exactly (VisualSfM's inverse model only to first order: no)."""
-    try:
-        _distortion_keys(distortion, 0)
-    except ValueError:
-        return False
-    return cam.K[0, 1] == 0 and not distortion.inverse_radial
+    return converts(lambda: _distortion_keys(distortion, 0)) and cam.K[0, 1] == 0 and not distortion.inverse_radial
 
 
 def _distortion_keys(distortion: Distortion | None, i: int) -> dict:

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from scantex.photos import detect_format, load_photos
 from scantex.views.camera import Camera
+from tests.photos.projection import stored_pixel
 
 W, H = 64, 48
 F = 55.0
@@ -108,16 +109,6 @@ def inside(pixels: np.ndarray) -> np.ndarray:
     return (pixels[:, 0] > -0.5) & (pixels[:, 0] < W - 0.5) & (pixels[:, 1] > -0.5) & (pixels[:, 1] < H - 0.5)
 
 
-def scantex_pixel(photos, i: int, points) -> np.ndarray:
-    stored = photos.as_stored().cameras[i]
-    x_cam = stored.world_to_camera[:3, :3] @ np.asarray(points).T + stored.world_to_camera[:3, 3:]
-    x, y = x_cam[0] / x_cam[2], x_cam[1] / x_cam[2]
-    if photos.distortions[i] is not None:
-        x, y = photos.distortions[i].distort(x, y)
-    K = stored.K
-    return np.stack([K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]], 1)
-
-
 POINTS = np.array([0.5, 0.5, 0.5]) + np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
 
 
@@ -130,7 +121,7 @@ def test_bundler_cameras_project_as_bundler_projects(tmp_path, k):
     assert photos.format == "bundler" and len(photos) == 2
     assert (photos.lenses[0] is None) == (k == (0.0, 0.0))
     for i in range(2):
-        np.testing.assert_allclose(scantex_pixel(photos, i, POINTS), bundler_pixel(POINTS, i, k), atol=1e-6)
+        np.testing.assert_allclose(stored_pixel(photos, i, POINTS), bundler_pixel(POINTS, i, k), atol=1e-6)
         w2c = photos.cameras[i].world_to_camera
         np.testing.assert_allclose(-w2c[:3, :3].T @ w2c[:3, 3], POSES[i][1], atol=1e-9)
 
@@ -165,7 +156,7 @@ def test_nvm_cameras_project_as_visualsfm_projects(tmp_path, r9t, r):
         expected = vsfm_pixel(POINTS, i, r)
         seen = inside(expected)
         assert seen.sum() >= 10
-        np.testing.assert_allclose(scantex_pixel(photos, i, POINTS)[seen], expected[seen], atol=1e-6)
+        np.testing.assert_allclose(stored_pixel(photos, i, POINTS)[seen], expected[seen], atol=1e-6)
 
 
 def test_nvm_fixed_calibration_and_several_models(tmp_path, caplog):
@@ -178,7 +169,7 @@ def test_nvm_fixed_calibration_and_several_models(tmp_path, caplog):
         expected = vsfm_pixel(POINTS, i, -0.05, K)
         seen = inside(expected)
         assert seen.sum() >= 10
-        np.testing.assert_allclose(scantex_pixel(photos, i, POINTS)[seen], expected[seen], atol=1e-6)
+        np.testing.assert_allclose(stored_pixel(photos, i, POINTS)[seen], expected[seen], atol=1e-6)
 
 
 @pytest.mark.parametrize("fmt", ["bundler", "nvm"])

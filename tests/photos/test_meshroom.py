@@ -12,6 +12,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from scantex.photos import detect_format, load_photos
+from tests.photos.projection import stored_pixel
 
 W, H = 64, 48
 FX, FY, OFFSET = 55.0, 53.5, (1.25, -0.75)
@@ -82,16 +83,6 @@ def alicevision_pixel(points, i: int, model: str, fy: float = FY) -> np.ndarray:
     return np.stack([FX * x + W / 2 + OFFSET[0], fy * y + H / 2 + OFFSET[1]], 1)
 
 
-def scantex_pixel(photos, i: int, points) -> np.ndarray:
-    stored = photos.as_stored().cameras[i]
-    x_cam = stored.world_to_camera[:3, :3] @ np.asarray(points).T + stored.world_to_camera[:3, 3:]
-    x, y = x_cam[0] / x_cam[2], x_cam[1] / x_cam[2]
-    if photos.distortions[i] is not None:
-        x, y = photos.distortions[i].distort(x, y)
-    K = stored.K
-    return np.stack([K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]], 1)
-
-
 @pytest.mark.parametrize("version, model", [((1, 2, 5), "radial3"), ((1, 2, 5), "brown"), ((1, 2, 5), "fisheye4"),
                                             ((1, 2, 4), "radial3"), ((1, 2, 1), "pinhole"), ((1, 0, 0), "radial3"),
                                             ((1, 2, 8), "brown"), ((1, 2, 11), "radial3"), ((1, 2, 11), "fisheye4")])
@@ -108,7 +99,7 @@ def test_cameras_project_as_alicevision_projects(tmp_path, version, model):
     points = np.array([0.5, 0.5, 0.5]) + rng.uniform(-0.4, 0.4, (50, 3))
     fy = FX if version < (1, 2, 0) else FY  # a single focal length before 1.2.0
     for i in range(2):
-        np.testing.assert_allclose(scantex_pixel(photos, i, points), alicevision_pixel(points, i, model, fy),
+        np.testing.assert_allclose(stored_pixel(photos, i, points), alicevision_pixel(points, i, model, fy),
                                    atol=1e-6)
         w2c = photos.cameras[i].world_to_camera
         np.testing.assert_allclose(-w2c[:3, :3].T @ w2c[:3, 3], POSES[i][1], atol=1e-9)

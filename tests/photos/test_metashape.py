@@ -11,6 +11,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from scantex.photos import detect_format, load_photos
+from tests.photos.projection import stored_pixel
 
 W, H = 64, 48
 CALIB = {"f": 52.0, "cx": 1.75, "cy": -2.25, "b1": 0.8, "b2": -0.3, "k1": -0.12, "k2": 0.05, "k3": 0.0, "k4": 0.004,
@@ -90,15 +91,6 @@ def metashape_pixel(X_world, c2chunk: np.ndarray, sensor_type: str = "frame") ->
     return np.stack([u - 0.5, v - 0.5], 1)
 
 
-def scantex_pixel(photos, i: int, X_world) -> np.ndarray:
-    """Where photo ``i``'s stored image shows world points: scantex's pose and lens as read."""
-    stored = photos.as_stored().cameras[i]
-    x_cam = stored.world_to_camera[:3, :3] @ np.asarray(X_world).T + stored.world_to_camera[:3, 3:]
-    xd, yd = photos.distortions[i].distort(x_cam[0] / x_cam[2], x_cam[1] / x_cam[2])
-    K = stored.K
-    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], 1)
-
-
 @pytest.mark.parametrize("components, sensor_type", [(False, "frame"), (True, "frame"), (False, "fisheye")],
                          ids=["1.x chunk transform", "2.x component transform", "fisheye"])
 def test_cameras_project_as_metashape_projects(tmp_path, components, sensor_type):
@@ -112,7 +104,7 @@ def test_cameras_project_as_metashape_projects(tmp_path, components, sensor_type
     rng = np.random.default_rng(1)
     points = np.array([0.5, 0.5, 0.5]) + rng.uniform(-0.4, 0.4, (50, 3))
     for i, (eye, target) in enumerate(EYES):
-        np.testing.assert_allclose(scantex_pixel(photos, i, points),
+        np.testing.assert_allclose(stored_pixel(photos, i, points),
                                    metashape_pixel(points, chunk_camera(eye, target), sensor_type), atol=1e-6)
         # the camera sits where it was put in the world (the chunk's scale taken out of the pose)
         w2c = photos.cameras[i].world_to_camera

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from scantex.photos import detect_format, load_photos
 from scantex.photos.photoset import PhotoSet
 from scantex.views.camera import Camera
+from tests.photos.projection import stored_pixel
 
 W, H = 64, 48
 F, PP = 55.0, (33.25, 22.75)
@@ -82,16 +83,6 @@ def openmvg_pixel(points, i: int, model: str) -> np.ndarray:
     return np.stack([F * x + PP[0], F * y + PP[1]], 1)
 
 
-def scantex_pixel(photos, i: int, points) -> np.ndarray:
-    stored = photos.as_stored().cameras[i]
-    x_cam = stored.world_to_camera[:3, :3] @ np.asarray(points).T + stored.world_to_camera[:3, 3:]
-    x, y = x_cam[0] / x_cam[2], x_cam[1] / x_cam[2]
-    if photos.distortions[i] is not None:
-        x, y = photos.distortions[i].distort(x, y)
-    K = stored.K
-    return np.stack([K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]], 1)
-
-
 @pytest.mark.parametrize("model", list(MODELS))
 def test_cameras_project_as_openmvg_projects(tmp_path, model):
     """World points land where OpenMVG puts them: one focal length, the principal point from the corner, the
@@ -103,7 +94,7 @@ def test_cameras_project_as_openmvg_projects(tmp_path, model):
     rng = np.random.default_rng(1)
     points = np.array([0.5, 0.5, 0.5]) + rng.uniform(-0.4, 0.4, (50, 3))
     for i in range(2):
-        np.testing.assert_allclose(scantex_pixel(photos, i, points), openmvg_pixel(points, i, model), atol=1e-6)
+        np.testing.assert_allclose(stored_pixel(photos, i, points), openmvg_pixel(points, i, model), atol=1e-6)
         w2c = photos.cameras[i].world_to_camera
         np.testing.assert_allclose(-w2c[:3, :3].T @ w2c[:3, 3], POSES[i][1], atol=1e-9)
 
