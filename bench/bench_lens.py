@@ -1,6 +1,6 @@
 """Photos through a distorting lens, in each photogrammetry tool's format, on the real façade (skips without it).
 
-    python bench/bench_lens.py     # a barrel lens and a fisheye: COLMAP, Metashape, Meshroom, OpenMVG, OpenMVS
+    python bench/bench_lens.py     # a barrel lens, a fisheye (COLMAP, Metashape, Meshroom, OpenMVG, OpenMVS), centred
     python bench/bench_lens.py --lens fisheye --no-write
 
 The façade's 8 training photos (``../shared/data/facade_openmvs``, held-out photos 2 and 7) are drawn again through a
@@ -11,8 +11,10 @@ written as a COLMAP text model (``OPENCV`` or ``OPENCV_FISHEYE``), and from it b
 :func:`write_meshroom`, :func:`write_openmvg` and :func:`write_openmvs` (whose format holds no lens: the photos
 written undistorted, as PNGs); ``scantex enhance`` is given the app-style input and each (``--holdout 0``), and the
 written texture is scored through the held-out photos' cameras at 640 px, colour-matched, against the same run on the
-original photos (``cameras.json``). Each run is its own process. Writes the 'lens formats' section of
-bench/RESULTS.md.
+original photos (``cameras.json``). The originals are also resampled so that their principal point is the image's
+centre (``centred``: Bundler's and VisualSfM's formats have no principal point, and the tools exporting them resample
+their photos so) and written by :func:`write_bundler` and :func:`write_nvm`. Each run is its own process. Writes the
+'lens formats' section of bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -108,6 +110,36 @@ def draw_through_lens(lens: str, out: Path) -> Path:
     return out
 
 
+def centre_photos(out: Path) -> Path:
+    """The training photos resampled so that their principal point is the image's centre, cropped to the largest such
+    window (bilinear), as RealityCapture's and Metashape's Bundler exports write undistorted photos; their
+    ``cameras.json`` in ``out``; returns its path."""
+    from PIL import Image
+    from scipy.ndimage import map_coordinates
+
+    doc = json.loads((DATA / "cameras.json").read_text())
+    out.mkdir(parents=True)
+    frames = []
+    for i in TRAIN:
+        frame = doc["frames"][i]
+        K, (W, H) = np.array(frame["K"]), (frame["width"], frame["height"])
+        half_w = int(np.floor(min(K[0, 2] + 0.5, W - 0.5 - K[0, 2]))) - 1
+        half_h = int(np.floor(min(K[1, 2] + 0.5, H - 0.5 - K[1, 2]))) - 1
+        w, h = 2 * half_w, 2 * half_h
+        photo = np.asarray(Image.open(DATA / frame["image"]).convert("RGB"), np.float32)
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        # the centred photo's pixel (u, v) shows the original's (cx - (w - 1) / 2 + u, cy - (h - 1) / 2 + v)
+        at = [v + K[1, 2] - (h - 1) / 2, u + K[0, 2] - (w - 1) / 2]
+        centred = np.stack([map_coordinates(photo[..., c], at, order=1) for c in range(3)], -1)
+        name = out / f"{i:05d}.png"
+        Image.fromarray(np.clip(np.round(centred), 0, 255).astype(np.uint8)).save(name)
+        Kc = K.copy()
+        Kc[0, 2], Kc[1, 2] = (w - 1) / 2, (h - 1) / 2
+        frames.append(dict(frame, image=str(name), width=w, height=h, K=Kc.tolist()))
+    (out / "cameras.json").write_text(json.dumps(dict(doc, frames=frames)))
+    return out / "cameras.json"
+
+
 def frames_file(indices, out: Path) -> Path:
     doc = json.loads((DATA / "cameras.json").read_text())
     doc["frames"] = [dict(doc["frames"][i], image=str(DATA / doc["frames"][i]["image"])) for i in indices]
@@ -124,20 +156,28 @@ def enhance(photos: Path, out: Path) -> tuple[float, Path]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lens", choices=sorted(LENSES), action="append")
+    parser.add_argument("--lens", choices=sorted(LENSES) + ["centred"], action="append",
+                        help="a lens to draw the photos through, or centred: the originals resampled to a centred "
+                             "principal point, as Bundler's and VisualSfM's formats need (default: all)")
     parser.add_argument("--no-write", action="store_true", help="print only, leave RESULTS.md alone")
     args = parser.parse_args()
     if not DATA.exists():
         print(f"{DATA} not present: nothing to do")
         return
-    from scantex.photos import load_photos, write_meshroom, write_metashape, write_openmvg, write_openmvs
+    from scantex.photos import (load_photos, write_bundler, write_meshroom, write_metashape, write_nvm, write_openmvg,
+                                write_openmvs)
 
     lines = ["## Photos through a lens, in each tool's format (`bench/bench_lens.py`)", "",
              "| photos given | held-out colour-matched PSNR dB (SSIM) | enhance s |", "|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="scantex-lens-") as tmp:
         tmp = Path(tmp)
         runs = {"originals (`cameras.json`, pinhole)": frames_file(TRAIN, tmp / "train.json")}
-        for lens in args.lens or sorted(LENSES):
+        for lens in args.lens or sorted(LENSES) + ["centred"]:
+            if lens == "centred":  # no lens: the photos resampled as Bundler and VisualSfM exports write them
+                photos = load_photos(centre_photos(tmp / lens / "photos"))
+                runs["centred: Bundler `bundle.out`"] = write_bundler(photos, tmp / lens / "bundler")
+                runs["centred: VisualSfM `.nvm`"] = write_nvm(photos, tmp / lens / "nvm")
+                continue
             colmap = draw_through_lens(lens, tmp / lens / "colmap")
             photos = load_photos(colmap)
             runs[f"{lens}: COLMAP `{LENSES[lens][0]}`"] = colmap
@@ -160,8 +200,9 @@ def main() -> None:
         lines.append(f"| {label} | **{psnr:.2f}** ({ssim:.3f}) | {seconds[label]:.1f} |")
     described = ", ".join(f"{name}: {model} {params}, focal length {zoom} times the original"
                           for name, (model, params, _, zoom) in LENSES.items())
-    lines += ["", f"The façade's training photos {TRAIN} drawn through each lens ({described}), held-out photos "
-              f"{HELD}; one run each. Command: `python bench/bench_lens.py`"]
+    lines += ["", f"The façade's training photos {TRAIN} drawn through each lens ({described}), or resampled so that "
+              "their principal point is the image's centre and cropped (2756x2002, as a Bundler export writes them: "
+              f"centred), held-out photos {HELD}; one run each. Command: `python bench/bench_lens.py`"]
     print("\n".join(lines))
     if not args.no_write:
         update_section("lens formats", "\n".join(lines))
