@@ -13,9 +13,9 @@ Conventions (Bundler's manual, "Output format"), and what scantex does with them
   the lens OpenCV's ``k1, k2``, undone as each photo is read where it moves pixels by more than
   ``max_distortion_px`` (:mod:`scantex.photos.lens`).
 - The photos: one per camera, in order, in the image list beside the file (``<name>-list.txt``, ``<name>.txt``,
-  ``<name>.lst``, COLMAP's ``<prefix>.list.txt`` beside ``<prefix>.bundle.out``, ``list.txt`` or ``image_list.txt``; a
-  line's first word, relative to the list's folder, else by name in ``--images DIR`` or an ``images/`` folder); their
-  sizes from their files.
+  ``<name>.lst``, COLMAP's ``<prefix>.list.txt`` beside ``<prefix>.bundle.out``, ``list.rd.txt`` beside Bundler's
+  ``bundle.rd.out``, ``list.txt`` or ``image_list.txt``, one line a camera; a line's first word, relative to the
+  list's folder, else by name in ``--images DIR`` or an ``images/`` folder); their sizes from their files.
 """
 
 from __future__ import annotations
@@ -63,7 +63,9 @@ def list_file(file: Path) -> Path | None:
     """The image list beside a Bundler file (see the module docstring); ``None`` if none."""
     stem = file.name[:-len(file.suffix)] if file.suffix else file.name
     prefix = stem[:-len(".bundle")] if stem.lower().endswith(".bundle") else stem  # COLMAP's <prefix>.bundle.out
-    for name in (f"{stem}-list.txt", f"{stem}.txt", f"{stem}.lst", f"{prefix}.list.txt", "list.txt",
+    # Bundler's RadialUndistort writes bundle.rd.out (its registered cameras alone) with list.rd.txt
+    radial = [f"list{stem[len('bundle'):]}.txt"] if stem.lower().startswith("bundle.") else []
+    for name in (f"{stem}-list.txt", f"{stem}.txt", f"{stem}.lst", f"{prefix}.list.txt", *radial, "list.txt",
                  "image_list.txt"):
         if (file.parent / name).is_file():
             return file.parent / name
@@ -97,8 +99,8 @@ def load_bundler(path: str | Path, *, image_dir: str | Path | None = None,
     n = int(numbers[0])
     if numbers.size < 2 + 15 * n:
         raise ScanError(file, f"it ends before its {n} cameras do")
-    if len(names) < n:
-        raise ScanError(listed, f"names {len(names)} photos, {file.name} has {n} cameras")
+    if len(names) != n:  # one line a camera: another count is another reconstruction's list (bundle.rd.out's)
+        raise ScanError(listed, f"names {len(names)} photos, {file.name} has {n} cameras (one line a camera)")
     cameras, images, distortions, lenses = [], [], [], []
     unregistered = 0
     for i in range(n):
@@ -169,7 +171,8 @@ def _numbers(file: Path) -> np.ndarray:
 def write_bundler(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write ``out_dir/bundle.out`` and ``list.txt`` with the photos copied beside them as ``photo_000.<ext>``; returns
     the bundle's path. A photo undistorted when read is written as stored with its lens where Bundler's holds it (two
-    radial terms), else undistorted (a PNG).
+    radial terms), else undistorted (a PNG). No points are written (some readers, OpenMVS's ``InterfaceVisualSFM``
+    among them, want a sparse cloud too).
 
     Raises:
         ValueError: a camera Bundler cannot hold (two focal lengths, a skew, or the principal point off the image's

@@ -27,8 +27,11 @@ def resolve_file(base: Path, name: str, where: Path, what: str) -> Path:
 
 def find_photo(recorded: str, file: Path, what: str, image_dir: str | Path | None = None) -> Path:
     """The photo a photogrammetry file names by the path it had where the reconstruction ran (Meshroom's, OpenMVG's):
-    there, else by its name in ``image_dir``, beside ``file`` or in an ``images/`` folder there or a folder up."""
+    there (a relative path from ``file``'s folder, never from the working folder: another capture's photo of that name
+    could be there), else by its name in ``image_dir``, beside ``file`` or in an ``images/`` folder there or a folder
+    up."""
     named = Path(recorded.replace("\\", "/"))
+    named = named if named.is_absolute() else file.parent / named
     try:
         if named.is_file():
             return named

@@ -136,6 +136,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return nvm.FORMAT, nvm.nvm_file(path)
     if mve.is_scene_folder(path):
         return mve.FORMAT, path
+    if openmvg.sfm_data_file(path, ".bin") is not None:  # OpenMVG's default output: refused, saying how to convert it
+        return openmvg.FORMAT, openmvg.sfm_data_file(path, ".bin")
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 

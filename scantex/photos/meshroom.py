@@ -199,11 +199,11 @@ def _intrinsic(intrinsic: dict, version: tuple[int, ...], file: Path, what: str)
     expected = DISTORTIONS[distortion_type]
     if params.size and params.size != expected:
         raise ScanError(file, f"{what}: a {distortion_type} distortion has {expected} parameters, not {params.size}")
+    if distortion_type == "fisheye":  # of no coefficients still a fisheye (theta = atan r)
+        return K, (w, h), Distortion("fisheye4", tuple(params) or (0.0,) * 4, projection="equidistant")
     if not params.any():
         return K, (w, h), None
-    if distortion_type == "fisheye":
-        distortion = Distortion("fisheye4", tuple(params), projection="equidistant")
-    elif distortion_type == "brown":
+    if distortion_type == "brown":
         distortion = Distortion("brown", tuple(params[:3]), (params[3], params[4]))
     else:
         distortion = Distortion(distortion_type, tuple(params))

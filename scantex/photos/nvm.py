@@ -85,6 +85,7 @@ def load_nvm(path: str | Path, *, image_dir: str | Path | None = None,
     if len(words) < at + per_camera * n:
         raise ScanError(file, f"it ends before its {n} cameras do")
     cameras, images, distortions, lenses = [], [], [], []
+    warned_focal = False
     for i in range(n):
         fields = words[at:at + per_camera]
         at += per_camera
@@ -97,6 +98,10 @@ def load_nvm(path: str | Path, *, image_dir: str | Path | None = None,
         if fixed is not None:
             fx, cx, fy, cy = fixed[:4]
             r = fixed[4] or r
+            if abs(f - fx) > 1e-6 * fx and not warned_focal:
+                log.warning("%s: %s: its focal length %g is not FixedK's fx %g: FixedK's calibration is used", file,
+                            what, f, fx)
+                warned_focal = True
         else:
             fx = fy = f
             cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
@@ -106,7 +111,9 @@ def load_nvm(path: str | Path, *, image_dir: str | Path | None = None,
             R = rotation.reshape(3, 3)
             centre = -R.T @ centre  # the file's translation
         else:
-            q = rotation / max(np.linalg.norm(rotation), 1e-300)  # w, x, y, z
+            if not np.linalg.norm(rotation) > 0:
+                raise ScanError(file, f"{what}: its quaternion is zero")
+            q = rotation / np.linalg.norm(rotation)  # w, x, y, z
             R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
         w2c = world_to_camera_from(R, centre, file, what)
         distortion = Distortion("VisualSfM", (-r,), inverse_radial=(r,)) if r else None
@@ -115,7 +122,7 @@ def load_nvm(path: str | Path, *, image_dir: str | Path | None = None,
         images.append(image)
         distortions.append(distortion)
         lenses.append(lens)
-    if _more_models(words, at):
+    if _more_models(words, at, per_camera):
         log.warning("%s holds more than one model: reading the first (%d cameras)", file, n)
     check_sizes(cameras, images, file)
     return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=file, format=FORMAT,
@@ -138,23 +145,31 @@ def _count(words: list[str], at: int, file: Path, what: str) -> int:
     return int(words[at])
 
 
-def _more_models(words: list[str], at: int) -> bool:
-    """Whether another model follows the first's points (its camera count after them; a last ``0`` ends the file)."""
-    if at >= len(words) or not words[at].isdigit():
-        return False
-    points = int(words[at])
+def _more_models(words: list[str], at: int, per_camera: int) -> bool:
+    """Whether another model of cameras and points follows the first's points (VisualSfM ends its file with a model of
+    the images it did not register, of no points, or a 0). Only a warning depends on it: any word that is not a
+    count where one should be ends the search."""
+    def count(k: int) -> int | None:
+        return int(words[k]) if k < len(words) and words[k].isdigit() else None
+
+    points = count(at)
     at += 1
-    for _ in range(points):  # x y z r g b n, then n measurements of 4 numbers
-        if at + 7 > len(words):
+    for _ in range(points or 0):  # x y z r g b n, then n measurements of 4 numbers
+        measured = count(at + 6)
+        if measured is None:
             return False
-        at += 7 + 4 * int(float(words[at + 6]))
-    return at < len(words) and words[at].isdigit() and int(words[at]) > 0
+        at += 7 + 4 * measured
+    cameras = count(at)
+    if not cameras:
+        return False
+    return bool(count(at + 1 + per_camera * cameras))
 
 
 def write_nvm(photos: PhotoSet, out_dir: str | Path) -> Path:
     """Write ``out_dir/scene.nvm`` (``NVM_V3``, no points) with the photos copied beside it as ``photo_000.<ext>``;
     returns its path. A photo undistorted when read is written as stored with its lens where VisualSfM's holds it (its
-    own one-term model), else undistorted (a PNG).
+    own one-term model), else undistorted (a PNG). No points are written (some readers, OpenMVS's
+    ``InterfaceVisualSFM`` among them, want a sparse cloud too).
 
     Raises:
         ValueError: a camera VisualSfM's lines cannot hold (two focal lengths, a skew, or the principal point off the
@@ -176,7 +191,7 @@ def write_nvm(photos: PhotoSet, out_dir: str | Path) -> Path:
             name = write_photo(files, photos, i, out_dir / f"photo_{i:03d}").name
             x, y, z, w = Rotation.from_matrix(cam.R).as_quat()
             centre = -cam.R.T @ cam.t
-            r = _inverse_radial(photos.distortions[i])
+            r = _inverse_radial(photos.distortions[i], i)
             lines.append(" ".join([name, repr(float(cam.K[0, 0]))] + [repr(float(v)) for v in (w, x, y, z, *centre)]
                                   + [repr(r), "0"]))
         lines += ["", "0", "", "0", ""]
@@ -184,11 +199,11 @@ def write_nvm(photos: PhotoSet, out_dir: str | Path) -> Path:
     return out_dir / "scene.nvm"
 
 
-def _inverse_radial(distortion: Distortion | None) -> float:
+def _inverse_radial(distortion: Distortion | None, i: int) -> float:
     if distortion is None or distortion.is_zero:
         return 0.0
     if not _holds(distortion, None):
-        raise ValueError(f"VisualSfM's lens cannot hold a {distortion.model} distortion")
+        raise ValueError(f"photo {i}: VisualSfM's lens cannot hold a {distortion.model} distortion")
     return float(distortion.inverse_radial[0])
 
 

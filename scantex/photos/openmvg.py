@@ -6,7 +6,8 @@ the JSON, which keeps everything. (``openMVG_main_openMVG2openMVS`` writes an Op
 photos, which scantex reads too: :mod:`scantex.photos.openmvs`.) Conventions (OpenMVG's ``sfm_data_io_cereal``,
 ``cameras/*_io.hpp``, ``geometry/pose3_io.hpp``), and what scantex does with them:
 
-- ``sfm_data_version``; ``root_path``, the photos' folder where OpenMVG ran.
+- ``sfm_data_version``; ``root_path``, the photos' folder where OpenMVG ran (a relative one from the folder it ran in:
+  the file's, or one or two above it).
 - ``views[]``: ``{key, value: {ptr_wrapper: {data: {local_path, filename, width, height, id_view, id_intrinsic,
   id_pose}}}}``; a view whose ``id_pose`` is not among the ``extrinsics`` (not reconstructed) is skipped, with a
   count. The photo: ``root_path/local_path/filename``, else by name in ``--images DIR``, beside the file, in its
@@ -54,15 +55,18 @@ def is_sfm_data(doc) -> bool:
     return isinstance(doc, dict) and "sfm_data_version" in doc and isinstance(doc.get("views"), list)
 
 
-def sfm_data_file(folder: Path) -> Path | None:
+def sfm_data_file(folder: Path, suffix: str = ".json") -> Path | None:
     """The OpenMVG ``sfm_data.json`` in ``folder``, or in its ``reconstruction_*`` folder (the newest where several
-    are); ``None`` if none."""
+    are); ``None`` if none. ``suffix`` ``".bin"``: such an ``sfm_data.bin`` (which :func:`load_openmvg` refuses,
+    saying how to convert it)."""
     try:
-        found = [p for p in [folder / "sfm_data.json", *folder.glob("reconstruction*/sfm_data.json")] if p.is_file()]
+        found = [p for p in [folder / f"sfm_data{suffix}", *folder.glob(f"reconstruction*/sfm_data{suffix}")]
+                 if p.is_file()]
     except OSError:
         return None
-    return found[0] if found and found[0].parent == folder else (
-        max(found, key=lambda p: p.stat().st_mtime) if found else None)
+    if not found:
+        return None
+    return found[0] if found[0].parent == folder else max(found, key=lambda p: p.stat().st_mtime)
 
 
 def load_openmvg(path: str | Path, *, image_dir: str | Path | None = None,
@@ -113,8 +117,8 @@ def load_openmvg(path: str | Path, *, image_dir: str | Path | None = None,
         cameras.append(camera)
         distortions.append(distortion)
         lenses.append(lens)
-        recorded = root / str(view.get("local_path", "")) / str(view.get("filename", ""))
-        images.append(find_photo(str(recorded), file, what, image_dir))
+        images.append(find_photo(_recorded(root / str(view.get("local_path", "")) / str(view.get("filename", "")),
+                                           file), file, what, image_dir))
     for count, why in ((unposed, "have no pose (not reconstructed)"),
                        (spherical, "are spherical (360) photos, which a pinhole view cannot hold")):
         if count:
@@ -129,14 +133,29 @@ def load_openmvg(path: str | Path, *, image_dir: str | Path | None = None,
                     distortions=tuple(distortions), lenses=tuple(lenses))
 
 
+def _recorded(path: Path, file: Path) -> str:
+    """A view's photo as OpenMVG names it: ``root_path`` may be relative to the folder OpenMVG ran in (its
+    tutorials' ``-i images/``), which is the file's folder or one or two above it (``matches/``,
+    ``reconstruction_sequential/``); the first where the photo is, else the file's folder's."""
+    if path.is_absolute():
+        return str(path)
+    for base in list(file.parents)[:3]:
+        if (base / path).is_file():
+            return str(base / path)
+    return str(file.parent / path)
+
+
 def _entries(value, file: Path, name: str) -> list[tuple[object, dict]]:
     """``(key, value)`` of a cereal map (a list of ``{key, value}`` objects)."""
     if not isinstance(value, list):
         raise ScanError(file, f"'{name}' is not a list")
-    out = []
+    out, keys = [], set()
     for entry in value:
         if not isinstance(entry, dict) or "key" not in entry or not isinstance(entry.get("value"), dict):
             raise ScanError(file, f"an entry of '{name}' is not a {{key, value}} object")
+        if str(entry["key"]) in keys:  # OpenMVG would keep the first, silently: which one was meant is unknown
+            raise ScanError(file, f"key {entry['key']!r} appears twice in '{name}'")
+        keys.add(str(entry["key"]))
         out.append((entry["key"], entry["value"]))
     return out
 
@@ -164,7 +183,9 @@ def _intrinsic(value: dict, file: Path, types: dict[int, str], pointers: dict[in
     if not isinstance(ident, int):
         raise ScanError(file, "an intrinsic has no polymorphic_id")
     if ident & FIRST:
-        types[ident & ~FIRST] = str(value.get("polymorphic_name", ""))
+        if not value.get("polymorphic_name"):
+            raise ScanError(file, f"an intrinsic's type {ident} has no polymorphic_name")
+        types[ident & ~FIRST] = str(value["polymorphic_name"])
     kind = types.get(ident & ~FIRST)
     if kind is None:
         raise ScanError(file, f"an intrinsic's type {ident} is named by no earlier intrinsic")
@@ -198,7 +219,7 @@ def _camera_model(kind: str, data: dict, file: Path, what: str):
     if key is None:
         return K, (w, h), None
     params = _numbers(data.get(key), n, file, f"{what}: {key}")
-    if not params.any():
+    if not params.any() and kind != "fisheye":  # a fisheye of no coefficients is still one (theta = atan r)
         return K, (w, h), None
     if kind == "fisheye":
         distortion = Distortion(kind, tuple(params), projection="equidistant")

@@ -332,11 +332,16 @@ class PhotoSet:
         ``holds`` (its distortion at the camera as stored; default: any) gets its camera as stored, the lens's
         intrinsics, which with :attr:`distortions` describe the photo file as it is (written as it is); one whose lens
         the format cannot hold keeps its pinhole camera and its lens, and loses its distortion
-        (:func:`~scantex.photos.files.write_photo` writes its undistorted photo). The intrinsics are those read:
-        a focal length refined since is not carried over."""
-        if all(lens is None for lens in self.lenses):
+        (:func:`~scantex.photos.files.write_photo` writes its undistorted photo). A distortion ignored when read (under
+        ``max_distortion_px``: the photo was taken for a pinhole one) that the format cannot hold is dropped. The
+        intrinsics are those read: a focal length refined since is not carried over."""
+        ignored = [i for i, (d, lens) in enumerate(zip(self.distortions, self.lenses))
+                   if lens is None and d is not None and holds is not None and not holds(d, self.cameras[i])]
+        if all(lens is None for lens in self.lenses) and not ignored:
             return self
         cameras, distortions, lenses = list(self.cameras), list(self.distortions), list(self.lenses)
+        for i in ignored:
+            distortions[i] = None
         for i, (c, lens) in enumerate(zip(self.cameras, self.lenses)):
             if lens is None:
                 continue

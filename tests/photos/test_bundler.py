@@ -165,6 +165,7 @@ def test_nvm_fixed_calibration_and_several_models(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         photos = load_photos(tmp_path / "scene.nvm")
     assert len(photos) == 2 and "holds more than one model: reading the first (2 cameras)" in caplog.text
+    assert "its focal length 55 is not FixedK's fx 57: FixedK's calibration is used" in caplog.text
     for i in range(2):
         expected = vsfm_pixel(POINTS, i, -0.05, K)
         seen = inside(expected)
@@ -272,4 +273,71 @@ def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     from tests.io.hostile import assert_photos_refused
 
     path, message = make(tmp_path / "capture")
+    assert_photos_refused(capsys, tmp_path, path, message)
+
+
+def test_bundler_radial_undistort_output_and_a_list_of_another_count(tmp_path):
+    """Bundler's RadialUndistort writes ``bundle.rd.out`` (its registered cameras alone) with ``list.rd.txt``: found;
+    the original ``list.txt`` beside it (a line for every photo, registered or not) gave its cameras the wrong photos
+    silently: refused."""
+    write_bundle(tmp_path, unregistered=1)
+    text = (tmp_path / "bundle.out").read_text().splitlines()
+    rd = ["# Bundle file v0.3", "2 1"] + text[2:2 + 10] + text[-3:]
+    (tmp_path / "bundle.rd.out").write_text("\n".join(rd) + "\n")
+    (tmp_path / "bundle.out").unlink()
+    with pytest.raises(Exception, match="list.txt: names 3 photos, bundle.rd.out has 2 cameras"):
+        load_photos(tmp_path / "bundle.rd.out")
+    (tmp_path / "list.rd.txt").write_text("IMG_0000.JPG\nIMG_0001.JPG\n")
+    assert [p.name for p in load_photos(tmp_path / "bundle.rd.out").images] == ["IMG_0000.JPG", "IMG_0001.JPG"]
+
+
+def test_nvm_points_and_trailing_models_are_not_trusted(tmp_path, caplog):
+    """Whether more models follow is read from the points, which scantex does not use: a count that is not a count
+    crashed it, negative counts looped for ever; VisualSfM's closing model of unregistered images (no points) is no
+    second model."""
+    write_nvm(tmp_path)
+    text = (tmp_path / "scene.nvm").read_text()
+    head = text[:text.index("\n1\n")]
+    for points in ("1\n0.1 0.2 0.3 255 0 0 abc", "1\n0.1 0.2 0.3 255 0 0 nan", "99999999999\n0 0 0 255 0 0 -1 -2 -2 -2",
+                   f"1\n0.1 0.2 0.3 255 0 0 0\n\n1\nIMG_0000.JPG {F} 1 0 0 0 0 0 0 0 0\n0\n\n0\n"):
+        (tmp_path / "scene.nvm").write_text(head + "\n" + points + "\n")
+        with caplog.at_level(logging.WARNING):
+            caplog.clear()
+            assert len(load_photos(tmp_path / "scene.nvm")) == 2
+        assert "more than one model" not in caplog.text
+
+
+def test_writers_drop_a_lens_ignored_when_read_that_they_cannot_hold(tmp_path):
+    """A lens under a pixel is ignored when read (the photo taken for a pinhole one); a writer whose format cannot
+    hold it refused the whole set (VisualSfM's r = 0.0005 in Bundler's and OpenMVG's, Bundler's k1 in VisualSfM's),
+    where the same lens, strong, is written undistorted. Now it is dropped, as the run drops it."""
+    from scantex.photos import write_bundler, write_nvm as writer_nvm, write_openmvg
+
+    write_nvm(tmp_path / "nvm", r=0.0005)
+    photos = load_photos(tmp_path / "nvm")
+    assert photos.lenses[0] is None and photos.distortions[0] is not None
+    for writer in (write_bundler, write_openmvg):
+        back = load_photos(writer(photos, tmp_path / writer.__name__))
+        assert back.distortions[0] is None and np.allclose(back.cameras[0].K, photos.cameras[0].K)
+    write_bundle(tmp_path / "bundle", k=(0.0005, 0.0))
+    photos = load_photos(tmp_path / "bundle")
+    assert photos.lenses[0] is None
+    back = load_photos(writer_nvm(photos, tmp_path / "again"))
+    assert back.distortions[0] is None
+
+
+def nvm_zero_quaternion(tmp_path):
+    write_nvm(tmp_path)
+    text = (tmp_path / "scene.nvm").read_text().splitlines()
+    words = text[3].split()
+    words[2:6] = ["0", "0", "0", "0"]
+    text[3] = " ".join(words)
+    (tmp_path / "scene.nvm").write_text("\n".join(text))
+    return tmp_path / "scene.nvm", "camera 0 (IMG_0000.JPG): its quaternion is zero"
+
+
+def test_a_zero_quaternion_is_one_line(tmp_path, capsys):
+    from tests.io.hostile import assert_photos_refused
+
+    path, message = nvm_zero_quaternion(tmp_path / "capture")
     assert_photos_refused(capsys, tmp_path, path, message)

@@ -190,3 +190,25 @@ def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
     path, message = make(tmp_path / "capture")
     assert_photos_refused(capsys, tmp_path, path, "cameras.sfm: ")
     assert_photos_refused(capsys, tmp_path, path, message)
+
+
+def test_a_fisheye_without_coefficients_is_still_a_fisheye(tmp_path):
+    """AliceVision's ``fisheye4`` of four zeros projects through ``theta = atan r``: it was read as a pinhole."""
+    write_sfm(tmp_path, model="fisheye4")
+    doc = json.loads((tmp_path / "cameras.sfm").read_text())
+    doc["intrinsics"][0]["distortionParams"] = ["0", "0", "0", "0"]
+    (tmp_path / "cameras.sfm").write_text(json.dumps(doc))
+    photos = load_photos(tmp_path)
+    assert photos.lenses[0] is not None and photos.distortions[0].projection == "equidistant"
+
+
+def test_a_relative_photo_path_is_the_file_s_not_the_working_folder(tmp_path, monkeypatch):
+    """A view's relative ``path`` is looked for from the file's folder: from the working folder, another capture's
+    photo of that name was taken silently."""
+    write_sfm(tmp_path / "capture", photos_at="images")
+    other = tmp_path / "other"
+    (other / "images").mkdir(parents=True)
+    Image.fromarray(np.zeros((H, W, 3), np.uint8)).save(other / "images" / "IMG_0000.JPG")
+    monkeypatch.chdir(other)
+    photos = load_photos(tmp_path / "capture")
+    assert photos.images[0].resolve() == (tmp_path / "capture" / "images" / "IMG_0000.JPG").resolve()

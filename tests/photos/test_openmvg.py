@@ -62,13 +62,13 @@ def write_sfm_data(folder, *, model="pinhole_radial_k3", root=None, unposed=0, s
     (folder / "sfm_data.json").write_text(json.dumps(doc, indent=4))
 
 
-def openmvg_pixel(points, i: int, model: str) -> np.ndarray:
+def openmvg_pixel(points, i: int, model: str, params=None) -> np.ndarray:
     """OpenMVG's projection (``Pose3``: ``R (X - C)``; ``cam2ima(add_disto(x))``: the focal length times the
     distorted point plus the principal point; ``Camera_Common.hpp``'s models)."""
     R, C = POSES[i]
     x_cam = R @ (np.asarray(points).T - C[:, None])
     x, y = x_cam[0] / x_cam[2], x_cam[1] / x_cam[2]
-    d = MODELS[model][1]
+    d = MODELS[model][1] if params is None else params
     if model == "fisheye":
         r = np.hypot(x, y)
         t = np.arctan(r)
@@ -212,4 +212,64 @@ def test_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
 
     path, message = make(tmp_path / "capture")
     assert_photos_refused(capsys, tmp_path, path, "sfm_data.")
+    assert_photos_refused(capsys, tmp_path, path, message)
+
+
+def test_a_fisheye_without_coefficients_is_still_a_fisheye(tmp_path):
+    """OpenMVG's ``fisheye`` of four zeros projects through ``theta = atan r`` (as Meshroom's ``fisheye4`` does): it
+    was read as a pinhole, 9 px off at the edges of an 80x60 photo."""
+    write_sfm_data(tmp_path, model="fisheye")
+    doc = json.loads((tmp_path / "sfm_data.json").read_text())
+    doc["intrinsics"][0]["value"]["ptr_wrapper"]["data"]["fisheye"] = [0.0] * 4
+    (tmp_path / "sfm_data.json").write_text(json.dumps(doc))
+    photos = load_photos(tmp_path)
+    assert photos.lenses[0] is not None and photos.distortions[0].projection == "equidistant"
+    rng = np.random.default_rng(1)
+    points = np.array([0.5, 0.5, 0.5]) + rng.uniform(-0.4, 0.4, (50, 3))
+    np.testing.assert_allclose(stored_pixel(photos, 0, points), openmvg_pixel(points, 0, "fisheye", [0.0] * 4),
+                               atol=1e-6)
+
+
+def test_a_relative_root_path_is_the_capture_s_not_the_working_folder(tmp_path, monkeypatch):
+    """``SfMInit_ImageListing -i images/`` records ``root_path: "images/"``, relative to where OpenMVG ran (the
+    reconstruction's folder's parent): the photos are found there, never in scantex's working folder, where another
+    capture's ``images/IMG_0000.JPG`` was taken silently."""
+    project = tmp_path / "castle"
+    write_sfm_data(project / "images", root="images")
+    (project / "reconstruction_sequential").mkdir()
+    (project / "images" / "sfm_data.json").rename(project / "reconstruction_sequential" / "sfm_data.json")
+    other = tmp_path / "other"
+    (other / "images").mkdir(parents=True)
+    for name in ("IMG_0000.JPG", "IMG_0001.JPG"):
+        Image.fromarray(np.zeros((H, W, 3), np.uint8)).save(other / "images" / name)
+    monkeypatch.chdir(other)
+    photos = load_photos(project)
+    assert [p.resolve() for p in photos.images] == [(project / "images" / f"IMG_000{i}.JPG").resolve()
+                                                     for i in range(2)]
+
+
+def test_only_the_binary_in_a_folder_says_how_to_convert_it(tmp_path):
+    (tmp_path / "reconstruction_sequential").mkdir()
+    (tmp_path / "reconstruction_sequential" / "sfm_data.bin").write_bytes(b"\x00" * 64)
+    with pytest.raises(Exception, match="openMVG_main_ConvertSfM_DataFormat"):
+        load_photos(tmp_path)
+
+
+def duplicate_key(tmp_path):
+    def edit(doc):
+        doc["extrinsics"].append(dict(doc["extrinsics"][0]))
+    return edited(tmp_path, edit), "key 0 appears twice in 'extrinsics'"
+
+
+def unnamed_first_type(tmp_path):
+    def edit(doc):
+        doc["intrinsics"][0]["value"].pop("polymorphic_name")
+    return edited(tmp_path, edit), "has no polymorphic_name"
+
+
+@pytest.mark.parametrize("make", [duplicate_key, unnamed_first_type])
+def test_more_bad_files_are_one_line_naming_the_file(tmp_path, make, capsys):
+    from tests.io.hostile import assert_photos_refused
+
+    path, message = make(tmp_path / "capture")
     assert_photos_refused(capsys, tmp_path, path, message)
