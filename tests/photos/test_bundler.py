@@ -203,6 +203,14 @@ def test_written_and_read_back(tmp_path, fmt):
         writer(moved, tmp_path / "bad")
 
 
+def rewritten(path, change):
+    """``path`` with its lines changed in place by ``change(lines)``; returns it."""
+    lines = path.read_text().splitlines()
+    change(lines)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def not_a_bundle(tmp_path):
     write_bundle(tmp_path)
     (tmp_path / "bundle.out").write_text("hello\n")
@@ -223,17 +231,14 @@ def short_list(tmp_path):
 
 def truncated_bundle(tmp_path):
     write_bundle(tmp_path)
-    text = (tmp_path / "bundle.out").read_text().splitlines()
-    (tmp_path / "bundle.out").write_text("\n".join(text[:6]) + "\n")
-    return tmp_path / "bundle.out", "it ends before its 2 cameras do"
+    return rewritten(tmp_path / "bundle.out", lambda lines: lines.__delitem__(slice(6, None))), (
+        "it ends before its 2 cameras do")
 
 
 def bad_bundle_rotation(tmp_path):
     write_bundle(tmp_path)
-    text = (tmp_path / "bundle.out").read_text().splitlines()
-    text[3] = "2 0 0"
-    (tmp_path / "bundle.out").write_text("\n".join(text) + "\n")
-    return tmp_path / "bundle.out", "camera 0 (IMG_0000.JPG): its rotation is no rotation"
+    return rewritten(tmp_path / "bundle.out", lambda lines: lines.__setitem__(3, "2 0 0")), (
+        "camera 0 (IMG_0000.JPG): its rotation is no rotation")
 
 
 def missing_photo(tmp_path):
@@ -244,9 +249,8 @@ def missing_photo(tmp_path):
 
 def truncated_nvm(tmp_path):
     write_nvm(tmp_path)
-    text = (tmp_path / "scene.nvm").read_text().splitlines()
-    (tmp_path / "scene.nvm").write_text("\n".join(text[:4]) + "\n")
-    return tmp_path / "scene.nvm", "it ends before its 2 cameras do"
+    return rewritten(tmp_path / "scene.nvm", lambda lines: lines.__delitem__(slice(4, None))), (
+        "it ends before its 2 cameras do")
 
 
 def nvm_not_numbers(tmp_path):
@@ -328,12 +332,11 @@ def test_writers_drop_a_lens_ignored_when_read_that_they_cannot_hold(tmp_path):
 
 def nvm_zero_quaternion(tmp_path):
     write_nvm(tmp_path)
-    text = (tmp_path / "scene.nvm").read_text().splitlines()
-    words = text[3].split()
-    words[2:6] = ["0", "0", "0", "0"]
-    text[3] = " ".join(words)
-    (tmp_path / "scene.nvm").write_text("\n".join(text))
-    return tmp_path / "scene.nvm", "camera 0 (IMG_0000.JPG): its quaternion is zero"
+
+    def change(lines):
+        words = lines[3].split()
+        lines[3] = " ".join(words[:2] + ["0"] * 4 + words[6:])
+    return rewritten(tmp_path / "scene.nvm", change), "camera 0 (IMG_0000.JPG): its quaternion is zero"
 
 
 def test_a_zero_quaternion_is_one_line(tmp_path, capsys):
