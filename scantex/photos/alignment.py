@@ -58,6 +58,7 @@ or turn (the rigid correction above) is refused whatever the depth maps say.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -352,13 +353,22 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
 
     Raises:
         ScanError: naming ``photos.source``: "the mesh is not in the cameras' frame: ... (median edge
-            distance N px ...)"; ``--no-alignment-check`` (``photos.check_alignment``) skips the check.
+            distance N px ...)", and where the mesh lines up with the photos in other units (a mesh exported in
+            millimetres, cameras in metres), which; ``--no-alignment-check`` (``photos.check_alignment``) skips the
+            check.
     """
     report = check_alignment(scan, photos, **kwargs)
     if not report.ok:
         distance = report.edge_distance_px
         detail = (f"median edge distance {distance:.1f} px at {max(report.photos[0].size)} px"
                   if np.isfinite(distance) else "median edge distance: no mesh edges in the photos")
+        units = other_units(scan, photos, **kwargs)
+        if units is not None:
+            factor, mesh_unit, camera_unit = units
+            raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}), but "
+                                           f"it lines up with the photos at {_fraction(factor)} its size: is the mesh "
+                                           f"in {mesh_unit} and the cameras in {camera_unit}? Export the mesh in "
+                                           f"{camera_unit}")
         # the same misfit comes of cameras described wrongly: intrinsics for another image size, camera-to-world
         # poses given as world-to-camera (an audit's K scaled by 2/3 read "39 cm and 44 degrees away")
         raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; if the "
@@ -366,6 +376,51 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
                                        "photos' own size, poses world-to-camera; --no-alignment-check to go on "
                                        "anyway)")
     return report
+
+
+#: mesh units per camera unit that an export in other units gives: (factor, the mesh's unit, the cameras')
+UNITS = ((1000.0, "millimetres", "metres"), (100.0, "centimetres", "metres"), (0.001, "metres", "millimetres"),
+         (0.01, "metres", "centimetres"), (1 / 0.0254, "inches", "metres"), (1 / 0.3048, "feet", "metres"),
+         (0.0254, "metres", "inches"), (0.3048, "metres", "feet"))
+#: the mesh's size over the spread of the cameras' positions (their median distance from their mean) for which a
+#: unit change is tried on a refused mesh (a mesh in millimetres against cameras in metres gives a thousand times
+#: an aligned capture's: the cube of the tests 0.7, the captures measured 1-10)
+PLAUSIBLE_SIZE = (0.1, 30.0)
+
+
+def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str] | None:
+    """``(factor, mesh unit, camera unit)`` where the cameras scaled by ``factor`` (positions and all: the mesh's
+    units per the cameras') see the mesh line up with the photos (:func:`check_alignment` passes), among the unit
+    changes of :data:`UNITS` that make the mesh's size plausible against the cameras' spread; ``None`` if none does.
+    For a refused mesh: each candidate is a check of its own (a mesh moved by a few centimetres makes none
+    plausible)."""
+    size = float(np.linalg.norm(np.ptp(scan.positions, axis=0)))
+    centres = np.array([c.center for c in photos.cameras])
+    spread = float(np.median(np.linalg.norm(centres - centres.mean(axis=0), axis=1)))
+
+    def plausible(factor: float) -> bool:
+        return PLAUSIBLE_SIZE[0] * factor * spread <= size <= PLAUSIBLE_SIZE[1] * factor * spread
+
+    if size <= 0 or spread <= 0:
+        return None
+    for factor, mesh_unit, camera_unit in UNITS:
+        if not plausible(factor):
+            continue
+        cameras = []
+        for c in photos.cameras:
+            w2c = c.world_to_camera.copy()
+            w2c[:3, 3] *= factor
+            cameras.append(dataclasses.replace(c, world_to_camera=w2c))
+        scaled = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
+        if check_alignment(scan, scaled, **kwargs).ok:
+            return factor, mesh_unit, camera_unit
+    return None
+
+
+def _fraction(factor: float) -> str:
+    """The size the mesh lines up at, over its own, as a person says it (``factor``: the mesh's units per the
+    cameras'): 1/1000 of, 1/39.37 of, 1000 times."""
+    return f"1/{factor:.4g} of" if factor >= 1 else f"{1 / factor:.4g} times"
 
 
 def fit_rigid_correction(samples: list[_EdgeSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

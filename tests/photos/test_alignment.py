@@ -392,3 +392,22 @@ def test_the_compiled_rigid_fit_terms_are_the_numpy_ones():
     np.testing.assert_allclose(_edge_residuals(samples, centre, spread, x), slow, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(_edge_jacobian(samples, centre, spread, x),
                                _edge_jacobian_numpy(samples, centre, spread, x), rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.parametrize("factor, said", [(1000.0, "at 1/1000 of its size: is the mesh in millimetres and the cameras "
+                                                   "in metres? Export the mesh in metres"),
+                                          (100.0, "at 1/100 of its size: is the mesh in centimetres"),
+                                          (0.001, "at 1000 times its size: is the mesh in metres and the cameras in "
+                                                  "millimetres? Export the mesh in millimetres")])
+def test_a_mesh_in_other_units_is_refused_saying_which(tmp_path, factor, said):
+    """A mesh exported in millimetres against cameras in metres (or the other way round) showed no edges in the
+    photos, and the message sent the user to the cameras; now it says which units line it up."""
+    scan, photos = cube_photos(tmp_path)
+    with pytest.raises(ScanError) as err:
+        require_alignment(dataclasses.replace(scan, positions=scan.positions * factor), photos)
+    message = str(err.value)
+    assert message.startswith(f"{photos.source}: the mesh is not in the cameras' frame") and said in message
+    assert "\n" not in message
+    with pytest.raises(ScanError) as err:  # a mesh moved, not in other units: the message it had
+        require_alignment(moved(scan, offset=(30.0, 0.0, 0.0)), photos)
+    assert "lines up" not in str(err.value)
