@@ -354,8 +354,8 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
     Raises:
         ScanError: naming ``photos.source``: "the mesh is not in the cameras' frame: ... (median edge
             distance N px ...)", and where the mesh lines up with the photos in other units (a mesh exported in
-            millimetres, cameras in metres), which; ``--no-alignment-check`` (``photos.check_alignment``) skips the
-            check.
+            millimetres, cameras in metres) or through poses read in another convention (camera-to-world, OpenGL's
+            axes), which; ``--no-alignment-check`` (``photos.check_alignment``) skips the check.
     """
     report = check_alignment(scan, photos, **kwargs)
     if not report.ok:
@@ -369,6 +369,10 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
                                            f"it lines up with the photos at {_fraction(factor)} its size: is the mesh "
                                            f"in {mesh_unit} and the cameras in {camera_unit}? Export the mesh in "
                                            f"{camera_unit}")
+        misread = other_convention(scan, photos, **kwargs)
+        if misread is not None:
+            raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}), but "
+                                           f"it lines up with the photos {misread}")
         # the same misfit comes of cameras described wrongly: intrinsics for another image size, camera-to-world
         # poses given as world-to-camera (an audit's K scaled by 2/3 read "39 cm and 44 degrees away")
         raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; if the "
@@ -403,6 +407,7 @@ def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str
 
     if size <= 0 or spread <= 0:
         return None
+    kwargs = dict(kwargs, n_photos=4, max_photos=4)
     for factor, mesh_unit, camera_unit in UNITS:
         if not plausible(factor):
             continue
@@ -414,6 +419,40 @@ def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str
         scaled = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
         if check_alignment(scan, scaled, **kwargs).ok:
             return factor, mesh_unit, camera_unit
+    return None
+
+
+#: the pose conventions a camera file written by hand gets wrong, as the change that undoes each and what it says:
+#: a camera-to-world pose given for a world-to-camera one, OpenGL's camera axes (y up, looking down -z) for
+#: OpenCV's (y down, looking down +z), and both
+CONVENTIONS = (
+    ("inverse", "with each camera's pose inverted: are the poses camera-to-world? scantex reads world-to-camera "
+                "poses here (x_cam = R X + t)"),
+    ("opengl", "with each camera's axes turned from OpenGL's to OpenCV's: are the poses in OpenGL's convention "
+               "(y up, looking down -z)? scantex reads OpenCV's here (y down, looking down +z)"),
+    ("both", "with each camera's pose inverted and its axes turned from OpenGL's to OpenCV's: are the poses "
+             "OpenGL camera-to-world matrices (nerfstudio's transform_matrix)? scantex reads OpenCV world-to-camera "
+             "poses here (x_cam = R X + t, y down, looking down +z)"),
+)
+#: OpenGL's camera axes in OpenCV's
+GL_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def other_convention(scan: Scan, photos: PhotoSet, **kwargs) -> str | None:
+    """Where the cameras read in another pose convention (:data:`CONVENTIONS`) see the mesh line up with the
+    photos (:func:`check_alignment` passes), what that says; ``None`` if none does. For a refused mesh: each is a
+    check of its own, of 4 photos."""
+    kwargs = dict(kwargs, n_photos=4, max_photos=4)
+    for change, said in CONVENTIONS:
+        cameras = []
+        for c in photos.cameras:
+            w2c = c.world_to_camera
+            w2c = np.linalg.inv(w2c) if change in ("inverse", "both") else w2c
+            w2c = GL_AXES @ w2c if change in ("opengl", "both") else w2c
+            cameras.append(dataclasses.replace(c, world_to_camera=w2c))
+        turned = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
+        if check_alignment(scan, turned, **kwargs).ok:
+            return said
     return None
 
 
@@ -750,7 +789,8 @@ def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None)
     segments, ends = segments[keep], ends[keep]
     if len(segments) == 0:
         return out
-    length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0)
+    # an end at the camera's plane projects to infinity: such a segment is sampled as the longest that can show
+    length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0, posinf=float(max(H, W)))
     steps = np.clip(np.ceil(2 * length), 1, 2 * max(H, W)).astype(int)
     seg = np.repeat(np.arange(len(segments)), steps + 1)
     # 0, 1/k, ..., 1 along each segment of k steps (as np.linspace makes them), all segments at once

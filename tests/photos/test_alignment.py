@@ -411,3 +411,19 @@ def test_a_mesh_in_other_units_is_refused_saying_which(tmp_path, factor, said):
     with pytest.raises(ScanError) as err:  # a mesh moved, not in other units: the message it had
         require_alignment(moved(scan, offset=(30.0, 0.0, 0.0)), photos)
     assert "lines up" not in str(err.value)
+
+
+@pytest.mark.parametrize("written, said", [
+    (lambda w2c: np.linalg.inv(w2c), "with each camera's pose inverted: are the poses camera-to-world?"),
+    (lambda w2c: np.diag([1.0, -1.0, -1.0, 1.0]) @ w2c, "are the poses in OpenGL's convention (y up, looking down"),
+    (lambda w2c: np.linalg.inv(np.diag([1.0, -1.0, -1.0, 1.0]) @ w2c), "are the poses OpenGL camera-to-world")])
+def test_poses_written_in_another_convention_are_refused_saying_which(tmp_path, written, said):
+    """A camera file written by hand with camera-to-world poses, OpenGL's camera axes, or both (nerfstudio's
+    transform_matrix copied into a cameras.json) was refused sending the user to check the cameras; now the message
+    says which convention lines the mesh up."""
+    scan, photos = cube_photos(tmp_path)
+    cameras = tuple(dataclasses.replace(c, world_to_camera=written(c.world_to_camera)) for c in photos.cameras)
+    with pytest.raises(ScanError) as err:
+        require_alignment(scan, dataclasses.replace(photos, cameras=cameras))
+    message = str(err.value)
+    assert "the mesh is not in the cameras' frame" in message and said in message and "\n" not in message
