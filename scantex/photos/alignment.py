@@ -85,6 +85,10 @@ MAX_DISPLACEMENT = 0.006
 #: to 1 % (the demo room: 1.0 cm in a 5 m room, 0.0 degrees; four toy photos of a cube: 1.1 degrees)
 MAX_TURN_DEG = 2.0
 MAX_SHIFT = 0.02
+#: image motion (share of the longer image side) that refuses whatever the correction's turn and shift: three times
+#: the estimate's wander (the shift above is relative to the mesh's size, which a mesh in other units inflates: the
+#: façade in centimetres moved its image 19 % of the side by a 19 m shift, under 2 % of its 1 km)
+MAX_ANY_DISPLACEMENT = 0.03
 #: fewest render edge pixels for a photo's edge distance to count
 MIN_EDGE_PIXELS = 20
 #: photos with edges to compare below which more photos are checked (up to ``check_alignment``'s
@@ -341,7 +345,8 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
                 problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
                            f"moved at random, even after the best small correction; aligned data gives "
                            f"< {MAX_EDGE_RATIO})")
-            elif displacement > MAX_DISPLACEMENT and (turn > MAX_TURN_DEG or offset > MAX_SHIFT * size):
+            elif displacement > MAX_DISPLACEMENT and (turn > MAX_TURN_DEG or offset > MAX_SHIFT * size
+                                                      or displacement > MAX_ANY_DISPLACEMENT):
                 problem = (f"it sits about {_length(offset)} and {turn:.1f} degrees away from where the "
                            f"photos see it (its image would move {100 * displacement:.1f} % of the photo "
                            f"side to match)")

@@ -303,6 +303,10 @@ def test_facade_partial_scan_passes_and_a_moved_one_is_refused():
     assert require_alignment(scan, photos).ok
     # 5 cm on a 1.2 m object is 43 cm on this 10 m façade
     assert not check_alignment(moved(scan, offset=(0.43, 0.0, 0.0)), photos).ok
+    # exported in centimetres, it passed: its image moved 19 % of the photo's side to fit, by a 19 m shift that is
+    # under 2 % of the 1 km mesh's size; now refused, saying which units line it up
+    with pytest.raises(ScanError, match="at 1/100 of its size: is the mesh in centimetres and the cameras in metres"):
+        require_alignment(dataclasses.replace(scan, positions=scan.positions * 100.0), photos)
 
 
 def test_edges_out_of_view_are_skipped_without_changing_a_pixel():
