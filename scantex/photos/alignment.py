@@ -422,7 +422,7 @@ def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str
             w2c[:3, 3] *= factor
             cameras.append(dataclasses.replace(c, world_to_camera=w2c))
         scaled = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
-        if check_alignment(scan, scaled, **kwargs).ok:
+        if _passes(scan, scaled, kwargs):
             return factor, mesh_unit, camera_unit
     return None
 
@@ -456,9 +456,21 @@ def other_convention(scan: Scan, photos: PhotoSet, **kwargs) -> str | None:
             w2c = GL_AXES @ w2c if change in ("opengl", "both") else w2c
             cameras.append(dataclasses.replace(c, world_to_camera=w2c))
         turned = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
-        if check_alignment(scan, turned, **kwargs).ok:
+        if _passes(scan, turned, kwargs):
             return said
     return None
+
+
+def _passes(scan: Scan, photos: PhotoSet, kwargs: dict) -> bool:
+    """Whether :func:`check_alignment` passes a changed reading of a refused capture: a hint for the refusal's
+    message, which a failure of its own (a camera placed inside the mesh, numbers that overflow) must not replace
+    or add lines to."""
+    try:
+        with np.errstate(all="ignore"):
+            return check_alignment(scan, photos, **kwargs).ok
+    except (ScanError, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+        log.debug("alignment: a changed reading could not be checked: %s", e)
+        return False
 
 
 def _fraction(factor: float) -> str:
