@@ -114,8 +114,11 @@ def hints() -> None:
               "mesh's size plausible against the cameras' spread) and with the poses read in another convention; "
               "the time is the whole refusal. The façade in centimetres passed the check until this table was first "
               "made (2026-11-30): its image moved 19 % of the photo's side to fit, by a 19 m shift, under 2 % of the "
-              "1 km mesh's size; an image motion over 5 % now refuses whatever the shift (`MAX_ANY_DISPLACEMENT`; "
-              "the 21 verdicts above unchanged, the aligned captures' motion at most 0.3 %). Command: "
+              "1 km mesh's size; an image motion over 5 % now refuses whatever the shift where the correction explains the "
+              "edges (the best third's edge ratio 0.6 of the uncorrected or less: `MAX_ANY_DISPLACEMENT`, "
+              "`EXPLAINS`; a close-up capture's wandering estimate, 18 % of the side, does not); the 21 verdicts "
+              "above unchanged, the aligned captures' motion at most 0.3 %. A hint is given where a reading fits "
+              "as it is (image motion under 0.6 %). Command: "
               "`python bench/bench_alignment.py --hints`"]
     update_section("alignment hints", "\n".join(lines))
 
