@@ -112,13 +112,12 @@ def hints() -> None:
             print(lines[-1], flush=True)
     lines += ["", "A refused mesh is checked again on 4 photos with the cameras in other units (those that make the "
               "mesh's size plausible against the cameras' spread) and with the poses read in another convention; "
-              "the time is the whole refusal. The façade in centimetres passed the check until this table was first "
-              "made (2026-11-30): its image moved 19 % of the photo's side to fit, by a 19 m shift, under 2 % of the "
-              "1 km mesh's size; an image motion over 5 % now refuses whatever the shift where the correction explains the "
-              "edges (the best third's edge ratio 0.6 of the uncorrected or less: `MAX_ANY_DISPLACEMENT`, "
-              "`EXPLAINS`; a close-up capture's wandering estimate, 18 % of the side, does not); the 21 verdicts "
-              "above unchanged, the aligned captures' motion at most 0.3 %. A hint is given where a reading fits "
-              "as it is (image motion under 0.6 %). Command: "
+              "the time is the whole refusal; a hint is given where a reading fits as it is (image motion under 0.6 %), "
+              "and the pose conventions only for a `cameras.json`. Left: the façade exported in *centimetres* first "
+              "passed the check (its image moves 19 % of the photo's side to fit, by a 19 m shift, under the 2 % of "
+              "its 1 km size a shift must exceed); refusing any image motion over 5 % whatever the shift caught it "
+              "but refused aligned close-up captures with realistic pose errors (the demo room's walls from "
+              "0.3-0.4 m, 0.35-0.5 degrees and 10-15 mm: 5-15 %), so it is not done. Command: "
               "`python bench/bench_alignment.py --hints`"]
     update_section("alignment hints", "\n".join(lines))
 

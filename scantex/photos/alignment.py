@@ -85,15 +85,6 @@ MAX_DISPLACEMENT = 0.006
 #: to 1 % (the demo room: 1.0 cm in a 5 m room, 0.0 degrees; four toy photos of a cube: 1.1 degrees)
 MAX_TURN_DEG = 2.0
 MAX_SHIFT = 0.02
-#: image motion (share of the longer image side) that refuses whatever the correction's turn and shift, where the
-#: correction explains the photos' edges (:data:`EXPLAINS`): the shift above is relative to the mesh's size, which a
-#: mesh in other units inflates (the façade in centimetres moved its image 19 % of the side by a 19 m shift, under
-#: 2 % of its 1 km; its edge ratio 1.13 -> 0.36). The aligned real captures' motion is 0.0-0.3 %, synthetic ones'
-#: with 0.5 degree pose errors up to 3 %, and a close-up capture's (a room's walls from 0.3 m) wander 18 %, its
-#: correction matching the edges no better than the mesh as it is
-MAX_ANY_DISPLACEMENT = 0.05
-#: ... explains them: the corrected edge ratio of the best third of the photos at most this share of the uncorrected
-EXPLAINS = 0.6
 #: fewest render edge pixels for a photo's edge distance to count
 MIN_EDGE_PIXELS = 20
 #: photos with edges to compare below which more photos are checked (up to ``check_alignment``'s
@@ -350,20 +341,11 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
                 problem = (f"its edges miss the photos' edges (distance ratio {fitted:.2f} to the same edges "
                            f"moved at random, even after the best small correction; aligned data gives "
                            f"< {MAX_EDGE_RATIO})")
-            elif displacement > MAX_DISPLACEMENT and (turn > MAX_TURN_DEG or offset > MAX_SHIFT * size or (
-                    displacement > MAX_ANY_DISPLACEMENT and _explains(results, covered))):
+            elif displacement > MAX_DISPLACEMENT and (turn > MAX_TURN_DEG or offset > MAX_SHIFT * size):
                 problem = (f"it sits about {_length(offset)} and {turn:.1f} degrees away from where the "
                            f"photos see it (its image would move {100 * displacement:.1f} % of the photo "
                            f"side to match)")
     return AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size), edges_miss
-
-
-def _explains(results: list[PhotoAlignment], covered: list[int]) -> bool:
-    """Whether the rigid correction explains the photos' edges: with it, the best third of the photos match them
-    clearly better (:data:`EXPLAINS`) than the mesh as it is (a wandering estimate's matches no better)."""
-    as_is = _nanquantile([results[k].ratio for k in covered], MATCH_QUANTILE)
-    corrected = _nanquantile([results[k].corrected_ratio for k in covered], MATCH_QUANTILE)
-    return bool(corrected <= EXPLAINS * as_is)
 
 
 def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport:
@@ -459,7 +441,10 @@ GL_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
 def other_convention(scan: Scan, photos: PhotoSet, **kwargs) -> str | None:
     """Where the cameras read in another pose convention (:data:`CONVENTIONS`) see the mesh line up with the
     photos (:func:`check_alignment` passes), what that says; ``None`` if none does. For a refused mesh: each is a
-    check of its own, of 4 photos."""
+    check of its own, of 4 photos. Only for scantex's own ``cameras.json``, which people write by hand: every other
+    format has a convention of its own, which its importer follows (nerfstudio's is OpenGL's camera-to-world)."""
+    if photos.format != "cameras.json":
+        return None
     kwargs = dict(kwargs, n_photos=4, max_photos=4)
     for change, said in CONVENTIONS:
         cameras = []
@@ -479,6 +464,8 @@ def _passes(scan: Scan, photos: PhotoSet, kwargs: dict) -> bool:
     of (its image motion under :data:`MAX_DISPLACEMENT`: the reading fits as it is, not one a permissive check lets
     by): a hint for the refusal's message, which a failure of its own (a camera placed inside the mesh, numbers that
     overflow) must not replace or add lines to."""
+    level = log.level
+    log.setLevel(max(level, logging.WARNING))  # a probe's "mesh and photos aligned" is no verdict on the capture
     try:
         with np.errstate(all="ignore"):
             report = check_alignment(scan, photos, **kwargs)
@@ -486,6 +473,8 @@ def _passes(scan: Scan, photos: PhotoSet, kwargs: dict) -> bool:
     except (ScanError, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
         log.debug("alignment: a changed reading could not be checked: %s", e)
         return False
+    finally:
+        log.setLevel(level)
 
 
 def _fraction(factor: float) -> str:
@@ -821,7 +810,8 @@ def _edge_pixels(segments: np.ndarray, camera: Camera, depth: np.ndarray | None)
     segments, ends = segments[keep], ends[keep]
     if len(segments) == 0:
         return out
-    # an end at the camera's plane projects to infinity: such a segment is sampled as the longest that can show
+    # an end at the camera's plane projects to infinity: such a segment is sampled as the longest that can show (one
+    # whose ends both do, of no length to measure, in one step)
     length = np.nan_to_num(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1), nan=0.0, posinf=float(max(H, W)))
     steps = np.clip(np.ceil(2 * length), 1, 2 * max(H, W)).astype(int)
     seg = np.repeat(np.arange(len(segments)), steps + 1)
