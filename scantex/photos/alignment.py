@@ -407,17 +407,16 @@ def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str
 
     if size <= 0 or spread <= 0:
         return None
-    kwargs = dict(kwargs, n_photos=4, max_photos=4)
+    def in_mesh_units(factor: float):
+        """A camera's pose with its position in the mesh's units: its translation times ``factor``."""
+        def change(w2c: np.ndarray) -> np.ndarray:
+            out = w2c.copy()
+            out[:3, 3] *= factor
+            return out
+        return change
+
     for factor, mesh_unit, camera_unit in UNITS:
-        if not plausible(factor):
-            continue
-        cameras = []
-        for c in photos.cameras:
-            w2c = c.world_to_camera.copy()
-            w2c[:3, 3] *= factor
-            cameras.append(dataclasses.replace(c, world_to_camera=w2c))
-        scaled = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
-        if _passes(scan, scaled, kwargs):
+        if plausible(factor) and _passes(scan, photos, in_mesh_units(factor), kwargs):
             return factor, mesh_unit, camera_unit
     return None
 
@@ -445,25 +444,23 @@ def other_convention(scan: Scan, photos: PhotoSet, **kwargs) -> str | None:
     format has a convention of its own, which its importer follows (nerfstudio's is OpenGL's camera-to-world)."""
     if photos.format != "cameras.json":
         return None
-    kwargs = dict(kwargs, n_photos=4, max_photos=4)
+    changes = {"inverse": np.linalg.inv, "opengl": lambda w2c: GL_AXES @ w2c,
+               "both": lambda w2c: GL_AXES @ np.linalg.inv(w2c)}
     for change, said in CONVENTIONS:
-        cameras = []
-        for c in photos.cameras:
-            w2c = c.world_to_camera
-            w2c = np.linalg.inv(w2c) if change in ("inverse", "both") else w2c
-            w2c = GL_AXES @ w2c if change in ("opengl", "both") else w2c
-            cameras.append(dataclasses.replace(c, world_to_camera=w2c))
-        turned = dataclasses.replace(photos, cameras=tuple(cameras), depths=(None,) * len(photos))
-        if _passes(scan, turned, kwargs):
+        if _passes(scan, photos, changes[change], kwargs):
             return said
     return None
 
 
-def _passes(scan: Scan, photos: PhotoSet, kwargs: dict) -> bool:
-    """Whether :func:`check_alignment` passes a changed reading of a refused capture with no correction to speak
-    of (its image motion under :data:`MAX_DISPLACEMENT`: the reading fits as it is, not one a permissive check lets
-    by): a hint for the refusal's message, which a failure of its own (a camera placed inside the mesh, numbers that
+def _passes(scan: Scan, photos: PhotoSet, change, kwargs: dict) -> bool:
+    """Whether :func:`check_alignment` passes, on 4 photos and without their depth maps, a refused capture read
+    another way (``change(world_to_camera) -> world_to_camera`` for each camera) with no correction to speak of (its
+    image motion under :data:`MAX_DISPLACEMENT`: the reading fits as it is, not one a permissive check lets by): a
+    hint for the refusal's message, which a failure of its own (a camera placed inside the mesh, numbers that
     overflow) must not replace or add lines to."""
+    cameras = tuple(dataclasses.replace(c, world_to_camera=change(c.world_to_camera)) for c in photos.cameras)
+    photos = dataclasses.replace(photos, cameras=cameras, depths=(None,) * len(photos))
+    kwargs = dict(kwargs, n_photos=4, max_photos=4)
     level = log.level
     log.setLevel(max(level, logging.WARNING))  # a probe's "mesh and photos aligned" is no verdict on the capture
     try:

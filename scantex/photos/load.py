@@ -106,38 +106,24 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         return nerfstudio.FORMAT, path / "transforms.json"
     if (path / "cameras.json").is_file():
         return cameras_json.FORMAT, path / "cameras.json"
-    model = colmap.find_model(path)
-    if model is not None:
-        return "colmap", model
-    keyframes = polycam.keyframes_folder(path)
-    if keyframes is not None:
-        return polycam.FORMAT, keyframes
-    if scannerapp.frame_files(path):
-        return scannerapp.FORMAT, path
-    if scannet.export_folder(path) is not None:
-        return scannet.FORMAT, scannet.export_folder(path)
-    if rgbd_frames.is_frames_folder(path):
-        return rgbd_frames.FORMAT, path
-    if arkitscenes.capture_folder(path) is not None:
-        return arkitscenes.FORMAT, arkitscenes.capture_folder(path)
-    if mve_scene.views_folder(path) is not None:
-        return mve_scene.FORMAT, mve_scene.views_folder(path)
-    if metashape.cameras_file(path) is not None:
-        return metashape.FORMAT, metashape.cameras_file(path)
-    if meshroom.sfm_file(path) is not None:
-        return meshroom.FORMAT, meshroom.sfm_file(path)
-    if openmvs.scene_file(path) is not None:
-        return openmvs.FORMAT, openmvs.scene_file(path)
-    if openmvg.sfm_data_file(path) is not None:
-        return openmvg.FORMAT, openmvg.sfm_data_file(path)
-    if bundler.bundle_file(path) is not None:
-        return bundler.FORMAT, bundler.bundle_file(path)
-    if nvm.nvm_file(path) is not None:
-        return nvm.FORMAT, nvm.nvm_file(path)
-    if mve.is_scene_folder(path):
-        return mve.FORMAT, path
-    if openmvg.sfm_data_file(path, ".bin") is not None:  # OpenMVG's default output: refused, saying how to convert it
-        return openmvg.FORMAT, openmvg.sfm_data_file(path, ".bin")
+    def whole(found: bool):
+        """A finder of a layout that is the folder itself."""
+        return lambda folder: folder if found(folder) else None
+
+    # in this order: the first layout found is read, each looked for once
+    for fmt, find in (("colmap", colmap.find_model), (polycam.FORMAT, polycam.keyframes_folder),
+                      (scannerapp.FORMAT, whole(scannerapp.frame_files)), (scannet.FORMAT, scannet.export_folder),
+                      (rgbd_frames.FORMAT, whole(rgbd_frames.is_frames_folder)),
+                      (arkitscenes.FORMAT, arkitscenes.capture_folder), (mve_scene.FORMAT, mve_scene.views_folder),
+                      (metashape.FORMAT, metashape.cameras_file), (meshroom.FORMAT, meshroom.sfm_file),
+                      (openmvs.FORMAT, openmvs.scene_file), (openmvg.FORMAT, openmvg.sfm_data_file),
+                      (bundler.FORMAT, bundler.bundle_file), (nvm.FORMAT, nvm.nvm_file),
+                      (mve.FORMAT, whole(mve.is_scene_folder)),
+                      # OpenMVG's default output: refused, saying how to convert it
+                      (openmvg.FORMAT, lambda folder: openmvg.sfm_data_file(folder, ".bin"))):
+        found = find(path)
+        if found is not None:
+            return fmt, found
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
 
 
