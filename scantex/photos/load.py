@@ -22,6 +22,7 @@ from scantex.photos import (
     openmvg,
     openmvs,
     polycam,
+    realitycapture,
     rgbd_frames,
     scannerapp,
     scannet,
@@ -37,7 +38,7 @@ LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + imag
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
            "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape), cameras.sfm "
            "(Meshroom), sfm_data.json (OpenMVG), scene.mvs (OpenMVS), bundle.out + list.txt (Bundler), a .nvm "
-           "(VisualSfM) or photos beside .cam files (texrecon)")
+           "(VisualSfM), photos beside .xmp files (RealityCapture) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -79,6 +80,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return bundler.FORMAT, path
         if path.suffix.lower() == ".nvm" or nvm.is_nvm(path):
             return nvm.FORMAT, path
+        if path.suffix.lower() == ".xmp" and realitycapture.is_xmp(path):
+            return realitycapture.FORMAT, path.parent
         if path.suffix.lower() != ".json":
             raise ScanError(path, f"not a camera file scantex knows: expected {LAYOUTS}")
         if scannerapp.FRAME.match(path.name):
@@ -118,6 +121,7 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
                       (metashape.FORMAT, metashape.cameras_file), (meshroom.FORMAT, meshroom.sfm_file),
                       (openmvs.FORMAT, openmvs.scene_file), (openmvg.FORMAT, openmvg.sfm_data_file),
                       (bundler.FORMAT, bundler.bundle_file), (nvm.FORMAT, nvm.nvm_file),
+                      (realitycapture.FORMAT, realitycapture.xmp_folder),
                       (mve.FORMAT, whole(mve.is_scene_folder)),
                       # OpenMVG's default output: refused, saying how to convert it
                       (openmvg.FORMAT, lambda folder: openmvg.sfm_data_file(folder, ".bin"))):
@@ -129,7 +133,7 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
 
 #: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)
 IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvg.FORMAT, openmvs.FORMAT, bundler.FORMAT,
-                     nvm.FORMAT)
+                     nvm.FORMAT, realitycapture.FORMAT)
 
 
 def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX,
@@ -143,9 +147,9 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
         max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
             one is undone when a photo is read (:mod:`scantex.photos.lens`).
         image_dir: the folder holding the photos a COLMAP model, a Metashape XML, a Meshroom ``cameras.sfm``, an
-            OpenMVG ``sfm_data.json``, an OpenMVS scene, a Bundler file's list or a VisualSfM ``.nvm`` names, where
-            they are elsewhere than the formats look (the photo-taking folder of a Metashape project); other formats
-            name their photos' files themselves (a warning says it is not used).
+            OpenMVG ``sfm_data.json``, an OpenMVS scene, a Bundler file's list, a VisualSfM ``.nvm`` or RealityCapture's
+            XMPs name, where they are elsewhere than the formats look (the photo-taking folder of a Metashape
+            project); other formats name their photos' files themselves (a warning says it is not used).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
@@ -159,7 +163,8 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                arkitscenes.FORMAT: arkitscenes.load_arkitscenes, mve_scene.FORMAT: mve_scene.load_mve_scene,
                metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom,
                openmvs.FORMAT: openmvs.load_openmvs, openmvg.FORMAT: openmvg.load_openmvg,
-               bundler.FORMAT: bundler.load_bundler, nvm.FORMAT: nvm.load_nvm}
+               bundler.FORMAT: bundler.load_bundler, nvm.FORMAT: nvm.load_nvm,
+               realitycapture.FORMAT: realitycapture.load_realitycapture}
     options = {"max_distortion_px": max_distortion_px}
     if image_dir is not None:
         if not Path(image_dir).is_dir():

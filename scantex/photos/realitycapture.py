@@ -1,0 +1,309 @@
+"""RealityCapture's (RealityScan's) XMP sidecars: ``Alignment > Export > Registration > XMP``, one ``<photo>.xmp``
+beside each photo, what RealityCapture reads back and what heritage and façade captures are aligned in.
+
+Conventions (RealityCapture's support article "XMP camera math", its help's sample file, and the readers and writers
+of camorph, EasyVolcap, AliceVision's importKnownPoses and Blender's camera projection painter, which agree on
+them), and what scantex does with them:
+
+- Each property (namespace ``http://www.capturingreality.com/ns/xcr/1.1#``) is an attribute of ``rdf:Description``
+  or a child element of it: both forms are read. ``_common.xmp`` in the folder gives every photo's defaults.
+- ``Rotation``: the world-to-camera rotation ``R``, row by row, the camera's axes OpenCV's (+x right, +y down, +z
+  forward); ``Position``: the camera's centre ``C``, so ``x_cam = R (X - C)``. A file with neither is a
+  calibration alone (skipped, with a count); one with one of the two is refused. ``Coordinates="relative"`` (the
+  export's "exact" mode) is read as given, with a warning: its frame is the mesh's only if the mesh was exported
+  in it. Positions over 100 km from the origin are taken for a georeferenced export (warned: the mesh must be
+  exported in the same coordinate system, RealityCapture's "same as XMP").
+- ``FocalLength35mm``: the focal length in a 36 mm frame over the image's longer side ``S = max(w, h)``: ``fx = f35 /
+  36 * S``, ``fy = fx * AspectRatio``. ``PrincipalPointU``, ``PrincipalPointV``: the principal point's offset from
+  the image's centre in units of ``S`` (``v`` down): ``cx = (w - 1) / 2 + U S``, ``cy = (h - 1) / 2 + V S``, pixel
+  centres at integers (RealityCapture's normalised image spans -0.5 to 0.5 of ``S`` edge to edge; which half pixel
+  its centre is could not be checked here: half a pixel either way). A non-zero ``Skew`` (only its "K+" models fit
+  one) is refused per photo, its unit being unknown.
+- ``DistortionModel`` and the six ``DistortionCoeficients`` (RealityCapture's spelling) ``k1 k2 k3 k4 t1 t2``:
+  ``brown3`` (``k1``-``k3``), ``brown4`` (``k1``-``k4``), ``brown3t2`` and ``brown4t2`` (with the tangential pair),
+  Brown's model of the normalised point, distorting it: ``x_d = x (1 + k1 r^2 + ... ) + t1 (r^2 + 2 x^2) + 2 t2 x
+  y``, ``y_d = y (...) + t2 (r^2 + 2 y^2) + 2 t1 x y``, OpenCV's with ``p1 = t2``, ``p2 = t1`` (the pair swapped);
+  ``perspective``: none. Undone as each photo is read where it moves pixels by more than ``max_distortion_px``
+  (:mod:`scantex.photos.lens`). The ``division`` model and the rational ones are not read (photos skipped, with
+  the reason; RealityCapture's Bundler export writes undistorted photos).
+- The photo: the file beside its XMP of the same name and a photo's extension (``IMG_1.xmp`` for ``IMG_1.JPG``),
+  else in ``image_dir``.
+"""
+
+from __future__ import annotations
+
+import logging
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from scantex.errors import ScanError
+from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
+from scantex.photos.files import check_sizes, converts
+from scantex.photos.metashape import IMAGE_SUFFIXES
+from scantex.photos.photoset import Distortion, PhotoSet, image_size
+from scantex.views.camera import Camera
+
+log = logging.getLogger(__name__)
+
+FORMAT = "realitycapture"
+XCR = "http://www.capturingreality.com/ns/xcr/1.1#"
+RDF = "http://www.w3.org/1999/02/22-rdf-syntax-ns#"
+#: the sidecar every photo's properties default to
+COMMON = "_common.xmp"
+#: a sidecar is small; a larger file is no RealityCapture XMP
+MAX_XMP_BYTES = 4 * 2**20
+#: RealityCapture's Brown models: how many radial terms, and whether the tangential pair
+BROWN = {"brown3": (3, False), "brown4": (4, False), "brown3t2": (3, True), "brown4t2": (4, True)}
+#: a camera this far from the frame's origin is taken for a georeferenced export (metres)
+GEOREFERENCED_M = 1e5
+
+
+def is_xmp(path: Path) -> bool:
+    """Whether ``path`` is a RealityCapture XMP (it names the ``xcr`` namespace)."""
+    try:
+        with open(path, "rb") as f:
+            return b"capturingreality.com/ns/xcr" in f.read(16384)
+    except OSError:
+        return False
+
+
+def sidecars(folder: Path) -> list[Path]:
+    """The RealityCapture XMPs in ``folder``, by name (``_common.xmp`` left out)."""
+    try:
+        found = sorted(p for p in folder.glob("*.[xX][mM][pP]") if p.name.lower() != COMMON and p.is_file())
+    except OSError:
+        return []
+    return [p for p in found if is_xmp(p)]
+
+
+def xmp_folder(folder: Path) -> Path | None:
+    """``folder`` when it holds RealityCapture XMPs, else ``None``."""
+    return folder if sidecars(folder) else None
+
+
+def load_realitycapture(path: str | Path, *, image_dir: str | Path | None = None,
+                        max_distortion_px: float = MAX_DISTORTION_PX) -> PhotoSet:
+    """Read RealityCapture's XMP sidecars (the folder holding them, or one of them: its folder's are read);
+    conventions in the module docstring. ``image_dir``: where the photos are, by name, when not beside the XMPs.
+
+    Raises:
+        ScanError: no XMP, a malformed one, a photo not found, no photo with a pose and a lens scantex reads.
+    """
+    path = Path(path)
+    folder = path.parent if path.is_file() else path
+    files = sidecars(folder)
+    if not files:
+        raise ScanError(path, "no RealityCapture XMP (xcr) files in it")
+    common = _properties(folder / COMMON) if (folder / COMMON).is_file() else {}
+    cameras, images, distortions, lenses = [], [], [], []
+    unposed = 0
+    skipped: dict[str, int] = {}  # photos of a lens or camera scantex does not read, by why
+    relative = False
+    for xmp in files:
+        what = f"photo {xmp.stem!r}"
+        props = {**common, **_properties(xmp)}
+        has_rotation, has_position = "Rotation" in props, "Position" in props
+        if not has_rotation and not has_position:
+            unposed += 1
+            continue
+        if has_rotation != has_position:
+            raise ScanError(xmp, f"it has a {'Rotation' if has_rotation else 'Position'} but no "
+                                 f"{'Position' if has_rotation else 'Rotation'}")
+        image = _photo_beside(xmp) or _photo_in(image_dir, xmp)
+        if image is None:
+            raise ScanError(xmp, f"{what}: no photo of its name beside it"
+                                 + (f" or in {image_dir}" if image_dir is not None else
+                                    " (name the photos' folder with --images DIR)"))
+        w, h = image_size(image)
+        camera, why = _camera(props, w, h, xmp, what)
+        if why is not None:
+            skipped[why] = skipped.get(why, 0) + 1
+            continue
+        distortion, why = _distortion(props, xmp, what)
+        if why is not None:
+            skipped[why] = skipped.get(why, 0) + 1
+            continue
+        relative |= props.get("Coordinates", "absolute").strip().lower() == "relative"
+        camera, lens = pinhole_camera(distortion, camera, max_distortion_px, xmp, what)
+        cameras.append(camera)
+        images.append(image)
+        distortions.append(distortion)
+        lenses.append(lens)
+    if not cameras:
+        if skipped:
+            raise ScanError(folder, f"none of its photos can be read: {'; '.join(skipped)}")
+        raise ScanError(folder, "none of its XMPs has a pose (Rotation and Position): export the registration "
+                                "from RealityCapture after aligning the photos")
+    for why, count in skipped.items():
+        log.warning("%s: %d of its photos skipped: %s", folder, count, why)
+    if unposed:
+        log.warning("%s: %d of its XMPs hold no pose (a calibration alone): skipped", folder, unposed)
+    if relative:
+        log.warning("%s: its poses are relative (RealityCapture's 'exact' export): the mesh is in their frame only "
+                    "if exported in it ('same as XMP')", folder)
+    far = max(np.linalg.norm(c.world_to_camera[:3, :3].T @ c.world_to_camera[:3, 3]) for c in cameras)
+    if far > GEOREFERENCED_M:
+        log.warning("%s: the cameras are %.0f km from the frame's origin: a georeferenced export; the mesh must be "
+                    "exported in the same coordinate system (RealityCapture's 'same as XMP')", folder, far / 1000)
+    check_sizes(cameras, images, folder)
+    return PhotoSet(cameras=tuple(cameras), images=tuple(images), source=folder, format=FORMAT,
+                    distortions=tuple(distortions), lenses=tuple(lenses))
+
+
+def _photo_beside(xmp: Path) -> Path | None:
+    """The photo an XMP stands beside: its name with a photo's extension (or its name less ``.xmp``)."""
+    stem = xmp.with_suffix("")
+    if stem.suffix in IMAGE_SUFFIXES and stem.is_file():  # IMG_1.JPG.xmp
+        return stem
+    return next((stem.with_name(stem.name + s) for s in IMAGE_SUFFIXES if stem.with_name(stem.name + s).is_file()),
+                None)
+
+
+def _photo_in(image_dir: str | Path | None, xmp: Path) -> Path | None:
+    """The photo of an XMP's name in ``image_dir``."""
+    if image_dir is None:
+        return None
+    stem = Path(image_dir) / xmp.with_suffix("").name
+    names = [stem] if stem.suffix in IMAGE_SUFFIXES else [stem.with_name(stem.name + s) for s in IMAGE_SUFFIXES]
+    return next((p for p in names if p.is_file()), None)
+
+
+def _properties(xmp: Path) -> dict[str, str]:
+    """The ``xcr`` properties of an XMP's ``rdf:Description`` elements, attributes and child elements alike."""
+    try:
+        size = xmp.stat().st_size
+    except OSError as e:
+        raise ScanError(xmp, f"cannot read it ({e.strerror})") from None
+    if size > MAX_XMP_BYTES:
+        raise ScanError(xmp, f"is {size / 2**20:.0f} MB, more than a RealityCapture XMP")
+    try:
+        root = ET.parse(xmp).getroot()
+    except ET.ParseError as e:
+        raise ScanError(xmp, f"not an XML file scantex can read ({e})") from None
+    props: dict[str, str] = {}
+    for description in root.iter(f"{{{RDF}}}Description"):
+        for key, value in description.attrib.items():
+            if key.startswith(f"{{{XCR}}}"):
+                props.setdefault(key[len(XCR) + 2:], value)
+        for child in description:
+            if child.tag.startswith(f"{{{XCR}}}"):
+                props.setdefault(child.tag[len(XCR) + 2:], (child.text or "").strip())
+    return props
+
+
+def _numbers(props: dict[str, str], key: str, n: int, xmp: Path, what: str) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in props[key].replace(",", " ").split()], np.float64)
+    except ValueError:
+        raise ScanError(xmp, f"{what}: its {key} is not numbers ({props[key][:40]!r})") from None
+    if values.size != n or not np.isfinite(values).all():
+        raise ScanError(xmp, f"{what}: its {key} is not {n} finite numbers (got {values.size})")
+    return values
+
+
+def _number(props: dict[str, str], key: str, default: float | None, xmp: Path, what: str) -> float:
+    if key not in props:
+        if default is None:
+            raise ScanError(xmp, f"{what}: no {key}")
+        return default
+    return float(_numbers(props, key, 1, xmp, what)[0])
+
+
+def _camera(props: dict[str, str], w: int, h: int, xmp: Path, what: str) -> tuple[Camera | None, str | None]:
+    """``(camera, None)``, or ``(None, why)`` for a camera scantex does not read (a skew)."""
+    if _number(props, "Skew", 0.0, xmp, what) != 0.0:
+        return None, "a skewed camera (Skew), whose unit scantex does not know: export the cameras without it"
+    side = max(w, h)
+    fx = _number(props, "FocalLength35mm", None, xmp, what) / 36.0 * side
+    fy = fx * _number(props, "AspectRatio", 1.0, xmp, what)
+    cx = (w - 1) / 2.0 + _number(props, "PrincipalPointU", 0.0, xmp, what) * side
+    cy = (h - 1) / 2.0 + _number(props, "PrincipalPointV", 0.0, xmp, what) * side
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, w, h, xmp, what)
+    R = _numbers(props, "Rotation", 9, xmp, what).reshape(3, 3)
+    w2c = world_to_camera_from(R, _numbers(props, "Position", 3, xmp, what), xmp, what,
+                               "its Rotation is no rotation")
+    return Camera(K, w2c, w, h), None
+
+
+def _distortion(props: dict[str, str], xmp: Path, what: str) -> tuple[Distortion | None, str | None]:
+    """``(distortion or None, None)``, or ``(None, why)`` for a lens scantex does not read."""
+    model = props.get("DistortionModel", "").strip()
+    coefficients = (_numbers(props, "DistortionCoeficients", 6, xmp, what) if "DistortionCoeficients" in props
+                    else np.zeros(6))
+    if model.lower() in ("perspective", "") and not coefficients.any():
+        return None, None
+    if model.lower() not in BROWN:
+        return None, (f"a {model or 'unnamed'} lens model, which scantex does not read (Brown's: brown3, brown4, "
+                      "brown3t2, brown4t2; RealityCapture's Bundler export writes undistorted photos)")
+    n_radial, tangential = BROWN[model.lower()]
+    radial = [float(k) for k in coefficients[:n_radial]]
+    while radial and radial[-1] == 0.0:
+        radial.pop()
+    t1, t2 = (float(coefficients[4]), float(coefficients[5])) if tangential else (0.0, 0.0)
+    distortion = Distortion(f"RealityCapture {model}", tuple(radial), (t2, t1))
+    return (None if distortion.is_zero else distortion), None
+
+
+def write_realitycapture(photos: PhotoSet, out_dir: str | Path) -> Path:
+    """Write each photo as ``out_dir/photo_000.<ext>`` with its XMP ``photo_000.xmp`` beside it; returns
+    ``out_dir``. A photo undistorted when read is written as stored with its lens where Brown's model holds it
+    (four radial terms, the tangential pair), else undistorted (a PNG).
+
+    Raises:
+        ValueError: a camera with a skew (RealityCapture's unit for it is not known here).
+    """
+    from scantex.io.atomic import atomic_files
+    from scantex.photos.files import write_photo
+
+    photos = photos.as_stored(_holds)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ET.register_namespace("x", "adobe:ns:meta/")
+    ET.register_namespace("rdf", RDF)
+    ET.register_namespace("xcr", XCR)
+    with atomic_files() as files:
+        for i, (cam, distortion) in enumerate(zip(photos.cameras, photos.distortions)):
+            attributes = _attributes(cam, distortion, i)
+            name = write_photo(files, photos, i, out_dir / f"photo_{i:03d}")
+            meta = ET.Element("{adobe:ns:meta/}xmpmeta")
+            description = ET.SubElement(ET.SubElement(meta, f"{{{RDF}}}RDF"), f"{{{RDF}}}Description",
+                                        {f"{{{XCR}}}{k}": v for k, v in attributes.items()
+                                         if k != "DistortionCoeficients"})
+            centre = -cam.world_to_camera[:3, :3].T @ cam.world_to_camera[:3, 3]
+            for key, values in (("Rotation", cam.world_to_camera[:3, :3].ravel()), ("Position", centre)):
+                ET.SubElement(description, f"{{{XCR}}}{key}").text = " ".join(repr(float(v)) for v in values)
+            ET.SubElement(description, f"{{{XCR}}}DistortionCoeficients").text = attributes["DistortionCoeficients"]
+            ET.indent(meta)
+            files.path(out_dir / f"{name.stem}.xmp").write_bytes(ET.tostring(meta, encoding="UTF-8"))
+    return out_dir
+
+
+def _holds(distortion: Distortion, cam: Camera) -> bool:
+    return converts(lambda: _attributes(cam, distortion, 0))
+
+
+def _attributes(cam: Camera, distortion: Distortion | None, i: int) -> dict[str, str]:
+    """``cam``'s calibration as RealityCapture's XMP attributes (the inverse of :func:`_camera` and
+    :func:`_distortion`)."""
+    K = cam.K
+    if K[0, 1] != 0:
+        raise ValueError(f"photo {i}: a skewed camera (K {K.tolist()}): RealityCapture's skew is not written")
+    side = max(cam.width, cam.height)
+    model, coefficients = "perspective", [0.0] * 6
+    if distortion is not None and not distortion.is_zero:
+        if (distortion.is_fisheye or distortion.radial_denominator or distortion.inverse_radial
+                or len(distortion.radial) > 4):
+            raise ValueError(f"photo {i}: RealityCapture's Brown model cannot hold a {distortion.model} distortion")
+        p1, p2 = distortion.tangential
+        tangential = bool(p1 or p2)
+        model = f"brown{4 if len(distortion.radial) > 3 else 3}{'t2' if tangential else ''}"
+        coefficients = [*distortion.radial, *[0.0] * (4 - len(distortion.radial)), p2, p1]
+    return {"Version": "3", "PosePrior": "locked", "Coordinates": "absolute", "DistortionModel": model,
+            "FocalLength35mm": repr(float(K[0, 0]) * 36.0 / side), "Skew": "0",
+            "AspectRatio": repr(float(K[1, 1] / K[0, 0])),
+            "PrincipalPointU": repr((float(K[0, 2]) - (cam.width - 1) / 2.0) / side),
+            "PrincipalPointV": repr((float(K[1, 2]) - (cam.height - 1) / 2.0) / side),
+            "CalibrationPrior": "exact", "DistortionCoeficients": " ".join(repr(float(v)) for v in coefficients)}
