@@ -348,6 +348,11 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
     return AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size), edges_miss
 
 
+#: what a refusal tells a capture of these formats first: the mesh exported in a frame of its own is their usual cause
+EXPORT_ADVICE = {"realitycapture": "RealityCapture exports a mesh in the XMPs' frame with its coordinate system "
+                                   "'same as XMP'; "}
+
+
 def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport:
     """:func:`check_alignment`, raising when the mesh is clearly not in the cameras' frame.
 
@@ -375,10 +380,10 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
                                            f"it lines up with the photos {misread}")
         # the same misfit comes of cameras described wrongly: intrinsics for another image size, camera-to-world
         # poses given as world-to-camera (an audit's K scaled by 2/3 read "39 cm and 44 degrees away")
-        raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; if the "
-                                       "mesh is where the capture left it, check the cameras: intrinsics for the "
-                                       "photos' own size, poses world-to-camera; --no-alignment-check to go on "
-                                       "anyway)")
+        raise ScanError(photos.source, f"the mesh is not in the cameras' frame: {report.problem} ({detail}; "
+                                       f"{EXPORT_ADVICE.get(photos.format, '')}if the mesh is where the capture left "
+                                       "it, check the cameras: intrinsics for the photos' own size, poses "
+                                       "world-to-camera; --no-alignment-check to go on anyway)")
     return report
 
 

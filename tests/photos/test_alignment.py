@@ -69,7 +69,11 @@ def test_mesh_far_away_fails(tmp_path):
     assert "projects outside 4 of the 4 photos" in message and "median edge distance" in message
     # cameras described wrongly misfit the same way: the message names them too
     assert "check the cameras: intrinsics for the photos' own size, poses world-to-camera" in message
-    assert "\n" not in message
+    assert "\n" not in message and "same as XMP" not in message
+    # RealityCapture's cameras: its mesh export in a frame of its own is the usual cause, said first
+    with pytest.raises(ScanError, match="RealityCapture exports a mesh in the XMPs' frame with its coordinate system "
+                                        "'same as XMP'; if the mesh is where"):
+        require_alignment(moved(scan, offset=(30.0, 0.0, 0.0)), dataclasses.replace(photos, format="realitycapture"))
 
 
 def test_turned_mesh_fails(tmp_path):

@@ -70,7 +70,7 @@ def write_capture(folder, *, model="perspective", k=(0.0,) * 6, aspect=1.0, u=0.
 def rc_pixel(points, i: int, k=(0.0,) * 6, aspect=1.0, u=0.0, v=0.0, n_radial=4) -> np.ndarray:
     """RealityCapture's projection: ``x = R (X - C)`` normalised, Brown's lens (``t1`` with ``r^2 + 2 x^2`` in x),
     ``fx = f35 / 36 * max(w, h)``, ``fy = fx * aspect``, the principal point ``(u, v) * max(w, h)`` from the image's
-    centre."""
+    centre ``(w / 2, h / 2)`` (pixel centres at integers), as RealityCapture's own OpenCV export writes it."""
     (R, C), (w, h) = POSES[i], SIZES[i]
     x_cam = R @ (np.asarray(points).T - C[:, None])
     x, y = x_cam[:2] / x_cam[2]
@@ -81,7 +81,7 @@ def rc_pixel(points, i: int, k=(0.0,) * 6, aspect=1.0, u=0.0, v=0.0, n_radial=4)
     yd = y * radial + t2 * (r2 + 2 * y * y) + 2 * t1 * x * y
     side = max(w, h)
     fx = F35 / 36 * side
-    return np.stack([fx * xd + (w - 1) / 2 + u * side, fx * aspect * yd + (h - 1) / 2 + v * side], 1)
+    return np.stack([fx * xd + w / 2 + u * side, fx * aspect * yd + h / 2 + v * side], 1)
 
 
 @pytest.mark.parametrize("model, k, n_radial", [
@@ -149,7 +149,8 @@ def test_unread_lenses_and_bad_files(tmp_path, caplog):
     with pytest.raises(ScanError, match="no photo of its name beside it \\(name the photos' folder with --images"):
         load_photos(tmp_path / "moved")
     assert len(load_photos(tmp_path / "moved", image_dir=tmp_path / "elsewhere")) == 2
-    (tmp_path / "moved" / "IMG_0000.xmp").write_text("<x:xmpmeta capturingreality.com/ns/xcr")
+    (tmp_path / "moved" / "IMG_0000.xmp").write_text('<x:xmpmeta xmlns:xcr="http://www.capturingreality.com/ns/xcr/1.1#"'
+                                                    ' broken')
     with pytest.raises(ScanError, match="IMG_0000.xmp: not an XML file scantex can read"):
         load_photos(tmp_path / "moved", image_dir=tmp_path / "elsewhere")
 
@@ -189,3 +190,36 @@ def test_found_beside_the_mesh(tmp_path):
     with find_capture(tmp_path) as capture:
         assert capture.mesh == tmp_path / "model.obj"
         assert (capture.photos, capture.photo_format) == (tmp_path / "images", "realitycapture")
+
+
+def test_what_realitycapture_reads_is_read(tmp_path, caplog):
+    """As RealityCapture reads a folder: ``IMG_1.xmp`` over an older ``IMG_1.JPG.xmp`` of the same photo (a prior
+    left there), a lens model with coefficients all zero (its help's sample: ``division``) as no lens, ``_Common.xmp``
+    in any case and without its pose; a Brown lens without coefficients and relative coordinates said."""
+    write_capture(tmp_path / "a", model="division")
+    (tmp_path / "a" / "IMG_0000.JPG.xmp").write_text((tmp_path / "a" / "IMG_0001.xmp").read_text())
+    with caplog.at_level(logging.WARNING):
+        photos = load_photos(tmp_path / "a")
+    assert [p.name for p in photos.images] == ["IMG_0000.JPG", "IMG_0001.JPG"] and photos.lenses == (None, None)
+    np.testing.assert_allclose(stored_pixel(photos, 0, POINTS), rc_pixel(POINTS, 0), atol=1e-6)
+    assert "two XMPs for photo IMG_0000.JPG: IMG_0000.xmp read, IMG_0000.JPG.xmp not" in caplog.text
+    write_capture(tmp_path / "b", common=True)
+    common = (tmp_path / "b" / "_common.xmp").read_text()
+    (tmp_path / "b" / "_common.xmp").unlink()
+    (tmp_path / "b" / "_Common.xmp").write_text(common.replace("</xcr:DistortionCoeficients>",
+                                                               "</xcr:DistortionCoeficients><xcr:Position>9 9 9"
+                                                               "</xcr:Position>"))
+    photos = load_photos(tmp_path / "b")
+    for i in range(2):
+        np.testing.assert_allclose(stored_pixel(photos, i, POINTS), rc_pixel(POINTS, i), atol=1e-6)
+    write_capture(tmp_path / "c", model="brown3")
+    for i in range(2):
+        xmp = tmp_path / "c" / f"IMG_{i:04d}.xmp"
+        text = xmp.read_text().replace('xcr:Coordinates="absolute"', 'xcr:Coordinates="relative"')
+        xmp.write_text(text.split("<xcr:DistortionCoeficients>")[0] + "</rdf:Description>"
+                       + text.split("</rdf:Description>")[1] if i == 1 else text)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert len(load_photos(tmp_path / "c")) == 1
+    assert "1 of its photos skipped: a brown3 lens without its DistortionCoeficients" in caplog.text
+    assert "its poses are in relative coordinates" in caplog.text
