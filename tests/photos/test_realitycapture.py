@@ -149,8 +149,8 @@ def test_unread_lenses_and_bad_files(tmp_path, caplog):
     with pytest.raises(ScanError, match="no photo of its name beside it \\(name the photos' folder with --images"):
         load_photos(tmp_path / "moved")
     assert len(load_photos(tmp_path / "moved", image_dir=tmp_path / "elsewhere")) == 2
-    (tmp_path / "moved" / "IMG_0000.xmp").write_text('<x:xmpmeta xmlns:xcr="http://www.capturingreality.com/ns/xcr/1.1#"'
-                                                    ' broken')
+    broken = '<x:xmpmeta xmlns:xcr="http://www.capturingreality.com/ns/xcr/1.1#" broken'
+    (tmp_path / "moved" / "IMG_0000.xmp").write_text(broken)
     with pytest.raises(ScanError, match="IMG_0000.xmp: not an XML file scantex can read"):
         load_photos(tmp_path / "moved", image_dir=tmp_path / "elsewhere")
 
