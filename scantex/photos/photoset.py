@@ -241,8 +241,9 @@ class PhotoSet:
         source: the file or folder the set was read from.
         format: the format it was read from (``"nerfstudio"``, ``"colmap-text"``, ``"colmap-binary"``,
             ``"3dscannerapp"``, ``"polycam"``, ``"cameras.json"``, ``"texrecon"``, ``"scannet"``,
-            ``"rgbd-frames"``, ``"arkitscenes"``, ``"mve"``, ``"metashape"``, ``"meshroom"``, ``"openmvs"``), or any
-            label for sets made in code.
+            ``"rgbd-frames"``, ``"arkitscenes"``, ``"mve"``, ``"metashape"``, ``"meshroom"``,
+            ``"openmvs"``, ``"openmvg"``, ``"bundler"``, ``"nvm"``, ``"realitycapture"``), or any label for sets made in
+            code.
         distortions: ``(N,)`` lens distortion per photo as the format stored it, ``None`` for none. The
             cameras are pinholes: a distortion under the importer's limit is ignored, a larger one undone by
             :attr:`lenses`.
