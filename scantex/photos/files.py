@@ -87,6 +87,25 @@ def load_json(path: Path):
         raise ScanError(path, f"cannot read the file ({e.strerror})") from None
 
 
+def load_xml(path: Path, max_bytes: int, what: str):
+    """The root element of an XML camera file, refused without being parsed when larger than ``max_bytes`` (``what``
+    it is, for that error)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        size = path.stat().st_size
+    except OSError as e:
+        raise ScanError(path, f"cannot read it ({e.strerror})") from None
+    if size > max_bytes:
+        raise ScanError(path, f"is {size / 2**20:.0f} MB, more than {what}")
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise ScanError(path, f"not an XML file scantex can read ({e})") from None
+    except OSError as e:
+        raise ScanError(path, f"cannot read it ({e.strerror})") from None
+
+
 def quiet_loadtxt(path: Path, ndmin: int) -> np.ndarray:
     """``numpy.loadtxt`` of floats without its warning on an empty file (the caller says what is wrong, in one
     line)."""

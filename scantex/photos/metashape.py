@@ -36,7 +36,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts
+from scantex.photos.files import check_sizes, converts, load_xml
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -150,16 +150,7 @@ def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
 
 
 def _chunk(xml: Path) -> ET.Element:
-    try:
-        size = xml.stat().st_size
-    except OSError as e:
-        raise ScanError(xml, f"cannot read it ({e.strerror})") from None
-    if size > MAX_XML_BYTES:
-        raise ScanError(xml, f"is {size / 2**20:.0f} MB, more than a cameras file scantex reads")
-    try:
-        root = ET.parse(xml).getroot()
-    except ET.ParseError as e:
-        raise ScanError(xml, f"not an XML file scantex can read ({e})") from None
+    root = load_xml(xml, MAX_XML_BYTES, "a cameras file scantex reads")
     chunks = root.findall("chunk") if root.tag == "document" else []
     if not chunks:
         raise ScanError(xml, "not a Metashape cameras file: no <document><chunk>")

@@ -43,7 +43,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts
+from scantex.photos.files import check_sizes, converts, load_xml
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -200,16 +200,7 @@ def _one_xmp_a_photo(files: list[Path], beside: dict[str, Path], elsewhere: dict
 
 def _properties(xmp: Path) -> dict[str, str]:
     """The ``xcr`` properties of an XMP's ``rdf:Description`` elements, attributes and child elements alike."""
-    try:
-        size = xmp.stat().st_size
-    except OSError as e:
-        raise ScanError(xmp, f"cannot read it ({e.strerror})") from None
-    if size > MAX_XMP_BYTES:
-        raise ScanError(xmp, f"is {size / 2**20:.0f} MB, more than a RealityCapture XMP")
-    try:
-        root = ET.parse(xmp).getroot()
-    except ET.ParseError as e:
-        raise ScanError(xmp, f"not an XML file scantex can read ({e})") from None
+    root = load_xml(xmp, MAX_XMP_BYTES, "a RealityCapture XMP")
     props: dict[str, str] = {}
     for description in root.iter(f"{{{RDF}}}Description"):
         for key, value in description.attrib.items():
