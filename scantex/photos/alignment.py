@@ -348,6 +348,12 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
     return AlignmentReport(tuple(results), problem is None, problem, offset, turn, displacement, size), edges_miss
 
 
+#: image motion (share of the photo side) of a passing check's correction from which the mesh is also tried in other
+#: units: aligned captures need 0-0.3 %, close-ups with realistic pose errors 5-15 %; a façade in centimetres 19 %
+UNITS_PROBED_FROM = 0.05
+#: how much closer to the photos' edges the mesh in other units must be, then (the façade in centimetres: 8.4 px as it
+#: is, 1.0 px in metres; a close-up passed by its estimate's wander: 0.8 px, 3.3 px in feet)
+UNITS_CLOSER = 0.5
 #: what a refusal tells a capture of these formats first: the mesh exported in a frame of its own is their usual cause
 EXPORT_ADVICE = {"realitycapture": "RealityCapture exports a mesh in the XMPs' frame with its coordinate system "
                                    "'same as XMP'; "}
@@ -363,6 +369,18 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
             axes), which; ``--no-alignment-check`` (``photos.check_alignment``) skips the check.
     """
     report = check_alignment(scan, photos, **kwargs)
+    if report.ok and report.displacement > UNITS_PROBED_FROM:
+        # a pass by a large correction (a small share of a mesh exported 100 times too large): the mesh in other
+        # units fitting as it is, its edges far closer, says which it is (a close-up of a plain wall, passed by its
+        # estimate's wander, fits a few other units too, none closer)
+        units = other_units(scan, photos, within_px=UNITS_CLOSER * report.edge_distance_px, **kwargs)
+        if units is not None:
+            factor, mesh_unit, camera_unit = units
+            raise ScanError(photos.source, f"the mesh is not in the cameras' frame: it fits the photos only after its "
+                                           f"image moves {100 * report.displacement:.0f} % of the photo side, but it "
+                                           f"lines up with the photos at {_fraction(factor)} its size: is the mesh in "
+                                           f"{mesh_unit} and the cameras in {camera_unit}? Export the mesh in "
+                                           f"{camera_unit}")
     if not report.ok:
         distance = report.edge_distance_px
         detail = (f"median edge distance {distance:.1f} px at {max(report.photos[0].size)} px"
@@ -397,12 +415,13 @@ UNITS = ((1000.0, "millimetres", "metres"), (100.0, "centimetres", "metres"), (0
 PLAUSIBLE_SIZE = (0.1, 30.0)
 
 
-def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str] | None:
+def other_units(scan: Scan, photos: PhotoSet, *, within_px: float = np.inf,
+                **kwargs) -> tuple[float, str, str] | None:
     """``(factor, mesh unit, camera unit)`` where the cameras scaled by ``factor`` (positions and all: the mesh's
-    units per the cameras') see the mesh line up with the photos (:func:`check_alignment` passes), among the unit
-    changes of :data:`UNITS` that make the mesh's size plausible against the cameras' spread; ``None`` if none does.
-    For a refused mesh: each candidate is a check of its own (a mesh moved by a few centimetres makes none
-    plausible)."""
+    units per the cameras') see the mesh line up with the photos (:func:`check_alignment` passes, its median edge
+    distance within ``within_px``), among the unit changes of :data:`UNITS` that make the mesh's size plausible
+    against the cameras' spread; ``None`` if none does. For a refused mesh, or one passed by a large correction:
+    each candidate is a check of its own (a mesh moved by a few centimetres makes none plausible)."""
     size = float(np.linalg.norm(np.ptp(scan.positions, axis=0)))
     centres = np.array([c.center for c in photos.cameras])
     spread = float(np.median(np.linalg.norm(centres - centres.mean(axis=0), axis=1)))
@@ -421,7 +440,7 @@ def other_units(scan: Scan, photos: PhotoSet, **kwargs) -> tuple[float, str, str
         return change
 
     for factor, mesh_unit, camera_unit in UNITS:
-        if plausible(factor) and _passes(scan, photos, in_mesh_units(factor), kwargs):
+        if plausible(factor) and _passes(scan, photos, in_mesh_units(factor), kwargs, within_px):
             return factor, mesh_unit, camera_unit
     return None
 
@@ -457,12 +476,12 @@ def other_convention(scan: Scan, photos: PhotoSet, **kwargs) -> str | None:
     return None
 
 
-def _passes(scan: Scan, photos: PhotoSet, change, kwargs: dict) -> bool:
+def _passes(scan: Scan, photos: PhotoSet, change, kwargs: dict, within_px: float = np.inf) -> bool:
     """Whether :func:`check_alignment` passes, on 4 photos and without their depth maps, a refused capture read
     another way (``change(world_to_camera) -> world_to_camera`` for each camera) with no correction to speak of (its
-    image motion under :data:`MAX_DISPLACEMENT`: the reading fits as it is, not one a permissive check lets by): a
-    hint for the refusal's message, which a failure of its own (a camera placed inside the mesh, numbers that
-    overflow) must not replace or add lines to."""
+    image motion under :data:`MAX_DISPLACEMENT`: the reading fits as it is, not one a permissive check lets by) and
+    its median edge distance within ``within_px``: a hint for the refusal's message, which a failure of its own (a
+    camera placed inside the mesh, numbers that overflow) must not replace or add lines to."""
     cameras = tuple(dataclasses.replace(c, world_to_camera=change(c.world_to_camera)) for c in photos.cameras)
     photos = dataclasses.replace(photos, cameras=cameras, depths=(None,) * len(photos))
     kwargs = dict(kwargs, n_photos=4, max_photos=4)
@@ -471,7 +490,7 @@ def _passes(scan: Scan, photos: PhotoSet, change, kwargs: dict) -> bool:
     try:
         with np.errstate(all="ignore"):
             report = check_alignment(scan, photos, **kwargs)
-            return report.ok and report.displacement <= MAX_DISPLACEMENT
+            return report.ok and report.displacement <= MAX_DISPLACEMENT and report.edge_distance_px <= within_px
     except (ScanError, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
         log.debug("alignment: a changed reading could not be checked: %s", e)
         return False

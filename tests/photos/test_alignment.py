@@ -309,6 +309,22 @@ def test_facade_partial_scan_passes_and_a_moved_one_is_refused():
     assert not check_alignment(moved(scan, offset=(0.43, 0.0, 0.0)), photos).ok
 
 
+def test_facade_in_centimetres_is_refused_though_its_check_passes():
+    """The façade exported in centimetres passes the check by a large correction (its image moving 19 % of the photo
+    side, its shift under 2 % of its 1 km size); in metres it lines up as it is, far closer to the photos' edges:
+    refused, saying so."""
+    from scantex.io import load_scan
+
+    folder = shared_scan("facade_openmvs")
+    photos = load_photos(folder / "cameras.json")
+    scan = load_scan(folder / "app_style_input" / "scene_mesh_baked.obj")
+    in_cm = dataclasses.replace(scan, positions=scan.positions * 100.0)
+    assert check_alignment(in_cm, photos).ok
+    with pytest.raises(ScanError, match="it fits the photos only after its image moves 19 % of the photo side, but it "
+                                        "lines up with the photos at 1/100 of its size: is the mesh in centimetres"):
+        require_alignment(in_cm, photos)
+
+
 def test_edges_out_of_view_are_skipped_without_changing_a_pixel():
     """Mesh edges wholly behind the camera or beyond one side of the image are not sampled (a room's border
     mostly is): the pixels drawn are exactly those of sampling every edge the same way."""
