@@ -349,7 +349,7 @@ def _verdict(scan: Scan, checked: list[tuple[PhotoAlignment, _EdgeSample | None]
 
 
 #: image motion (share of the photo side) of a passing check's correction from which the mesh is also tried in other
-#: units: aligned captures need 0-0.3 %, close-ups with realistic pose errors 5-15 %; a façade in centimetres 19 %
+#: units: aligned captures need 0-0.3 %, close-ups with realistic pose errors up to 24 %; a façade in centimetres 19 %
 UNITS_PROBED_FROM = 0.05
 #: how much closer to the photos' edges the mesh in other units must be, then (the façade in centimetres: 8.4 px as it
 #: is, 1.0 px in metres; a close-up passed by its estimate's wander: 0.8 px, 3.3 px in feet)
@@ -366,7 +366,9 @@ def require_alignment(scan: Scan, photos: PhotoSet, **kwargs) -> AlignmentReport
         ScanError: naming ``photos.source``: "the mesh is not in the cameras' frame: ... (median edge
             distance N px ...)", and where the mesh lines up with the photos in other units (a mesh exported in
             millimetres, cameras in metres) or through poses read in another convention (camera-to-world, OpenGL's
-            axes), which; ``--no-alignment-check`` (``photos.check_alignment``) skips the check.
+            axes), which; also a mesh the check passes only by a large correction (over :data:`UNITS_PROBED_FROM`
+            of the photo side) that lines up in other units as it is; ``--no-alignment-check``
+            (``photos.check_alignment``) skips the check.
     """
     report = check_alignment(scan, photos, **kwargs)
     if report.ok and report.displacement > UNITS_PROBED_FROM:
