@@ -1,7 +1,7 @@
 """Photos through a distorting lens, in each photogrammetry tool's format, on the real façade (skips without it).
 
     python bench/bench_lens.py     # a barrel lens, a fisheye (COLMAP, Metashape, Meshroom, OpenMVG, RealityCapture,
-                                   # OpenMVS), centred
+                                   # OpenSfM, OpenMVS), centred
     python bench/bench_lens.py --lens fisheye --no-write
 
 The façade's 8 training photos (``../shared/data/facade_openmvs``, held-out photos 2 and 7) are drawn again through a
@@ -9,13 +9,14 @@ lens, computed here on its own (each pixel of the drawn photo takes the original
 found by fixed-point iteration on the lens's forward model, as OpenCV's ``undistortPoints``), with a focal length a
 little longer than the original's so that the drawn photo stays inside it, and saved as JPEGs (quality 95). They are
 written as a COLMAP text model (``OPENCV`` or ``OPENCV_FISHEYE``), and from it by :func:`write_metashape`,
-:func:`write_meshroom`, :func:`write_openmvg`, :func:`write_realitycapture` (a fisheye's photos undistorted) and
-:func:`write_openmvs` (whose format holds no lens: the photos written undistorted, as PNGs); ``scantex enhance`` is
-given the app-style input and each (``--holdout 0``), and the written texture is scored through the held-out photos'
-cameras at 640 px, colour-matched, against the same run on the original photos (``cameras.json``). The originals are
-also resampled so that their principal point is the image's centre (``centred``: Bundler's and VisualSfM's formats have
-no principal point, and the tools exporting them resample their photos so) and written by :func:`write_bundler` and
-:func:`write_nvm`. Each run is its own process. Writes the 'lens formats' section of bench/RESULTS.md.
+:func:`write_meshroom`, :func:`write_openmvg`, :func:`write_realitycapture` (a fisheye's photos undistorted),
+:func:`write_opensfm` and :func:`write_openmvs` (whose format holds no lens: the photos written undistorted, as PNGs);
+``scantex enhance`` is given the app-style input and each (``--holdout 0``), and the written texture is scored through
+the held-out photos' cameras at 640 px, colour-matched, against the same run on the original photos (``cameras.json``).
+The originals are also resampled so that their principal point is the image's centre (``centred``: Bundler's and
+VisualSfM's formats have no principal point, and the tools exporting them resample their photos so) and written by
+:func:`write_bundler` and :func:`write_nvm`. Each run is its own process. Writes the 'lens formats' section of
+bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -166,7 +167,7 @@ def main() -> None:
         print(f"{DATA} not present: nothing to do")
         return
     from scantex.photos import (load_photos, write_bundler, write_meshroom, write_metashape, write_nvm, write_openmvg,
-                                write_openmvs, write_realitycapture)
+                                write_openmvs, write_opensfm, write_realitycapture)
 
     lines = ["## Photos through a lens, in each tool's format (`bench/bench_lens.py`)", "",
              "| photos given | held-out colour-matched PSNR dB (SSIM) | enhance s |", "|---|---|---|"]
@@ -188,6 +189,7 @@ def main() -> None:
             # Brown's lens holds the barrel; a fisheye's photos are written undistorted
             undistorted = " (written undistorted)" if LENSES[lens][2] != "perspective" else ""
             runs[f"{lens}: RealityCapture XMP{undistorted}"] = write_realitycapture(photos, tmp / lens / "rc")
+            runs[f"{lens}: OpenSfM `reconstruction.json`"] = write_opensfm(photos, tmp / lens / "opensfm")
             # a format without a lens model: the photos written undistorted (PNG), read as pinhole photos
             runs[f"{lens}: OpenMVS `scene.mvs` (written undistorted)"] = write_openmvs(photos, tmp / lens / "openmvs")
         outputs, seconds = {}, {}

@@ -697,7 +697,7 @@ def add_photo_read_options(p, photos_option: str) -> None:
     p.add_argument("--images", type=Path, default=None, metavar="DIR",
                    help=f"with {photos_option}: the folder holding the photos a COLMAP model, a Metashape XML, a "
                         "Meshroom cameras.sfm, an OpenMVG sfm_data.json, an OpenMVS scene, a Bundler list, a "
-                        "VisualSfM .nvm or RealityCapture's .xmp files name, where it is not beside the camera file (default: looked for there, in "
+                        "VisualSfM .nvm, RealityCapture's .xmp files or an OpenSfM reconstruction name, where it is not beside the camera file (default: looked for there, in "
                         "its images/ folder, and where the format says)")
 
 
@@ -823,8 +823,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "Intrinsic3D, a .sens export), an ARKitScenes capture (lowres_wide.traj), an MVE scene "
                              "(views/*.mve), texrecon's scene folder (photos beside .cam files), a Metashape "
                              "cameras .xml, a Meshroom cameras.sfm, an OpenMVG sfm_data.json, an OpenMVS scene.mvs, a "
-                             "Bundler bundle.out with its list.txt, a VisualSfM .nvm, or photos with RealityCapture's "
-                             ".xmp files beside them; "
+                             "Bundler bundle.out with its list.txt, a VisualSfM .nvm, photos with RealityCapture's "
+                             ".xmp files beside them, or an OpenSfM reconstruction.json (an OpenDroneMap project); "
                              "the texture is then learnt from them (default: the photos PATH's export holds, if any)")
     source.add_argument("--no-photos", action="store_true",
                         help="ignore the posed photos found in PATH's export (mesh-only enhancement)")

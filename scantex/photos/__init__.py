@@ -21,6 +21,7 @@ world frame = the mesh's); each format's module docstring says exactly how it is
 - :mod:`~scantex.photos.bundler` Bundler's ``bundle.out`` with its image list (RealityCapture's, Metashape's export),
 - :mod:`~scantex.photos.nvm` VisualSfM's ``.nvm``,
 - :mod:`~scantex.photos.realitycapture` RealityCapture's XMP sidecars (``<photo>.xmp``),
+- :mod:`~scantex.photos.opensfm` OpenSfM's ``reconstruction.json`` (OpenDroneMap's ``opensfm/``),
 - :mod:`~scantex.photos.cameras_json` scantex's own ``cameras.json``.
 
 ::
@@ -49,6 +50,7 @@ from scantex.photos.nerfstudio import load_nerfstudio, write_nerfstudio
 from scantex.photos.nvm import load_nvm, write_nvm
 from scantex.photos.openmvg import load_openmvg, write_openmvg
 from scantex.photos.openmvs import load_openmvs, write_openmvs
+from scantex.photos.opensfm import load_opensfm, write_opensfm
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.photos.polycam import load_polycam, write_polycam
 from scantex.photos.realitycapture import load_realitycapture, write_realitycapture
@@ -59,8 +61,8 @@ from scantex.photos.scannet import load_scannet
 __all__ = ["AlignmentReport", "Distortion", "PhotoAlignment", "PhotoSet", "check_alignment", "detect_format",
            "load_3dscannerapp", "load_arkitscenes", "load_bundler", "load_cameras_json", "load_colmap",
            "load_meshroom", "load_metashape", "load_mve", "load_mve_scene", "load_nerfstudio", "load_nvm",
-           "load_openmvg", "load_openmvs", "load_photos", "load_polycam", "load_realitycapture", "load_rgbd_frames",
-           "load_scannet", "require_alignment", "write_3dscannerapp", "write_bundler", "write_cameras_json",
-           "write_colmap_binary", "write_colmap_text", "write_meshroom", "write_metashape", "write_mve",
-           "write_mve_scene", "write_nerfstudio", "write_nvm", "write_openmvg", "write_openmvs", "write_polycam",
-           "write_realitycapture"]
+           "load_openmvg", "load_openmvs", "load_opensfm", "load_photos", "load_polycam", "load_realitycapture",
+           "load_rgbd_frames", "load_scannet", "require_alignment", "write_3dscannerapp", "write_bundler",
+           "write_cameras_json", "write_colmap_binary", "write_colmap_text", "write_meshroom", "write_metashape",
+           "write_mve", "write_mve_scene", "write_nerfstudio", "write_nvm", "write_openmvg", "write_openmvs",
+           "write_opensfm", "write_polycam", "write_realitycapture"]

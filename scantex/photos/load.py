@@ -21,6 +21,7 @@ from scantex.photos import (
     nvm,
     openmvg,
     openmvs,
+    opensfm,
     polycam,
     realitycapture,
     rgbd_frames,
@@ -38,7 +39,8 @@ LAYOUTS = ("transforms.json (nerfstudio), cameras.json (scantex), cameras + imag
            "intrinsic/ (ScanNet), frame-*.color.png + .pose.txt (Intrinsic3D, a .sens export), lowres_wide.traj + "
            "lowres_wide/ (ARKitScenes), views/*.mve/meta.ini (MVE), a cameras .xml (Metashape), cameras.sfm "
            "(Meshroom), sfm_data.json (OpenMVG), scene.mvs (OpenMVS), bundle.out + list.txt (Bundler), a .nvm "
-           "(VisualSfM), photos beside .xmp files (RealityCapture) or photos beside .cam files (texrecon)")
+           "(VisualSfM), photos beside .xmp files (RealityCapture), reconstruction.json (OpenSfM, OpenDroneMap's "
+           "opensfm/) or photos beside .cam files (texrecon)")
 
 
 def detect_format(path: str | Path) -> tuple[str, Path]:
@@ -91,6 +93,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         doc = load_json(path)
         if cameras_json.is_cameras_json(doc):
             return cameras_json.FORMAT, path
+        if opensfm.is_reconstruction(doc):
+            return opensfm.FORMAT, path
         if openmvg.is_sfm_data(doc):  # before Meshroom's: both hold views and intrinsics
             return openmvg.FORMAT, path
         if meshroom.is_sfm(doc):
@@ -107,7 +111,7 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             log.warning("%s holds transforms.json and cameras.json: reading transforms.json (name the file to "
                         "read the other)", path)
         return nerfstudio.FORMAT, path / "transforms.json"
-    if (path / "cameras.json").is_file():
+    if (path / "cameras.json").is_file() and not opensfm.is_odm_project(path):
         return cameras_json.FORMAT, path / "cameras.json"
     def whole(found: bool):
         """A finder of a layout that is the folder itself."""
@@ -122,6 +126,7 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
                       (openmvs.FORMAT, openmvs.scene_file), (openmvg.FORMAT, openmvg.sfm_data_file),
                       (bundler.FORMAT, bundler.bundle_file), (nvm.FORMAT, nvm.nvm_file),
                       (realitycapture.FORMAT, realitycapture.xmp_folder),
+                      (opensfm.FORMAT, opensfm.reconstruction_file),
                       (mve.FORMAT, whole(mve.is_scene_folder)),
                       # OpenMVG's default output: refused, saying how to convert it
                       (openmvg.FORMAT, lambda folder: openmvg.sfm_data_file(folder, ".bin"))):
@@ -133,7 +138,7 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
 
 #: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)
 IMAGE_DIR_FORMATS = ("colmap", metashape.FORMAT, meshroom.FORMAT, openmvg.FORMAT, openmvs.FORMAT, bundler.FORMAT,
-                     nvm.FORMAT, realitycapture.FORMAT)
+                     nvm.FORMAT, realitycapture.FORMAT, opensfm.FORMAT)
 
 
 def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_PX,
@@ -147,9 +152,10 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
         max_distortion_px: the largest lens distortion (in pixels) ignored with a warning; a stronger
             one is undone when a photo is read (:mod:`scantex.photos.lens`).
         image_dir: the folder holding the photos a COLMAP model, a Metashape XML, a Meshroom ``cameras.sfm``, an
-            OpenMVG ``sfm_data.json``, an OpenMVS scene, a Bundler file's list, a VisualSfM ``.nvm`` or RealityCapture's
-            XMPs name, where they are elsewhere than the formats look (the photo-taking folder of a Metashape
-            project); other formats name their photos' files themselves (a warning says it is not used).
+            OpenMVG ``sfm_data.json``, an OpenMVS scene, a Bundler file's list, a VisualSfM ``.nvm``, RealityCapture's
+            XMPs or an OpenSfM reconstruction name, where they are elsewhere than the formats look (the photo-taking
+            folder of a Metashape project); other formats name their photos' files themselves (a warning says it is
+            not used).
 
     Raises:
         ScanError: one line naming the file: missing path, unknown layout, missing images, malformed
@@ -164,7 +170,7 @@ def load_photos(path: str | Path, *, max_distortion_px: float = MAX_DISTORTION_P
                metashape.FORMAT: metashape.load_metashape, meshroom.FORMAT: meshroom.load_meshroom,
                openmvs.FORMAT: openmvs.load_openmvs, openmvg.FORMAT: openmvg.load_openmvg,
                bundler.FORMAT: bundler.load_bundler, nvm.FORMAT: nvm.load_nvm,
-               realitycapture.FORMAT: realitycapture.load_realitycapture}
+               realitycapture.FORMAT: realitycapture.load_realitycapture, opensfm.FORMAT: opensfm.load_opensfm}
     options = {"max_distortion_px": max_distortion_px}
     if image_dir is not None:
         if not Path(image_dir).is_dir():
