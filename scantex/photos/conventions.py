@@ -186,7 +186,10 @@ def world_to_camera_from(R: np.ndarray, centre: np.ndarray, where: Path, what: s
                          problem: str = "its rotation is no rotation") -> np.ndarray:
     """``(4, 4)`` OpenCV world-to-camera of a world-to-camera rotation ``R`` and the camera's centre (``x_cam = R (X -
     C)``), as the photogrammetry formats keep a pose; a ScanError saying ``problem`` where ``R`` is no rotation
-    (orthonormal to 1e-3, determinant positive)."""
+    (orthonormal to 1e-3, determinant positive), or the pose is not finite."""
+    R, centre = np.asarray(R, np.float64), np.asarray(centre, np.float64)
+    if not (np.isfinite(R).all() and np.isfinite(centre).all()):  # NaN passes the tests below
+        raise ScanError(where, f"{what}: its pose is not finite")
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
         raise ScanError(where, f"{what}: {problem}")
     w2c = np.eye(4)

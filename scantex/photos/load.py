@@ -95,6 +95,8 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             return cameras_json.FORMAT, path
         if opensfm.is_reconstruction(doc):
             return opensfm.FORMAT, path
+        if opensfm.is_camera_models(doc):
+            raise ScanError(path, opensfm.CAMERA_MODELS_ONLY)
         if openmvg.is_sfm_data(doc):  # before Meshroom's: both hold views and intrinsics
             return openmvg.FORMAT, path
         if meshroom.is_sfm(doc):
@@ -111,8 +113,11 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
             log.warning("%s holds transforms.json and cameras.json: reading transforms.json (name the file to "
                         "read the other)", path)
         return nerfstudio.FORMAT, path / "transforms.json"
-    if (path / "cameras.json").is_file() and not opensfm.is_odm_project(path):
-        return cameras_json.FORMAT, path / "cameras.json"
+    if (path / "cameras.json").is_file():
+        if not _odm_camera_models(path / "cameras.json"):
+            return cameras_json.FORMAT, path / "cameras.json"
+        if opensfm.reconstruction_file(path) is None:  # an OpenDroneMap project's is found below
+            raise ScanError(path / "cameras.json", opensfm.CAMERA_MODELS_ONLY)
     def whole(found: bool):
         """A finder of a layout that is the folder itself."""
         return lambda folder: folder if found(folder) else None
@@ -134,6 +139,14 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
         if found is not None:
             return fmt, found
     raise ScanError(path, f"no posed photos found: expected {LAYOUTS}")
+
+
+def _odm_camera_models(path: Path) -> bool:
+    """Whether a folder's ``cameras.json`` is OpenDroneMap's camera models, not scantex's frames."""
+    try:
+        return opensfm.is_camera_models(load_json(path))
+    except ScanError:
+        return False  # scantex's importer says what is wrong with it
 
 
 #: the formats whose camera files name their photos relative to a folder the user may give (``image_dir``)

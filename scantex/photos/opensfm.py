@@ -64,10 +64,15 @@ def is_reconstruction(doc) -> bool:
             and isinstance(doc[0].get("cameras"), dict))
 
 
-def is_odm_project(folder: Path) -> bool:
-    """Whether ``folder`` is an OpenDroneMap project (its ``opensfm/reconstruction.json``; its own ``cameras.json``
-    holds the camera models alone, not scantex's frames)."""
-    return (folder / "opensfm" / "reconstruction.json").is_file()
+def is_camera_models(doc) -> bool:
+    """Whether a parsed JSON document is OpenDroneMap's ``cameras.json``: its camera models by id, without poses."""
+    return (isinstance(doc, dict) and bool(doc)
+            and all(isinstance(v, dict) and "projection_type" in v for v in doc.values()))
+
+
+#: what a user giving OpenDroneMap's ``cameras.json`` (or WebODM's download, which holds no other) is told
+CAMERA_MODELS_ONLY = ("OpenDroneMap's camera models, without the photos' poses: give the ODM project's folder (its "
+                      "opensfm/ and images/; WebODM's all.zip download holds neither)")
 
 
 def reconstruction_file(folder: Path) -> Path | None:
@@ -97,6 +102,10 @@ def load_opensfm(path: str | Path, *, image_dir: str | Path | None = None,
     doc = load_json(file)
     if not is_reconstruction(doc):
         raise ScanError(file, "not an OpenSfM reconstruction (a list of reconstructions with cameras and shots)")
+    aligned = file.parent.parent / "odm_georeferencing" / "alignment_matrix.json"
+    if file.parent.name == "opensfm" and aligned.is_file():
+        log.warning("%s: OpenDroneMap aligned this project (--align, %s): its odm_textured_model_geo.obj was moved out "
+                    "of these cameras' frame; odm_textured_model_geo_unaligned.obj is in it", file, aligned.name)
     if len(doc) > 1:
         log.warning("%s holds %d reconstructions: reading the first (%d photos; the others' are not used)", file,
                     len(doc), len(doc[0]["shots"]))
@@ -108,11 +117,13 @@ def load_opensfm(path: str | Path, *, image_dir: str | Path | None = None,
     skipped: dict[str, int] = {}  # shots of cameras scantex does not read, by why
     for name, shot in sorted(doc[0]["shots"].items()):
         what = f"shot {name!r}"
-        if not isinstance(shot, dict) or shot.get("camera") not in cameras_doc:
-            raise ScanError(file, f"{what}: its camera {shot.get('camera') if isinstance(shot, dict) else None!r} is "
-                                  "not in the reconstruction's cameras")
-        model = cameras_doc[shot["camera"]]
-        kind = str(model.get("projection_type", "perspective")).lower()
+        camera_id = shot.get("camera") if isinstance(shot, dict) else None
+        if not isinstance(camera_id, str) or camera_id not in cameras_doc:
+            raise ScanError(file, f"{what}: its camera {camera_id!r} is not in the reconstruction's cameras")
+        model = cameras_doc[camera_id]
+        if not isinstance(model, dict):
+            raise ScanError(file, f"{what}: its camera {camera_id!r} is not a camera model (an object)")
+        kind = str(model.get("projection_type") or "perspective").lower()
         if kind in SPHERICAL:
             spherical += 1
             continue
@@ -189,7 +200,9 @@ def _intrinsics(model: dict, kind: str, w: int, h: int, file: Path, what: str) -
                                                                                          Distortion | None]:
     """``(K, distortion)`` of an OpenSfM camera for its photo of ``w`` x ``h`` pixels."""
     stored = (model.get("width"), model.get("height"))
-    if all(isinstance(v, (int, float)) and v > 0 for v in stored) and abs(stored[0] * h - stored[1] * w) > max(w, h):
+    # a photo scaled since is rounded to whole pixels: its shape within a pixel at the camera's size
+    if (all(isinstance(v, (int, float)) and v > 0 for v in stored)
+            and abs(stored[0] * h - stored[1] * w) > max(stored)):
         raise ScanError(file, f"{what}: its photo is {w}x{h}, of another shape than its camera's {stored[0]}x"
                               f"{stored[1]}")
     (fx_key, fy_key), centre, radial_keys, tangential_keys, projection = MODELS[kind]

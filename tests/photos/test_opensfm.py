@@ -172,3 +172,53 @@ def test_written_and_read_back(tmp_path, kind):
         np.testing.assert_allclose(back.cameras[i].world_to_camera, photos.cameras[i].world_to_camera, atol=1e-12)
         np.testing.assert_allclose(stored_pixel(back, i, POINTS), stored_pixel(photos, i, POINTS), atol=1e-6)
         assert back.images[i].read_bytes() == photos.images[i].read_bytes()
+
+
+def test_an_audit_s_inputs(tmp_path, caplog):
+    """A photo scaled to whole pixels (OpenSfM's undistorter rounds: 5472x3648 at 1024x683) reads; a scantex
+    cameras.json beside an opensfm/ stays scantex's, OpenDroneMap's own (camera models, no poses) is said to be so; a
+    pose of NaN, a camera that is no object and an id that is no string are refused in one line; an aligned ODM
+    project is warned about."""
+    from scantex.photos import write_cameras_json
+
+    file = write_reconstruction(tmp_path / "a", "perspective")
+    doc = json.loads(file.read_text())
+    for camera in doc[0]["cameras"].values():
+        camera["width"], camera["height"] = (5472, 3648) if camera["width"] == 64 else (3648, 5472)
+    file.write_text(json.dumps(doc))
+    Image.new("RGB", (1024, 683)).save(tmp_path / "a" / "images" / "IMG_0000.JPG")
+    Image.new("RGB", (683, 1024)).save(tmp_path / "a" / "images" / "IMG_0001.JPG")
+    assert [c.width for c in load_photos(file).cameras] == [1024, 683]
+
+    project = tmp_path / "odm"
+    write_reconstruction(project / "opensfm", images="../images")
+    assert write_cameras_json(load_photos(project / "opensfm"), project) == project / "cameras.json"
+    assert detect_format(project) == ("cameras.json", project / "cameras.json")
+    assert load_photos(project).format == "cameras.json"
+    (project / "cameras.json").write_text(json.dumps({"v2 dji": {"projection_type": "brown", "focal_x": 0.8}}))
+    assert detect_format(project)[0] == "opensfm"
+    (project / "opensfm" / "reconstruction.json").unlink()
+    with pytest.raises(ScanError, match="OpenDroneMap's camera models, without the photos' poses"):
+        load_photos(project)
+    with pytest.raises(ScanError, match="OpenDroneMap's camera models, without the photos' poses"):
+        load_photos(project / "cameras.json")
+
+    for change, message in ((lambda d: d[0]["shots"]["IMG_0000.JPG"].update(rotation=[1e300, 0, 0]),
+                             "its pose is not finite"),
+                            (lambda d: d[0]["cameras"].update({next(iter(d[0]["cameras"])): 5}),
+                             "is not a camera model"),
+                            (lambda d: d[0]["shots"]["IMG_0000.JPG"].update(camera=["x"]),
+                             "its camera \\['x'\\] is not in the reconstruction's cameras")):
+        file = write_reconstruction(tmp_path / "b")
+        doc = json.loads(file.read_text())
+        change(doc)
+        file.write_text(json.dumps(doc))
+        with pytest.raises(ScanError, match=message):
+            load_photos(file)
+
+    write_reconstruction(tmp_path / "c" / "opensfm", images="../images")
+    (tmp_path / "c" / "odm_georeferencing").mkdir()
+    (tmp_path / "c" / "odm_georeferencing" / "alignment_matrix.json").write_text("[]")
+    with caplog.at_level(logging.WARNING):
+        load_photos(tmp_path / "c")
+    assert "OpenDroneMap aligned this project (--align" in caplog.text
