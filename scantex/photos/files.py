@@ -155,7 +155,10 @@ def need(d: dict, key: str, where: Path, what: str):
     return d[key]
 
 
-def number(d: dict, key: str, where: Path, what: str) -> float:
+def number(d: dict, key: str, where: Path, what: str, default: float | None = None) -> float:
+    """``d[key]`` as a finite float; ``default`` where ``d`` has no ``key`` (without one: a ScanError)."""
+    if default is not None and isinstance(d, dict) and key not in d:
+        return default
     value = need(d, key, where, what)
     try:
         value = float(value)

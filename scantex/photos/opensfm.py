@@ -35,7 +35,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, find_photo, load_json
+from scantex.photos.files import check_sizes, converts, find_photo, load_json, number
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -185,17 +185,6 @@ def _rotation(axis_angle: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(axis_angle).as_matrix()
 
 
-def _number(model: dict, key: str, file: Path, what: str, default: float | None = None) -> float:
-    value = model.get(key, default)
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ScanError(file, f"{what}: its camera's {key} is not a number ({value!r})") from None
-    if not np.isfinite(value):
-        raise ScanError(file, f"{what}: its camera's {key} is not finite")
-    return value
-
-
 def _intrinsics(model: dict, kind: str, w: int, h: int, file: Path, what: str) -> tuple[np.ndarray,
                                                                                          Distortion | None]:
     """``(K, distortion)`` of an OpenSfM camera for its photo of ``w`` x ``h`` pixels."""
@@ -207,15 +196,15 @@ def _intrinsics(model: dict, kind: str, w: int, h: int, file: Path, what: str) -
                               f"{stored[1]}")
     (fx_key, fy_key), centre, radial_keys, tangential_keys, projection = MODELS[kind]
     side = max(w, h)
-    fx, fy = _number(model, fx_key, file, what) * side, _number(model, fy_key, file, what) * side
-    cx, cy = ((_number(model, centre[0], file, what, 0.0), _number(model, centre[1], file, what, 0.0)) if centre
+    fx, fy = number(model, fx_key, file, what) * side, number(model, fy_key, file, what) * side
+    cx, cy = ((number(model, centre[0], file, what, 0.0), number(model, centre[1], file, what, 0.0)) if centre
               else (0.0, 0.0))
     K = np.array([[fx, 0.0, cx * side + (w - 1) / 2.0], [0.0, fy, cy * side + (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     check_intrinsics(K, w, h, file, what)
-    radial = [_number(model, k, file, what, 0.0) for k in radial_keys]
+    radial = [number(model, k, file, what, 0.0) for k in radial_keys]
     while radial and radial[-1] == 0.0:
         radial.pop()
-    tangential = tuple(_number(model, k, file, what, 0.0) for k in tangential_keys) or (0.0, 0.0)
+    tangential = tuple(number(model, k, file, what, 0.0) for k in tangential_keys) or (0.0, 0.0)
     if projection == "perspective" and not any(radial) and not any(tangential):
         return K, None
     return K, Distortion(f"OpenSfM {kind}", tuple(radial), tangential, projection=projection)
