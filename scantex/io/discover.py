@@ -36,12 +36,14 @@ log = logging.getLogger(__name__)
 
 #: mesh formats in order of preference (textured and exact first)
 MESH_SUFFIXES = (".obj", ".glb", ".gltf", ".usdz", ".usdc", ".usda", ".usd", ".ply", ".off", ".stl", ".dae", ".3mf")
-#: file names capture apps (and Meshroom's and OpenMVS's texturing) give their textured mesh, preferred over any other
-#: mesh in an export
+#: file names capture apps (and Meshroom's, OpenMVS's and OpenDroneMap's texturing) give their textured mesh, preferred
+#: over any other mesh in an export (OpenDroneMap's mesh in its cameras' frame first: an --align'ed project's
+#: ``_geo.obj`` was moved out of it)
 APP_MESH_NAMES = ("textured_output.obj", "textured_output.glb", "textured_output.usdz", "raw.glb", "mesh.glb",
                   "texturedmesh.obj", "scene_dense_mesh_refine_texture.obj", "scene_dense_mesh_refine_texture.ply",
-                  "scene_dense_mesh_texture.obj", "scene_dense_mesh_texture.ply", "model.obj", "model.glb", "scene.obj",
-                  "export.obj")
+                  "scene_dense_mesh_texture.obj", "scene_dense_mesh_texture.ply",
+                  "odm_textured_model_geo_unaligned.obj", "odm_textured_model_geo.obj", "odm_textured_model.obj",
+                  "model.obj", "model.glb", "scene.obj", "export.obj")
 #: folders searched below the root for a mesh
 MAX_DEPTH = 3
 #: folders that hold no mesh worth enhancing (photos, previews, macOS zip metadata)
@@ -189,7 +191,8 @@ def _meshes(root: Path) -> list[Path]:
         p, depth = item
         name = p.name.lower()
         app = APP_MESH_NAMES.index(name) if name in APP_MESH_NAMES else len(APP_MESH_NAMES)
-        return app, depth, MESH_SUFFIXES.index(p.suffix.lower()), -p.stat().st_size, str(p)
+        flat = p.parent.name.lower().endswith("_25d")  # OpenDroneMap's 2.5D model, for its orthophoto: the 3D first
+        return app, flat, depth, MESH_SUFFIXES.index(p.suffix.lower()), -p.stat().st_size, str(p)
 
     return [p for p, _ in sorted(found, key=rank)]
 

@@ -222,3 +222,23 @@ def test_an_audit_s_inputs(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         load_photos(tmp_path / "c")
     assert "OpenDroneMap aligned this project (--align" in caplog.text
+
+
+def test_an_opendronemap_project_is_found_whole(tmp_path):
+    """``scantex enhance project/`` on an OpenDroneMap project: its textured 3D mesh (not the 2.5D one, not the
+    untextured mesh) and its opensfm/ cameras."""
+    import trimesh
+
+    from scantex.io.discover import find_capture
+
+    project = tmp_path / "project"
+    write_reconstruction(project / "opensfm", images="../images")
+    for mesh, made in (("odm_meshing/odm_mesh.ply", trimesh.creation.box()),
+                       ("odm_texturing_25d/odm_textured_model_geo.obj", trimesh.creation.icosphere(3)),  # the larger
+                       ("odm_texturing/odm_textured_model_geo.obj", trimesh.creation.box()),
+                       ("odm_filterpoints/larger.obj", trimesh.creation.icosphere(3))):
+        (project / mesh).parent.mkdir(parents=True, exist_ok=True)
+        made.export(project / mesh)
+    with find_capture(project) as capture:
+        assert capture.mesh == project / "odm_texturing" / "odm_textured_model_geo.obj"
+        assert (capture.photos, capture.photo_format) == (project / "opensfm" / "reconstruction.json", "opensfm")
