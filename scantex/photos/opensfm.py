@@ -76,13 +76,17 @@ CAMERA_MODELS_ONLY = ("OpenDroneMap's camera models, without the photos' poses: 
 
 
 def reconstruction_file(folder: Path) -> Path | None:
-    """OpenSfM's ``reconstruction.json`` in ``folder``, or in its ``opensfm/`` (an ODM project); ``None`` if none."""
+    """OpenSfM's ``reconstruction.json`` in ``folder``, or in its ``opensfm/`` (an ODM project); ``None`` if none.
+    Told by its opening (a list whose first object names its ``cameras`` or ``shots``), not parsed: a large project's file, its
+    points included, runs to tens of megabytes, and :func:`load_opensfm` parses it once."""
     for candidate in (folder / "reconstruction.json", folder / "opensfm" / "reconstruction.json"):
         try:
-            if candidate.is_file() and is_reconstruction(load_json(candidate)):
-                return candidate
-        except ScanError:
+            with open(candidate, "rb") as f:
+                head = f.read(1 << 18).lstrip(b"\xef\xbb\xbf \t\r\n")
+        except OSError:
             continue
+        if head.startswith(b"[") and (b'"cameras"' in head or b'"shots"' in head):
+            return candidate
     return None
 
 
