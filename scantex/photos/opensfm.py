@@ -77,8 +77,8 @@ CAMERA_MODELS_ONLY = ("OpenDroneMap's camera models, without the photos' poses: 
 
 def reconstruction_file(folder: Path) -> Path | None:
     """OpenSfM's ``reconstruction.json`` in ``folder``, or in its ``opensfm/`` (an ODM project); ``None`` if none.
-    Told by its opening (a list whose first object names its ``cameras`` or ``shots``), not parsed: a large project's file, its
-    points included, runs to tens of megabytes, and :func:`load_opensfm` parses it once."""
+    Told by its opening (a list whose first object names its ``cameras`` or ``shots``), not parsed: a large project's
+    file, its points included, runs to tens of megabytes, and :func:`load_opensfm` parses it once."""
     for candidate in (folder / "reconstruction.json", folder / "opensfm" / "reconstruction.json"):
         try:
             with open(candidate, "rb") as f:
