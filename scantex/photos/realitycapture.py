@@ -126,12 +126,12 @@ def load_realitycapture(path: str | Path, *, image_dir: str | Path | None = None
                                  f"{'Position' if has_rotation else 'Rotation'}")
         w, h = image_size(image)
         camera, why = _camera(props, w, h, xmp, what)
-        distortion, lens_why = _distortion(props, xmp, what)
+        coefficients = _coefficients(props, xmp, what)
+        distortion, lens_why = _distortion(props, coefficients) if why is None else (None, None)
         why = why or lens_why
         if why is not None:
             skipped[why] = skipped.get(why, 0) + 1
             continue
-        coefficients = _coefficients(props, xmp, what)
         ignored_coefficients += distortion is None and coefficients is not None and coefficients.any()
         frames.add(props.get("Coordinates", ABSOLUTE).strip().lower())
         camera, lens = pinhole_camera(distortion, camera, max_distortion_px, xmp, what)
@@ -259,11 +259,10 @@ def _coefficients(props: dict[str, str], xmp: Path, what: str) -> np.ndarray | N
     return None if key is None else _numbers(props, key, 6, xmp, what)
 
 
-def _distortion(props: dict[str, str], xmp: Path, what: str) -> tuple[Distortion | None, str | None]:
+def _distortion(props: dict[str, str], coefficients: np.ndarray | None) -> tuple[Distortion | None, str | None]:
     """``(distortion or None, None)``, or ``(None, why)`` for a lens scantex does not read. Coefficients all zero
     are no distortion whatever the model (RealityCapture's help's sample: ``division`` with zeros)."""
     model = props.get("DistortionModel", "").strip()
-    coefficients = _coefficients(props, xmp, what)
     if model.lower() in NO_LENS or (coefficients is not None and not coefficients.any()):
         return None, None
     if model.lower() not in BROWN:
