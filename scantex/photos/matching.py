@@ -82,7 +82,8 @@ class PhotoMatch:
     """correlation of the photo's band of detail with the texture's (the consensus'), in [-1, 1]; ``None``: no
     verdict (under :data:`MIN_PIXELS`, :data:`MIN_CONTRAST` or :data:`MIN_PHOTO_CONTRAST`)"""
     turned: float | None
-    """the same with the photo turned by 180 degrees"""
+    """the same with the photo turned by 180 degrees; ``None`` without a verdict, and where the photo agrees too
+    well as stored to be named upside down (:func:`could_be_turned`)"""
 
     def to_dict(self) -> dict:
         return {"photo": self.photo, "pixels": self.pixels,
@@ -103,15 +104,26 @@ def photo_match(scan: Scan, photos: PhotoSet, i: int, caster: RayCaster) -> Phot
     # away from its contours too (where a pose a little off sees the background)
     usable = ndimage.binary_erosion(covered, iterations=2)
     pixels = int(usable.sum())
-    reference = _band(_luma(texture), covered)[usable]
+    norms = _band_norms(covered)
+    reference = _band(_luma(texture), covered, norms)[usable]
     if pixels < MIN_PIXELS or reference.std() < MIN_CONTRAST:
         return PhotoMatch(i, pixels, None, None)
     luma = _photo_luma(photos, i, camera)
-    band = _band(luma, covered)[usable]
+    band = _band(luma, covered, norms)[usable]
     if band.std() < MIN_PHOTO_CONTRAST:
         return PhotoMatch(i, pixels, None, None)
-    turned = _band(luma[::-1, ::-1], covered)[usable]
-    return PhotoMatch(i, pixels, _correlation(band, reference), _correlation(turned, reference))
+    agreement = _correlation(band, reference)
+    if not could_be_turned(agreement):
+        return PhotoMatch(i, pixels, agreement, None)
+    turned = _band(luma[::-1, ::-1], covered, norms)[usable]
+    return PhotoMatch(i, pixels, agreement, _correlation(turned, reference))
+
+
+def could_be_turned(agreement: float) -> bool:
+    """Whether a photo agreeing ``agreement`` as stored could be named upside down: turned, a correlation is at
+    most 1, so one that agrees over ``1 - FLIPPED_MARGIN`` as stored is not measured turned (a room's hundreds of
+    photos, most of them agreeing well, then blur a third fewer images)."""
+    return agreement + FLIPPED_MARGIN <= 1.0
 
 
 @dataclass(frozen=True)
@@ -152,10 +164,11 @@ def _small_view(photos: PhotoSet, i: int, caster: RayCaster) -> _SmallView:
     hit = g.face_id >= 0
     usable = ndimage.binary_erosion(hit, iterations=2)
     luma = _photo_luma(photos, i, camera)
-    band = _band(luma, hit)
+    norms = _band_norms(hit)
+    band = _band(luma, hit, norms)
     values = band[usable]
     centre, spread = (float(values.mean()), float(values.std())) if values.size else (0.0, 0.0)
-    return _SmallView(camera, band, centre, spread, _band(luma[::-1, ::-1], hit)[usable],
+    return _SmallView(camera, band, centre, spread, _band(luma[::-1, ::-1], hit, norms)[usable],
                       np.where(hit, g.depth, np.inf).astype(np.float32), usable, np.unique(g.face_id[usable]))
 
 
@@ -207,7 +220,7 @@ def mismatched(matches: Sequence[PhotoMatch], against: str = "the scan's texture
     judged = [m for m in matches if m.agreement is not None]
     for m in judged:
         others = np.median([o.agreement for o in judged if o.photo != m.photo]) if len(judged) >= 3 else -1.0
-        if m.turned >= FLIPPED_AGREES and m.turned >= m.agreement + FLIPPED_MARGIN:
+        if m.turned is not None and m.turned >= FLIPPED_AGREES and m.turned >= m.agreement + FLIPPED_MARGIN:
             found[m.photo] = (f"turned by 180 degrees it agrees with {against} {m.turned:.2f}, as stored "
                               f"{m.agreement:.2f}: stored upside down?")
         elif others >= OTHERS_AGREE and m.agreement < MISMATCH:
@@ -266,19 +279,25 @@ def _luma(image: np.ndarray) -> np.ndarray:
     return image @ np.array([0.299, 0.587, 0.114], np.float32)
 
 
-def _band(luma: np.ndarray, covered: np.ndarray) -> np.ndarray:
-    """``(H, W) float32``: the band of ``luma``'s detail the check compares, between the blurs :data:`MATCH_BLUR`
-    and :data:`MATCH_BAND`, each a blur of the ``covered`` pixels alone (normalised convolution): the mesh's
-    border against the background, and what a photo shows beyond it, are no detail of the surface."""
+def _band_norms(covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normalised convolution's denominators of :func:`_band` for ``covered``: the blurs :data:`MATCH_BLUR` and
+    :data:`MATCH_BAND` of its weight (made once for the several images banded over one view)."""
     from scipy import ndimage
 
     weight = covered.astype(np.float32)
-    weighted = luma * weight
+    return tuple(np.maximum(ndimage.gaussian_filter(weight, sigma), 1e-6) for sigma in (MATCH_BLUR, MATCH_BAND))
 
-    def blur(sigma: float) -> np.ndarray:
-        return ndimage.gaussian_filter(weighted, sigma) / np.maximum(ndimage.gaussian_filter(weight, sigma), 1e-6)
 
-    return blur(MATCH_BLUR) - blur(MATCH_BAND)
+def _band(luma: np.ndarray, covered: np.ndarray, norms: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``(H, W) float32``: the band of ``luma``'s detail the check compares, between the blurs :data:`MATCH_BLUR`
+    and :data:`MATCH_BAND`, each a blur of the ``covered`` pixels alone (normalised convolution): the mesh's
+    border against the background, and what a photo shows beyond it, are no detail of the surface. ``norms``:
+    :func:`_band_norms` of ``covered``, when already made."""
+    from scipy import ndimage
+
+    fine, coarse = _band_norms(covered) if norms is None else norms
+    weighted = luma * covered.astype(np.float32)
+    return ndimage.gaussian_filter(weighted, MATCH_BLUR) / fine - ndimage.gaussian_filter(weighted, MATCH_BAND) / coarse
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:
