@@ -124,11 +124,31 @@ def tone_table(gamma: float | np.ndarray) -> np.ndarray:
 
 def toned(image: np.ndarray, gamma: float | np.ndarray) -> np.ndarray:
     """``image`` brought to the common tone curve: ``(h, w, 3)`` uint8 through :func:`tone_table`, float in
-    [0, 1] by the power itself."""
+    [0, 1] by the power itself. The table is looked up compiled (:mod:`scantex.jit`: a 1920x1080 photo in a few
+    milliseconds, where numpy's three gathers took about 19; photo mode tones each photo each time it is read),
+    or in numpy where numba is missing."""
     if image.dtype == np.uint8:
+        from scantex import jit
+
         table = tone_table(gamma)
-        return np.stack([table[image[..., c], c] for c in range(3)], axis=-1)
+        kernel = jit.compiled(_toned_kernel)
+        if kernel is None or image.ndim != 3 or image.shape[2] < 3:
+            return np.stack([table[image[..., c], c] for c in range(3)], axis=-1)
+        source = np.ascontiguousarray(image).view()
+        source.flags.writeable = False  # one type for the kernel, whether the photo came from the cache or not
+        out = np.empty((*image.shape[:2], 3), np.uint8)
+        kernel(source, table, out)
+        return out
     return np.power(np.clip(image, 0, 1), (1.0 / np.asarray(gamma, np.float32)).astype(np.float32))
+
+
+def _toned_kernel(image, table, out):
+    """:func:`toned`'s lookup, pixel by pixel: ``out (h, w, 3)`` the ``table (256, 3)`` entries of ``image``'s first
+    three channels."""
+    for y in range(image.shape[0]):
+        for x in range(image.shape[1]):
+            for c in range(3):
+                out[y, x, c] = table[image[y, x, c], c]
 
 
 def toned_view(view: PhotoView, gamma: float | np.ndarray) -> PhotoView:

@@ -57,6 +57,26 @@ def test_tone_table_keeps_black_and_white():
     np.testing.assert_array_equal(tone_table(0.7), np.repeat(table[:, :1], 3, axis=1))
 
 
+def test_toned_photos_are_the_same_compiled_and_in_numpy(monkeypatch):
+    """The tone table looked up by the compiled loop and by its numpy twin (numba missing): the same bytes, for a
+    photo as decoded (writable), as the cache keeps it (read-only), not contiguous, and with a fourth channel."""
+    from scantex import jit
+
+    rng = np.random.default_rng(0)
+    gamma = np.array([0.7, 1.0, 1.4])
+    photo = rng.integers(0, 256, (37, 53, 4), dtype=np.uint8)
+    kept = photo[..., :3].copy()
+    kept.flags.writeable = False
+    images = [photo[..., :3].copy(), kept, photo[:, ::2, :3], photo]
+    compiled = [toned(image, gamma) for image in images]
+    monkeypatch.setattr(jit, "compiled", lambda function: None)
+    for image, fast in zip(images, compiled):
+        twin = toned(image, gamma)
+        assert fast.shape == twin.shape == (*image.shape[:2], 3) and fast.dtype == np.uint8
+        np.testing.assert_array_equal(fast, twin)
+        np.testing.assert_array_equal(twin[..., 2], tone_table(gamma)[image[..., 2], 2])
+
+
 def test_a_photo_set_reads_its_photos_on_the_common_curve(tmp_path):
     scan = blocky_wall()
     photos, _ = toned_photos(tmp_path, scan, [1.0, 0.8])
