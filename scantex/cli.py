@@ -428,18 +428,20 @@ def enhance_summary(m: dict, around: dict[str, float] | None = None) -> str:
     """The terminal's summary of an enhance run's metrics; ``around``: seconds spent outside the run (reading the
     inputs, writing the outputs), said beside its time so that the times add up to what the user waited."""
     from scantex.photos.poses import corrections_summary
-    from scantex.report.html import blurred_words, fine_detail, left_out_words, repeated_words, undistorted_words
+    from scantex.report.html import (blurred_words, fine_detail, left_out_words, repeated_words, undistorted_words,
+                                     untextured_seams_words)
 
-    g = m["geometry"]
+    g, sv = m["geometry"], m["seam_visibility"]
+    # an untextured input's seams are 0 by construction: "0.00 -> 1.43" would read as seams made worse
+    seams = untextured_seams_words(m) or f"{sv['input']:.2f} -> {sv['enhanced']:.2f}"
     lines = [f"geometry: {'identical' if g['arrays_identical'] else 'CHANGED'} "
              f"({g['vertices'][1]:,} vertices, {g['faces'][1]:,} faces; Hausdorff "
              f"{g['distance']['hausdorff']:.3g}, mean distance {g['distance']['mean']:.3g})",
-             f"seam visibility: {m['seam_visibility']['input']:.2f} -> {m['seam_visibility']['enhanced']:.2f}"]
-    at_input = m["seam_visibility"].get("enhanced_at_input_seams")
-    if at_input is not None and round(at_input, 2) != round(m["seam_visibility"]["enhanced"], 2):
+             f"seam visibility: {seams}"]
+    at_input = sv.get("enhanced_at_input_seams")
+    if not untextured_seams_words(m) and at_input is not None and round(at_input, 2) != round(sv["enhanced"], 2):
         # a new layout (a kept one differs by a few faces charted apart: the same figure, said once)
-        lines[-1] += (f" along each layout's own seams; at the input's seams {m['seam_visibility']['input']:.2f} -> "
-                      f"{m['seam_visibility']['enhanced_at_input_seams']:.2f}")
+        lines[-1] += f" along each layout's own seams; at the input's seams {sv['input']:.2f} -> {at_input:.2f}"
     unmapped = m.get("uv", {}).get("unmapped") or {}
     if unmapped.get("charted"):
         lines.append(f"UV layout: {unmapped['charted']} faces it gave no texture space (every UV corner on one point, "

@@ -121,6 +121,17 @@ def undistorted_words(summary: dict) -> str:
             f"focal length {scale} times the photo's)")
 
 
+def untextured_seams_words(m: dict) -> str:
+    """The result's seam visibility in words where the input had no texture (a bare mesh textured from its photos):
+    ``""`` otherwise. An untextured input's seams are 0 by construction, so "0.00 -> 1.43" would read as seams
+    made worse; the result's own figure is said, with the one before seam blending."""
+    sv = m.get("seam_visibility")
+    if not sv or m.get("input", {}).get("textured", True):
+        return ""
+    before = f", {sv['before_blending']:.2f} before seam blending" if "before_blending" in sv else ""
+    return f"{sv['enhanced']:.2f} across the result's seams{before} (the input had no texture to compare)"
+
+
 def blurred_words(m: dict) -> str:
     """The photos named shaken or out of focus (``photos.blurred``) and what became of them, in words; ``""``:
     none."""
@@ -312,7 +323,9 @@ def _headline(m: dict) -> str:
         if said:
             rows.append((title, said, ""))
     sv = m.get("seam_visibility")
-    if sv:
+    if untextured_seams_words(m):
+        rows.append(("Seam visibility", untextured_seams_words(m)[:-1] + "; mean RGB step across seams, 0–255)", ""))
+    elif sv:
         rows.append(("Seam visibility", f"{sv['input']:.2f} → {sv['enhanced']:.2f} (mean RGB step across seams, "
                      "0–255)", "good" if sv["enhanced"] < sv["input"] else ""))
         if "enhanced_at_input_seams" in sv:

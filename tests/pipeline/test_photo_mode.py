@@ -322,6 +322,15 @@ def test_untextured_mesh_is_textured_from_photos(toy_demo, toy_photos):
     from scantex.cli import enhance_summary
 
     assert m["input"]["textured"] is False and "held out from the result only" not in enhance_summary(m)
+    # nor seams to compare: the result's own seam visibility is said, not "0.00 -> x", which reads as worse
+    sv = m["seam_visibility"]
+    assert sv["input"] == 0
+    said = enhance_summary(m)
+    assert f"seam visibility: {sv['enhanced']:.2f} across the result's seams" in said, said
+    assert "(the input had no texture to compare)" in said and f"{sv['input']:.2f} ->" not in said
+    from scantex.report.html import build_report
+
+    assert "the input had no texture to compare; mean RGB step across seams" in build_report(result)
     # a held-out photo that sees none of the mesh is not scored: the summary says so, in good English
     n = s["input"]["photos"]
     blind = {**m, "photos": {**m["photos"], "held_out": list(range(n + 1))}}
