@@ -27,7 +27,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, find_photo
+from scantex.photos.files import check_sizes, converts, find_photo, located
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -82,9 +82,7 @@ def load_bundler(path: str | Path, *, image_dir: str | Path | None = None,
             photo not found.
     """
     path = Path(path)
-    file = bundle_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no Bundler file (bundle.out) in it")
+    file = located(path, bundle_file, "no Bundler file (bundle.out) in it")
     if not is_bundle(file):
         raise ScanError(file, f"not a Bundler file (its first line is not '{HEADER}')")
     listed = list_file(file)

@@ -55,6 +55,15 @@ def folder_of(path: Path) -> Path:
     return folder
 
 
+def located(path: Path, finder: Callable[[Path], Path | None], missing: str) -> Path:
+    """``path`` itself, or the file ``finder`` finds in it when it is a folder; a ScanError saying ``missing`` (what
+    the folder lacks) when it finds none."""
+    file = finder(path) if path.is_dir() else path
+    if file is None:
+        raise ScanError(path, missing)
+    return file
+
+
 def load_frames_file(path: Path, default_name: str, what: str = "") -> tuple[Path, dict, list]:
     """The file (``default_name`` inside a folder), its JSON document and its non-empty ``frames`` list.
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, find_photo, load_json
+from scantex.photos.files import check_sizes, converts, find_photo, load_json, located
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -92,9 +92,7 @@ def load_meshroom(path: str | Path, *, image_dir: str | Path | None = None,
             another size than its intrinsics.
     """
     path = Path(path)
-    file = sfm_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no Meshroom cameras.sfm in it")
+    file = located(path, sfm_file, "no Meshroom cameras.sfm in it")
     doc = load_json(file)
     if not is_sfm(doc):
         raise ScanError(file, "not a Meshroom / AliceVision SfM file (no 'views' and 'intrinsics' lists)")

@@ -36,7 +36,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, load_xml
+from scantex.photos.files import check_sizes, converts, load_xml, located
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -89,9 +89,7 @@ def load_metashape(path: str | Path, *, image_dir: str | Path | None = None,
             size than its sensor's calibration.
     """
     path = Path(path)
-    xml = cameras_file(path) if path.is_dir() else path
-    if xml is None:
-        raise ScanError(path, "no Metashape cameras XML in it")
+    xml = located(path, cameras_file, "no Metashape cameras XML in it")
     chunk = _chunk(xml)
     sensors = {s.get("id"): _sensor(s, xml) for s in chunk.iterfind("sensors/sensor")}
     to_world = _transform(chunk.find("transform"), xml, "the chunk's transform")

@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, find_photo
+from scantex.photos.files import check_sizes, find_photo, located
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -64,9 +64,7 @@ def load_nvm(path: str | Path, *, image_dir: str | Path | None = None,
             found or of another size than its calibration says.
     """
     path = Path(path)
-    file = nvm_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no VisualSfM .nvm file in it")
+    file = located(path, nvm_file, "no VisualSfM .nvm file in it")
     if not is_nvm(file):
         raise ScanError(file, "not an N-View Match file (it does not start 'NVM_V3')")
     header, _, rest = file.read_text(encoding="utf-8", errors="replace").partition("\n")

@@ -35,7 +35,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, find_photo, load_json
+from scantex.photos.files import check_sizes, converts, find_photo, load_json, located
 from scantex.photos.photoset import Distortion, PhotoSet
 from scantex.views.camera import Camera
 
@@ -79,9 +79,7 @@ def load_openmvg(path: str | Path, *, image_dir: str | Path | None = None,
             not found or of another size than its intrinsics.
     """
     path = Path(path)
-    file = sfm_data_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no OpenMVG sfm_data.json in it")
+    file = located(path, sfm_data_file, "no OpenMVG sfm_data.json in it")
     if file.suffix.lower() == ".bin":
         raise ScanError(file, "OpenMVG's binary sfm_data: scantex reads its JSON (openMVG_main_ConvertSfM_DataFormat "
                               "-i sfm_data.bin -o sfm_data.json)")

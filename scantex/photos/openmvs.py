@@ -30,7 +30,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, world_to_camera_from
-from scantex.photos.files import check_sizes
+from scantex.photos.files import check_sizes, located
 from scantex.photos.photoset import PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -104,9 +104,7 @@ def load_openmvs(path: str | Path, *, image_dir: str | Path | None = None,
         ScanError: not a scene, a stream newer than scantex knows, no placed image, a photo not found.
     """
     path = Path(path)
-    file = scene_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no OpenMVS scene (.mvs) in it")
+    file = located(path, scene_file, "no OpenMVS scene (.mvs) in it")
     try:
         data = file.read_bytes()
     except OSError as e:

@@ -35,7 +35,7 @@ import numpy as np
 
 from scantex.errors import ScanError
 from scantex.photos.conventions import MAX_DISTORTION_PX, check_intrinsics, pinhole_camera, world_to_camera_from
-from scantex.photos.files import check_sizes, converts, find_photo, load_json, number
+from scantex.photos.files import check_sizes, converts, find_photo, load_json, located, number
 from scantex.photos.photoset import Distortion, PhotoSet, image_size
 from scantex.views.camera import Camera
 
@@ -100,9 +100,7 @@ def load_opensfm(path: str | Path, *, image_dir: str | Path | None = None,
             than its camera.
     """
     path = Path(path)
-    file = reconstruction_file(path) if path.is_dir() else path
-    if file is None:
-        raise ScanError(path, "no OpenSfM reconstruction.json in it (nor in its opensfm/)")
+    file = located(path, reconstruction_file, "no OpenSfM reconstruction.json in it (nor in its opensfm/)")
     doc = load_json(file)
     if not is_reconstruction(doc):
         raise ScanError(file, "not an OpenSfM reconstruction (a list of reconstructions with cameras and shots)")
